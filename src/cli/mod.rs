@@ -1,0 +1,76 @@
+//! The command-line front end: argument parsing and the subcommands. Each
+//! subcommand lives in its own file and calls the pure library modules.
+
+use clap::{Parser, Subcommand};
+
+pub mod init_cmd;
+pub mod synth_cmd;
+
+/// Command line of the `semdepth` binary.
+#[derive(Debug, Parser)]
+#[command(
+    name = "semdepth",
+    version,
+    about = "Depth of a tracked object from SEM stereo pairs"
+)]
+pub struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Write a synthetic SEM stereo sequence with ground truth (truth.json).
+    Synth(synth_cmd::SynthArgs),
+    /// Find the object in one image and print its initial contour as JSON.
+    Init(init_cmd::InitArgs),
+}
+
+/// A failed command: the message goes to stderr, the code is the exit status.
+#[derive(Debug)]
+pub struct CliError {
+    /// Process exit code (2: bad arguments or input, 3: nothing found, 1: other).
+    pub exit_code: i32,
+    /// Human-readable explanation.
+    pub message: String,
+}
+
+impl CliError {
+    /// An error caused by the user's input (exit code 2).
+    pub fn input(message: impl Into<String>) -> Self {
+        Self {
+            exit_code: 2,
+            message: message.into(),
+        }
+    }
+
+    /// An error with an explicit exit code.
+    pub fn with_code(exit_code: i32, message: impl Into<String>) -> Self {
+        Self {
+            exit_code,
+            message: message.into(),
+        }
+    }
+}
+
+impl std::fmt::Display for CliError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.message)
+    }
+}
+
+impl From<crate::imageio::ImageInputError> for CliError {
+    fn from(e: crate::imageio::ImageInputError) -> Self {
+        Self::input(format!("error[{}]: {e}", e.code()))
+    }
+}
+
+/// Runs a parsed command line.
+pub fn run(cli: Cli) -> Result<(), CliError> {
+    match cli.command {
+        Command::Synth(args) => synth_cmd::run(args),
+        Command::Init(args) => init_cmd::run(args),
+    }
+}

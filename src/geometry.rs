@@ -1,0 +1,364 @@
+//! Closed polygons: length, area, centroid, orientation, resampling, rigid
+//! transforms, point-in-polygon and rasterisation.
+//!
+//! Coordinates are pixels, x to the right and y down, with the centre of the
+//! top-left pixel at (0, 0). Because y points down, a polygon whose vertices
+//! run clockwise on screen has a positive signed area here.
+
+use serde::{Deserialize, Serialize};
+
+/// A point or vector in pixel coordinates.
+pub type Point = [f64; 2];
+
+/// A closed polygon: the last vertex connects back to the first.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(transparent)]
+pub struct Polygon {
+    /// Vertices in order; no repeated closing vertex.
+    pub points: Vec<Point>,
+}
+
+/// Area moments of a polygon's interior, from which centroid and principal
+/// axis follow (Green's theorem; exact for straight edges).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Moments {
+    /// Signed area (positive when the vertices run clockwise on screen).
+    pub area: f64,
+    /// First moments: integral of x and of y over the interior (signed).
+    pub mx: f64,
+    pub my: f64,
+    /// Second moments: integral of x^2, x*y and y^2 (signed).
+    pub mxx: f64,
+    pub mxy: f64,
+    pub myy: f64,
+}
+
+impl Polygon {
+    /// A polygon from its vertices.
+    pub fn new(points: Vec<Point>) -> Self {
+        Self { points }
+    }
+
+    /// A regular polygon approximating a circle (useful in tests).
+    pub fn circle(center: Point, radius: f64, vertices: usize) -> Self {
+        let points = (0..vertices)
+            .map(|i| {
+                let t = i as f64 / vertices as f64 * std::f64::consts::TAU;
+                [center[0] + radius * t.cos(), center[1] + radius * t.sin()]
+            })
+            .collect();
+        Self { points }
+    }
+
+    /// Number of vertices.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// True when there are no vertices.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// Iterates over the edges as (start, end) pairs, closing the loop.
+    pub fn edges(&self) -> impl Iterator<Item = (Point, Point)> + '_ {
+        let n = self.points.len();
+        (0..n).map(move |i| (self.points[i], self.points[(i + 1) % n]))
+    }
+
+    /// Perimeter length L.
+    pub fn length(&self) -> f64 {
+        self.edges().map(|(a, b)| dist(a, b)).sum()
+    }
+
+    /// Area moments of the interior (see [`Moments`]).
+    pub fn moments(&self) -> Moments {
+        let mut m = Moments {
+            area: 0.0,
+            mx: 0.0,
+            my: 0.0,
+            mxx: 0.0,
+            mxy: 0.0,
+            myy: 0.0,
+        };
+        for (a, b) in self.edges() {
+            let cross = a[0] * b[1] - b[0] * a[1];
+            m.area += cross;
+            m.mx += (a[0] + b[0]) * cross;
+            m.my += (a[1] + b[1]) * cross;
+            m.mxx += (a[0] * a[0] + a[0] * b[0] + b[0] * b[0]) * cross;
+            m.myy += (a[1] * a[1] + a[1] * b[1] + b[1] * b[1]) * cross;
+            m.mxy += (a[0] * b[1] + 2.0 * a[0] * a[1] + 2.0 * b[0] * b[1] + b[0] * a[1]) * cross;
+        }
+        m.area /= 2.0;
+        m.mx /= 6.0;
+        m.my /= 6.0;
+        m.mxx /= 12.0;
+        m.myy /= 12.0;
+        m.mxy /= 24.0;
+        m
+    }
+
+    /// Signed area (positive for clockwise-on-screen vertex order).
+    pub fn signed_area(&self) -> f64 {
+        self.edges().map(|(a, b)| a[0] * b[1] - b[0] * a[1]).sum::<f64>() / 2.0
+    }
+
+    /// Enclosed area A (always >= 0).
+    pub fn area(&self) -> f64 {
+        self.signed_area().abs()
+    }
+
+    /// Centroid of the enclosed area; for a degenerate polygon, the mean of
+    /// the vertices.
+    pub fn centroid(&self) -> Point {
+        let m = self.moments();
+        if m.area.abs() < 1e-12 {
+            return self.vertex_mean();
+        }
+        [m.mx / m.area, m.my / m.area]
+    }
+
+    /// Mean of the vertices.
+    pub fn vertex_mean(&self) -> Point {
+        let n = self.points.len().max(1) as f64;
+        let s = self
+            .points
+            .iter()
+            .fold([0.0, 0.0], |s, p| [s[0] + p[0], s[1] + p[1]]);
+        [s[0] / n, s[1] / n]
+    }
+
+    /// Orientation of the principal (long) axis of the enclosed area, in
+    /// radians in (-pi/2, pi/2], measured from +x towards +y (clockwise on
+    /// screen). Undefined (returns 0) for shapes without a long axis.
+    pub fn orientation(&self) -> f64 {
+        let m = self.moments();
+        if m.area.abs() < 1e-12 {
+            return 0.0;
+        }
+        let c = [m.mx / m.area, m.my / m.area];
+        let mu20 = m.mxx / m.area - c[0] * c[0];
+        let mu02 = m.myy / m.area - c[1] * c[1];
+        let mu11 = m.mxy / m.area - c[0] * c[1];
+        0.5 * (2.0 * mu11).atan2(mu20 - mu02)
+    }
+
+    /// Bounding box as (min x, min y, max x, max y).
+    pub fn bounds(&self) -> [f64; 4] {
+        self.points.iter().fold(
+            [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY],
+            |b, p| [b[0].min(p[0]), b[1].min(p[1]), b[2].max(p[0]), b[3].max(p[1])],
+        )
+    }
+
+    /// The polygon moved by `d`.
+    pub fn translated(&self, d: Point) -> Self {
+        Self::new(self.points.iter().map(|p| [p[0] + d[0], p[1] + d[1]]).collect())
+    }
+
+    /// The polygon rotated by `angle` radians (clockwise on screen) about `center`.
+    pub fn rotated_about(&self, center: Point, angle: f64) -> Self {
+        let (s, c) = angle.sin_cos();
+        Self::new(
+            self.points
+                .iter()
+                .map(|p| {
+                    let dx = p[0] - center[0];
+                    let dy = p[1] - center[1];
+                    [center[0] + c * dx - s * dy, center[1] + s * dx + c * dy]
+                })
+                .collect(),
+        )
+    }
+
+    /// The polygon scaled by `factor` about the origin (used to map a
+    /// contour found on a downsampled image back to full resolution).
+    pub fn scaled(&self, factor: f64, offset: Point) -> Self {
+        Self::new(
+            self.points
+                .iter()
+                .map(|p| [p[0] * factor + offset[0], p[1] * factor + offset[1]])
+                .collect(),
+        )
+    }
+
+    /// Resamples the outline to `n` vertices evenly spaced along its length,
+    /// starting at the first vertex.
+    pub fn resampled(&self, n: usize) -> Self {
+        let total = self.length();
+        if self.points.len() < 2 || n < 3 || total <= 0.0 {
+            return self.clone();
+        }
+        let step = total / n as f64;
+        let mut out = Vec::with_capacity(n);
+        let mut edges = self.edges();
+        let (mut a, mut b) = edges.next().expect("at least two vertices");
+        let mut edge_len = dist(a, b);
+        let mut along = 0.0; // distance walked into the current edge
+        for i in 0..n {
+            let mut remaining = if i == 0 { 0.0 } else { step };
+            // Move to the next edge while the step does not fit in this one.
+            while remaining > edge_len - along {
+                remaining -= edge_len - along;
+                match edges.next() {
+                    Some((na, nb)) => {
+                        (a, b) = (na, nb);
+                        edge_len = dist(a, b);
+                        along = 0.0;
+                    }
+                    None => {
+                        // Rounding at the very end of the loop.
+                        remaining = 0.0;
+                        along = edge_len;
+                    }
+                }
+            }
+            along += remaining;
+            let t = if edge_len > 0.0 { along / edge_len } else { 0.0 };
+            out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+        }
+        Self::new(out)
+    }
+
+    /// True when `p` lies inside (even-odd rule; points exactly on an edge
+    /// may go either way).
+    pub fn contains(&self, p: Point) -> bool {
+        let mut inside = false;
+        let n = self.points.len();
+        let mut j = n.wrapping_sub(1);
+        for i in 0..n {
+            let a = self.points[i];
+            let b = self.points[j];
+            if (a[1] > p[1]) != (b[1] > p[1]) {
+                let x = a[0] + (p[1] - a[1]) / (b[1] - a[1]) * (b[0] - a[0]);
+                if p[0] < x {
+                    inside = !inside;
+                }
+            }
+            j = i;
+        }
+        inside
+    }
+
+    /// A `width * height` row-major mask of the pixels whose centres lie
+    /// inside (even-odd rule, scan-line fill: O(pixels + edges * rows)).
+    pub fn rasterize(&self, width: u32, height: u32) -> Vec<bool> {
+        let (w, h) = (width as usize, height as usize);
+        let mut mask = vec![false; w * h];
+        let mut crossings: Vec<f64> = Vec::new();
+        for y in 0..h {
+            let py = y as f64;
+            crossings.clear();
+            for (a, b) in self.edges() {
+                if (a[1] > py) != (b[1] > py) {
+                    crossings.push(a[0] + (py - a[1]) / (b[1] - a[1]) * (b[0] - a[0]));
+                }
+            }
+            crossings.sort_by(|p, q| p.total_cmp(q));
+            for pair in crossings.chunks_exact(2) {
+                // Pixel centres x with pair[0] < x < pair[1] (approximately; a
+                // centre exactly on the left crossing counts as inside).
+                let start = pair[0].ceil().max(0.0) as usize;
+                let end_f = pair[1].ceil().min(w as f64);
+                if end_f <= 0.0 {
+                    continue;
+                }
+                let end = end_f as usize;
+                if start < end {
+                    mask[y * w + start..y * w + end].fill(true);
+                }
+            }
+        }
+        mask
+    }
+}
+
+/// Euclidean distance between two points.
+#[inline]
+pub fn dist(a: Point, b: Point) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+}
+
+/// Intersection over union of two equally sized masks (1.0 when both are empty).
+pub fn mask_iou(a: &[bool], b: &[bool]) -> f64 {
+    assert_eq!(a.len(), b.len(), "masks must have equal size");
+    let (mut inter, mut union) = (0usize, 0usize);
+    for (&p, &q) in a.iter().zip(b) {
+        inter += (p && q) as usize;
+        union += (p || q) as usize;
+    }
+    if union == 0 {
+        1.0
+    } else {
+        inter as f64 / union as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Polygon {
+        Polygon::new(vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    }
+
+    #[test]
+    fn rectangle_measures() {
+        let r = rect(2.0, 3.0, 12.0, 7.0);
+        assert!((r.area() - 40.0).abs() < 1e-12);
+        assert!((r.length() - 28.0).abs() < 1e-12);
+        let c = r.centroid();
+        assert!((c[0] - 7.0).abs() < 1e-12 && (c[1] - 5.0).abs() < 1e-12);
+        // Long axis along x.
+        assert!(r.orientation().abs() < 1e-12);
+        let rot = r.rotated_about(c, 0.3);
+        assert!((rot.orientation() - 0.3).abs() < 1e-9);
+        assert!((rot.area() - 40.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn circle_area_and_resampling() {
+        let c = Polygon::circle([50.0, 40.0], 20.0, 400);
+        assert!((c.area() - std::f64::consts::PI * 400.0).abs() < 1.0);
+        let r = c.resampled(37);
+        assert_eq!(r.len(), 37);
+        let spacing: Vec<f64> = r.edges().map(|(a, b)| dist(a, b)).collect();
+        let mean = spacing.iter().sum::<f64>() / spacing.len() as f64;
+        assert!(
+            spacing.iter().all(|s| (s - mean).abs() < 0.05 * mean),
+            "{spacing:?}"
+        );
+    }
+
+    #[test]
+    fn rasterize_matches_contains() {
+        let p = Polygon::new(vec![
+            [3.3, 2.2],
+            [30.7, 5.1],
+            [25.2, 28.9],
+            [14.0, 15.5],
+            [4.1, 24.6],
+        ]);
+        let mask = p.rasterize(40, 32);
+        let mut differ = 0;
+        for y in 0..32 {
+            for x in 0..40 {
+                if mask[y * 40 + x] != p.contains([x as f64, y as f64]) {
+                    differ += 1;
+                }
+            }
+        }
+        assert_eq!(differ, 0);
+        let count = mask.iter().filter(|&&m| m).count() as f64;
+        assert!((count - p.area()).abs() < 0.05 * p.area());
+    }
+
+    #[test]
+    fn iou_of_shifted_masks() {
+        let a = rect(0.0, 0.0, 10.0, 10.0).rasterize(20, 20);
+        let b = rect(5.0, 0.0, 15.0, 10.0).rasterize(20, 20);
+        let iou = mask_iou(&a, &b);
+        assert!((iou - 50.0 / 150.0).abs() < 1e-9, "{iou}");
+    }
+}
