@@ -1,0 +1,122 @@
+//! `semdepth init IMAGE`: run the automatic initialisation on one image and
+//! print the found object as JSON.
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::CliError;
+use crate::imageio::{read_file, DecodeLimits};
+use crate::init::{initialise, InitParams};
+
+/// Arguments of `semdepth init`.
+#[derive(Debug, Args)]
+pub struct InitArgs {
+    /// The image to search (PNG, TIFF, JPEG or BMP; 8 or 16 bit).
+    pub image: PathBuf,
+    /// Smallest expected object area in pixels.
+    #[arg(long)]
+    pub min_area: Option<f64>,
+    /// Largest expected object area in pixels.
+    #[arg(long)]
+    pub max_area: Option<f64>,
+    /// Region of interest as X,Y,WIDTH,HEIGHT in pixels.
+    #[arg(long, value_delimiter = ',', num_args = 4)]
+    pub roi: Option<Vec<u32>>,
+    /// Gaussian sigma in working pixels (default: adapts to the noise).
+    #[arg(long)]
+    pub sigma: Option<f32>,
+    /// Canny low threshold (0..1 grey levels per pixel; default: adaptive).
+    #[arg(long)]
+    pub low_threshold: Option<f32>,
+    /// Canny high threshold (default: adaptive).
+    #[arg(long)]
+    pub high_threshold: Option<f32>,
+    /// Dilation radius in working pixels (default: adapts to the image size).
+    #[arg(long)]
+    pub dilation_radius: Option<u8>,
+    /// Longest side of the working copy (the image is downsampled to fit).
+    #[arg(long, default_value_t = InitParams::default().working_max_side)]
+    pub working_max_side: u32,
+    /// Vertex spacing of the printed contour in pixels.
+    #[arg(long, default_value_t = InitParams::default().contour_spacing_px)]
+    pub contour_spacing: f64,
+    /// Leave out the contour points (print only centroid, area, bbox).
+    #[arg(long)]
+    pub no_contour: bool,
+    /// Also write the image with the found contour drawn on it (PNG).
+    #[arg(long, value_name = "PNG")]
+    pub overlay: Option<PathBuf>,
+}
+
+/// Runs `semdepth init`; exit code 3 when no object is found.
+pub fn run(args: InitArgs) -> Result<(), CliError> {
+    let frame = read_file(&args.image, &DecodeLimits::default())?;
+    let params = InitParams {
+        working_max_side: args.working_max_side,
+        sigma: args.sigma,
+        low_threshold: args.low_threshold,
+        high_threshold: args.high_threshold,
+        dilation_radius: args.dilation_radius,
+        min_area_px: args.min_area,
+        max_area_px: args.max_area,
+        roi: args.roi.map(|r| [r[0], r[1], r[2], r[3]]),
+        contour_spacing_px: args.contour_spacing,
+    };
+    let result = initialise(&frame, &params).map_err(|e| match e {
+        crate::init::InitError::InvalidParams(_) => CliError::input(format!("error[{}]: {e}", e.code())),
+        _ => CliError::with_code(
+            3,
+            format!(
+                "error[{}]: no object found in {}: {e}",
+                e.code(),
+                args.image.display()
+            ),
+        ),
+    })?;
+    let mut json = serde_json::json!({
+        "image": args.image.display().to_string(),
+        "width": frame.width,
+        "height": frame.height,
+        "centroid": result.centroid,
+        "area_px": result.area_px,
+        "bbox": result.bbox,
+        "diagnostics": result.diagnostics,
+    });
+    if !args.no_contour {
+        let rounded: Vec<[f64; 2]> = result
+            .contour
+            .points
+            .iter()
+            .map(|p| [(p[0] * 1000.0).round() / 1000.0, (p[1] * 1000.0).round() / 1000.0])
+            .collect();
+        json["contour"] = serde_json::json!(rounded);
+    }
+    if let Some(path) = &args.overlay {
+        write_overlay(&frame, &result.contour, path)?;
+    }
+    println!("{json}");
+    Ok(())
+}
+
+/// Draws the contour (white, with a black halo) over an 8-bit copy of the image.
+fn write_overlay(
+    frame: &crate::imageio::GrayFrame,
+    contour: &crate::geometry::Polygon,
+    path: &std::path::Path,
+) -> Result<(), CliError> {
+    use imageproc::drawing::draw_line_segment_mut;
+    let mut canvas = image::DynamicImage::ImageLuma8(frame.to_gray8()).to_rgb8();
+    for (a, b) in contour.edges() {
+        for (d, colour) in [(1.0, [0, 0, 0]), (0.0, [255, 64, 64])] {
+            let (a, b) = (
+                [a[0] as f32 + d, a[1] as f32 + d],
+                [b[0] as f32 + d, b[1] as f32 + d],
+            );
+            draw_line_segment_mut(&mut canvas, (a[0], a[1]), (b[0], b[1]), image::Rgb(colour));
+        }
+    }
+    canvas
+        .save(path)
+        .map_err(|e| CliError::with_code(1, format!("could not write overlay {}: {e}", path.display())))
+}

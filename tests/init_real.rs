@@ -1,0 +1,90 @@
+//! Initialisation on the real SEM images in `../shared/data/real/quartz/`,
+//! against an independently derived reference mask.
+
+mod common;
+
+use common::{mask_centroid, otsu_reference_mask, quartz_path};
+use semdepth::geometry::mask_iou;
+use semdepth::imageio::{read_file, DecodeLimits};
+use semdepth::init::{initialise, InitParams};
+
+/// Required overlap of the found region with the reference (issue #2).
+const MIN_IOU: f64 = 0.95;
+
+#[test]
+fn quartz_initial_region_matches_reference() {
+    let mut centroids = Vec::new();
+    for index in 1..=3 {
+        let frame = read_file(&quartz_path(index), &DecodeLimits::default()).unwrap();
+        let (w, h) = (frame.width as usize, frame.height as usize);
+        let reference = otsu_reference_mask(&frame.data, w, h, frame.max_value());
+
+        // Check the reference itself: a particle of plausible size, and its
+        // outline lies on strong gradients (mean gradient on the boundary far
+        // above the image's median gradient).
+        let ref_area = reference.iter().filter(|&&m| m).count() as f64;
+        let fraction = ref_area / (w * h) as f64;
+        assert!(
+            (0.3..0.7).contains(&fraction),
+            "reference covers {fraction:.3} of image {index}"
+        );
+        let (boundary_grad, median_grad) = boundary_gradient_ratio(&frame.data, &reference, w, h);
+        assert!(
+            boundary_grad > 3.0 * median_grad,
+            "reference boundary gradient {boundary_grad:.2} vs median {median_grad:.2} (image {index})"
+        );
+
+        let result = initialise(&frame, &InitParams::default()).unwrap();
+        let found = result.contour.rasterize(frame.width, frame.height);
+        let iou = mask_iou(&found, &reference);
+        eprintln!(
+            "Quarz_{index:02}: IoU {iou:.4}, area {:.0} px (reference {ref_area:.0}), centroid {:?}",
+            result.area_px, result.centroid
+        );
+        assert!(iou >= MIN_IOU, "image {index}: IoU {iou:.4} < {MIN_IOU}");
+        centroids.push((result.centroid, mask_centroid(&reference, w)));
+    }
+    // The particle moves about 27 px in x per tilt step (method note): both
+    // the reference and the initialisation see that.
+    for (k, expected) in [(1usize, 27.0), (2, 54.0)] {
+        let found = centroids[k].0[0] - centroids[0].0[0];
+        let reference = centroids[k].1[0] - centroids[0].1[0];
+        assert!(
+            (reference - expected).abs() < 4.0,
+            "reference shift 01->0{} = {reference:.1}",
+            k + 1
+        );
+        assert!(
+            (found - reference).abs() < 3.0,
+            "init shift {found:.1} vs reference {reference:.1}"
+        );
+    }
+}
+
+/// Mean central-difference gradient magnitude on the reference boundary,
+/// and the median over the whole image.
+fn boundary_gradient_ratio(data: &[u16], mask: &[bool], w: usize, h: usize) -> (f64, f64) {
+    let g = |x: usize, y: usize| {
+        let v = |xx: usize, yy: usize| data[yy * w + xx] as f64;
+        // Differences over 4 px: the particle's edge is a few pixels wide.
+        let dx = v((x + 4).min(w - 1), y) - v(x.saturating_sub(4), y);
+        let dy = v(x, (y + 4).min(h - 1)) - v(x, y.saturating_sub(4));
+        (dx * dx + dy * dy).sqrt()
+    };
+    let (mut sum, mut n) = (0.0, 0.0);
+    let mut all = Vec::with_capacity(w * h / 16);
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let i = y * w + x;
+            if x % 4 == 0 && y % 4 == 0 {
+                all.push(g(x, y));
+            }
+            if mask[i] && (!mask[i - 1] || !mask[i + 1] || !mask[i - w] || !mask[i + w]) {
+                sum += g(x, y);
+                n += 1.0;
+            }
+        }
+    }
+    all.sort_by(|a, b| a.total_cmp(b));
+    (sum / n, all[all.len() / 2])
+}
