@@ -7,12 +7,22 @@
 //! Module map (all pure: no async, no HTTP):
 //! - [`imageio`]: decode PNG/TIFF/JPEG/BMP and raw buffers into [`imageio::GrayFrame`]s, with limits.
 //! - [`geometry`]: closed polygons (length, area, centroid, orientation, resampling, rasterisation).
+//! - [`region`]: region sums in O(contour length) (Green's theorem on row prefix sums), window sums.
 //! - [`synth`]: synthetic SEM stereo sequences with ground truth.
+//! - [`energy`]: the region energy E = lambda L^k/A - D (two-region Poisson likelihood ratio).
+//! - [`fit`]: free (vertex-wise) and rigid (x, y, rotation) minimisation of the energy.
 //! - [`init`]: automatic initialisation (Gaussian, Canny, dilation, outer contours, size filter).
+//! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
+//! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
 //! - [`cli`]: the command-line front end used by `main.rs`.
 
+pub mod calib;
 pub mod cli;
+pub mod energy;
+pub mod fit;
 pub mod geometry;
 pub mod imageio;
 pub mod init;
+pub mod region;
 pub mod synth;
+pub mod tracker;

@@ -1,0 +1,1219 @@
+//! Calibrations: the mapping from stereo disparity (pixels) to height z (micrometres).
+//!
+//! This is the depth step of Dahmen, Wortmann, Tunnell and Fatikow, "Automatic
+//! extraction of distance information from stereo images using tracking data in
+//! the scanning electron microscope", ICINCO 2009, section 4 (restated in
+//! `docs/method.md`, section 3).
+//!
+//! The disparity of a tracked object is the 2-D vector
+//! `d = centroid_right - centroid_left` in pixels (x to the right, y down). Only
+//! its component across the beam's tilt axis carries height, see
+//! [`axis_component`]. Two models map that scalar `d_axis` to `z_um`:
+//!
+//! - **geometric** (eucentric tilt by a total vergence angle `alpha`, pixel size `s`
+//!   in micrometres per pixel at the specimen, reference disparity `d0` of the
+//!   height z = 0): `z = (d_axis - d0) * s / (2 sin(alpha / 2))`. At `alpha` = 10
+//!   degrees one pixel of disparity is 5.737 `s` of height.
+//! - **fit**: least squares through measured samples `(disparity_px, z_um)` (the
+//!   stage was moved to known heights), `z = c0 + c1 d (+ c2 d^2)`, with the residual
+//!   RMS and R^2 reported.
+//!
+//! Both carry `coefficients` `[c0, c1(, c2)]` so that `z_um = c0 + c1 d + c2 d^2`.
+//! A user submits a [`CalibrationSpec`]; [`build`] validates it, fits, and returns a
+//! [`Calibration`]. Every failure is a [`CalibError`] whose message says what was
+//! expected and whose [`CalibError::code`] is a stable snake_case string.
+//!
+//! The JSON form of a [`Calibration`] is the spec's fields plus the derived ones
+//! (`coefficients`, and for fits `residual_rms_um`, `r_squared`). On reading, the
+//! derived fields are optional and always recomputed from the parameters; when
+//! present they must agree with the recomputation (so a hand-edited coefficient
+//! is refused instead of silently ignored).
+
+use serde::{Deserialize, Serialize};
+
+/// Default tilt axis direction in degrees: the image y axis, so the height
+/// information is in the x component of the disparity.
+pub const DEFAULT_TILT_AXIS_DEG: f64 = 90.0;
+
+/// Default polynomial degree of a fitted calibration.
+pub const DEFAULT_FIT_DEGREE: u8 = 1;
+
+/// Disparities (pixels) closer together than this count as one distinct value
+/// when checking that a fit has enough distinct samples.
+pub const DISTINCT_DISPARITY_TOLERANCE_PX: f64 = 1e-6;
+
+/// Largest accepted magnitude of a disparity or reference disparity, pixels.
+pub const MAX_ABS_DISPARITY_PX: f64 = 1e6;
+
+/// Largest accepted magnitude of a sample height, micrometres (1 m).
+pub const MAX_ABS_Z_UM: f64 = 1e6;
+
+/// Most samples one fitted calibration may hold.
+pub const MAX_SAMPLES: usize = 10_000;
+
+/// Fits whose design matrix (after centring and scaling the disparities) has a
+/// 1-norm condition number above this are refused as degenerate.
+pub const MAX_CONDITION_NUMBER: f64 = 1e10;
+
+/// Top-level JSON keys that the HTTP service adds around a calibration
+/// (`id`, `name`, timestamps). [`from_json`] ignores them, so a calibration
+/// saved from `GET /v1/calibrations/{id}` can be read by the CLI.
+pub const SERVICE_METADATA_FIELDS: [&str; 4] = ["id", "name", "created_at", "updated_at"];
+
+/// Why a calibration could not be built, read or extended.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum CalibError {
+    /// A parameter or sample is out of range or not finite, or stored derived
+    /// fields disagree with the parameters.
+    #[error("{0}")]
+    Invalid(String),
+    /// Fewer distinct disparities than polynomial coefficients.
+    #[error(
+        "a fit of degree {degree} needs at least {needed} distinct disparity_px values, got {distinct} \
+         (from {samples} samples); add samples at other heights"
+    )]
+    TooFewSamples {
+        /// Requested polynomial degree.
+        degree: u8,
+        /// Distinct disparities needed (degree + 1).
+        needed: usize,
+        /// Distinct disparities present.
+        distinct: usize,
+        /// Number of samples present.
+        samples: usize,
+    },
+    /// More samples than [`MAX_SAMPLES`].
+    #[error("{samples} samples exceed the limit of {max} per calibration")]
+    TooManySamples {
+        /// Number of samples that was attempted.
+        samples: usize,
+        /// The limit.
+        max: usize,
+    },
+    /// The least-squares system is singular or ill-conditioned.
+    #[error("degenerate fit: {0}")]
+    DegenerateFit(String),
+    /// Samples were added to a calibration that is not a fit.
+    #[error("samples only apply to fitted calibrations (model \"fit\"), but this calibration is {model}")]
+    NotAFit {
+        /// The calibration's model name.
+        model: &'static str,
+    },
+    /// The JSON text is malformed or has the wrong shape (unknown or missing fields).
+    #[error("invalid calibration JSON: {0}")]
+    Json(String),
+}
+
+impl CalibError {
+    /// A stable snake_case code for APIs and logs.
+    pub fn code(&self) -> &'static str {
+        match self {
+            Self::Invalid(_) => "invalid_calibration",
+            Self::TooFewSamples { .. } => "too_few_samples",
+            Self::TooManySamples { .. } => "too_many_samples",
+            Self::DegenerateFit(_) => "degenerate_fit",
+            Self::NotAFit { .. } => "not_a_fit",
+            Self::Json(_) => "invalid_calibration_json",
+        }
+    }
+}
+
+/// One calibration measurement: the disparity across the tilt axis observed
+/// with the object at a known height.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Sample {
+    /// Disparity component across the tilt axis, pixels (see [`axis_component`]).
+    pub disparity_px: f64,
+    /// Known height, micrometres.
+    pub z_um: f64,
+}
+
+impl Sample {
+    /// A sample from a disparity (pixels) and a height (micrometres).
+    pub fn new(disparity_px: f64, z_um: f64) -> Self {
+        Self { disparity_px, z_um }
+    }
+}
+
+/// Parameters of a geometric calibration.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GeometricSpec {
+    /// Length of one pixel at the specimen, micrometres per pixel (> 0).
+    pub pixel_size_um: f64,
+    /// Total vergence angle between the two views, degrees (0 < vergence_deg <= 90).
+    pub vergence_deg: f64,
+    /// Disparity across the tilt axis at the reference height z = 0, pixels.
+    #[serde(default)]
+    pub reference_disparity_px: f64,
+    /// Direction of the tilt axis in the image, degrees from +x towards +y.
+    #[serde(default = "default_tilt_axis_deg")]
+    pub tilt_axis_deg: f64,
+}
+
+/// Parameters of a fitted calibration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FitSpec {
+    /// Polynomial degree, 1 (linear) or 2 (quadratic).
+    #[serde(default = "default_fit_degree")]
+    pub degree: u8,
+    /// The measurements to fit.
+    pub samples: Vec<Sample>,
+    /// Direction of the tilt axis in the image, degrees from +x towards +y; used
+    /// when the calibration is applied to 2-D disparities.
+    #[serde(default = "default_tilt_axis_deg")]
+    pub tilt_axis_deg: f64,
+}
+
+/// What a user submits to create a calibration; JSON
+/// `{"model": "geometric", "pixel_size_um": .., "vergence_deg": .., ...}` or
+/// `{"model": "fit", "degree": 1, "samples": [{"disparity_px": .., "z_um": ..}, ..]}`.
+/// Unknown fields are refused.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
+pub enum CalibrationSpec {
+    /// Eucentric tilt geometry.
+    Geometric(GeometricSpec),
+    /// Least-squares polynomial through samples.
+    Fit(FitSpec),
+}
+
+impl CalibrationSpec {
+    /// The model name as in JSON: `"geometric"` or `"fit"`.
+    pub fn model_name(&self) -> &'static str {
+        match self {
+            Self::Geometric(_) => "geometric",
+            Self::Fit(_) => "fit",
+        }
+    }
+
+    /// The tilt axis direction, degrees.
+    pub fn tilt_axis_deg(&self) -> f64 {
+        match self {
+            Self::Geometric(g) => g.tilt_axis_deg,
+            Self::Fit(f) => f.tilt_axis_deg,
+        }
+    }
+}
+
+/// Goodness of a least-squares fit.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitStats {
+    /// Root mean square of the residuals `z_i - z(d_i)` (divided by n, not n - p), micrometres.
+    pub residual_rms_um: f64,
+    /// Coefficient of determination `1 - SS_res / SS_tot`, clamped to [0, 1]. When
+    /// all heights are equal (SS_tot = 0) it is 0/0; we then report 1.0, because a
+    /// model with an intercept reproduces such data exactly (the fitted slope is 0).
+    pub r_squared: f64,
+}
+
+/// A validated calibration: its parameters, polynomial coefficients and, for
+/// fits, the fit statistics. Build one with [`build`] (or [`from_json`]); the
+/// fields are private so the coefficients always match the parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(into = "CalibrationWire", try_from = "CalibrationWire")]
+pub struct Calibration {
+    spec: CalibrationSpec,
+    /// Monomial coefficients `[c0, c1(, c2)]` in disparity pixels, as reported.
+    coefficients: Vec<f64>,
+    stats: Option<FitStats>,
+    /// Evaluation form: `z = sum_k b_k u^k` with `u = (d - center_px) / scale_px`.
+    /// Numerically better than the monomial form when the disparities are far
+    /// from 0 compared with their spread.
+    poly: CenteredPoly,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct CenteredPoly {
+    center_px: f64,
+    scale_px: f64,
+    coefficients: Vec<f64>,
+}
+
+impl CenteredPoly {
+    fn eval(&self, d: f64) -> f64 {
+        let u = (d - self.center_px) / self.scale_px;
+        self.coefficients.iter().rev().fold(0.0, |acc, &b| acc * u + b)
+    }
+
+    /// The same polynomial in powers of `d` itself.
+    fn monomial(&self) -> Vec<f64> {
+        let m = self.center_px;
+        let t = 1.0 / self.scale_px;
+        let b = &self.coefficients;
+        match b.len() {
+            2 => vec![b[0] - b[1] * m * t, b[1] * t],
+            3 => {
+                let t2 = t * t;
+                vec![
+                    b[0] - b[1] * m * t + b[2] * m * m * t2,
+                    b[1] * t - 2.0 * b[2] * m * t2,
+                    b[2] * t2,
+                ]
+            }
+            _ => unreachable!("degree is validated to 1 or 2"),
+        }
+    }
+}
+
+/// The component of a 2-D disparity `d = [dx, dy]` (pixels) across the tilt axis.
+///
+/// The tilt axis points along `(cos t, sin t)` with `t = tilt_axis_deg`, measured
+/// from +x towards +y (y down, so clockwise on screen). The component is taken
+/// along `n = (sin t, -cos t)`, the axis direction turned by -90 degrees:
+/// `d_axis = dx sin t - dy cos t`. Hence t = 90 (the default, axis = image y)
+/// gives `d_axis = dx`, t = 0 (axis = image x) gives `d_axis = -dy`, t = 180 gives
+/// `dy` and t = 270 gives `-dx`: turning the axis by 180 degrees flips the sign of
+/// the height. Multiples of 90 degrees are exact.
+pub fn axis_component(tilt_axis_deg: f64, d: [f64; 2]) -> f64 {
+    let (sin_t, cos_t) = sin_cos_deg(tilt_axis_deg);
+    d[0] * sin_t - d[1] * cos_t
+}
+
+/// Sine and cosine of an angle in degrees, exact at multiples of 90.
+fn sin_cos_deg(deg: f64) -> (f64, f64) {
+    let r = deg.rem_euclid(360.0);
+    if r == 0.0 {
+        (0.0, 1.0)
+    } else if r == 90.0 {
+        (1.0, 0.0)
+    } else if r == 180.0 {
+        (0.0, -1.0)
+    } else if r == 270.0 {
+        (-1.0, 0.0)
+    } else {
+        r.to_radians().sin_cos()
+    }
+}
+
+/// Validates a spec, fits it (for [`CalibrationSpec::Fit`]) and returns the calibration.
+///
+/// Refuses (see [`CalibError`]): non-finite or out-of-range parameters
+/// (`pixel_size_um` > 0, 0 < `vergence_deg` <= 90, `degree` 1 or 2, finite
+/// `tilt_axis_deg` with magnitude <= 360, |disparities| <= [`MAX_ABS_DISPARITY_PX`],
+/// |z_um| <= [`MAX_ABS_Z_UM`]); fits with fewer distinct disparities than
+/// coefficients (`too_few_samples`, however many samples there are); and
+/// ill-conditioned fits (`degenerate_fit`).
+pub fn build(spec: CalibrationSpec) -> Result<Calibration, CalibError> {
+    check_tilt_axis(spec.tilt_axis_deg())?;
+    match spec {
+        CalibrationSpec::Geometric(g) => build_geometric(g),
+        CalibrationSpec::Fit(f) => build_fit(f),
+    }
+}
+
+impl TryFrom<CalibrationSpec> for Calibration {
+    type Error = CalibError;
+
+    fn try_from(spec: CalibrationSpec) -> Result<Self, CalibError> {
+        build(spec)
+    }
+}
+
+/// Reads a calibration from JSON text: either a [`CalibrationSpec`] (what a user
+/// submits) or a full serialised [`Calibration`] (the spec plus `coefficients`
+/// and, for fits, `residual_rms_um` and `r_squared`). The keys in
+/// [`SERVICE_METADATA_FIELDS`] are ignored at the top level. The calibration is
+/// always rebuilt from its parameters; derived fields, when present, must agree.
+pub fn from_json(text: &str) -> Result<Calibration, CalibError> {
+    let mut value: serde_json::Value =
+        serde_json::from_str(text).map_err(|e| CalibError::Json(e.to_string()))?;
+    let Some(object) = value.as_object_mut() else {
+        return Err(CalibError::Json(
+            "expected a JSON object with \"model\": \"geometric\" or \"fit\"".into(),
+        ));
+    };
+    for key in SERVICE_METADATA_FIELDS {
+        object.remove(key);
+    }
+    let has_derived = ["coefficients", "residual_rms_um", "r_squared"]
+        .iter()
+        .any(|k| object.contains_key(*k));
+    if !has_derived {
+        // A plain spec: its own error messages name exactly the spec's fields.
+        let spec: CalibrationSpec =
+            serde_json::from_value(value).map_err(|e| CalibError::Json(e.to_string()))?;
+        return build(spec);
+    }
+    let wire: CalibrationWire = serde_json::from_value(value).map_err(|e| CalibError::Json(e.to_string()))?;
+    Calibration::try_from(wire)
+}
+
+impl Calibration {
+    /// The validated parameters this calibration was built from.
+    pub fn spec(&self) -> &CalibrationSpec {
+        &self.spec
+    }
+
+    /// The model name as in JSON: `"geometric"` or `"fit"`.
+    pub fn model_name(&self) -> &'static str {
+        self.spec.model_name()
+    }
+
+    /// True for a fitted calibration.
+    pub fn is_fit(&self) -> bool {
+        matches!(self.spec, CalibrationSpec::Fit(_))
+    }
+
+    /// Direction of the tilt axis in the image, degrees (see [`axis_component`]).
+    pub fn tilt_axis_deg(&self) -> f64 {
+        self.spec.tilt_axis_deg()
+    }
+
+    /// Coefficients `[c0, c1(, c2)]` with `z_um = c0 + c1 d + c2 d^2`, `d` the
+    /// disparity across the tilt axis in pixels; units um, um/px, um/px^2.
+    pub fn coefficients(&self) -> &[f64] {
+        &self.coefficients
+    }
+
+    /// Fit statistics (fits only).
+    pub fn fit_stats(&self) -> Option<FitStats> {
+        self.stats
+    }
+
+    /// RMS of the fit residuals in micrometres (fits only).
+    pub fn residual_rms_um(&self) -> Option<f64> {
+        self.stats.map(|s| s.residual_rms_um)
+    }
+
+    /// Coefficient of determination of the fit (fits only); see [`FitStats::r_squared`].
+    pub fn r_squared(&self) -> Option<f64> {
+        self.stats.map(|s| s.r_squared)
+    }
+
+    /// The samples of a fit (empty for a geometric calibration).
+    pub fn samples(&self) -> &[Sample] {
+        match &self.spec {
+            CalibrationSpec::Fit(f) => &f.samples,
+            CalibrationSpec::Geometric(_) => &[],
+        }
+    }
+
+    /// Height in micrometres for a 2-D disparity `[dx, dy]` in pixels: the
+    /// component across the tilt axis ([`axis_component`]) through
+    /// [`Calibration::z_from_axis`]. Non-finite input gives a non-finite result.
+    pub fn z_um(&self, disparity_px: [f64; 2]) -> f64 {
+        self.z_from_axis(axis_component(self.tilt_axis_deg(), disparity_px))
+    }
+
+    /// Height in micrometres for a disparity component across the tilt axis, pixels.
+    /// Evaluated in the centred form the fit was solved in, so it stays accurate
+    /// when the monomial coefficients are large and cancel.
+    pub fn z_from_axis(&self, d_axis_px: f64) -> f64 {
+        self.poly.eval(d_axis_px)
+    }
+
+    /// Appends a sample to a fitted calibration and refits. On error (invalid
+    /// sample, too many samples, degenerate refit, or a geometric calibration:
+    /// [`CalibError::NotAFit`]) the calibration is unchanged.
+    pub fn add_sample(&mut self, sample: Sample) -> Result<(), CalibError> {
+        let CalibrationSpec::Fit(fit) = &self.spec else {
+            return Err(CalibError::NotAFit {
+                model: self.model_name(),
+            });
+        };
+        let mut fit = fit.clone();
+        fit.samples.push(sample);
+        *self = build_fit(fit)?;
+        Ok(())
+    }
+}
+
+fn default_tilt_axis_deg() -> f64 {
+    DEFAULT_TILT_AXIS_DEG
+}
+
+fn default_fit_degree() -> u8 {
+    DEFAULT_FIT_DEGREE
+}
+
+fn check_tilt_axis(tilt_axis_deg: f64) -> Result<(), CalibError> {
+    if !(tilt_axis_deg.is_finite() && tilt_axis_deg.abs() <= 360.0) {
+        return Err(CalibError::Invalid(format!(
+            "invalid tilt_axis_deg {tilt_axis_deg} (expected a finite angle with -360 <= tilt_axis_deg <= 360)"
+        )));
+    }
+    Ok(())
+}
+
+fn build_geometric(g: GeometricSpec) -> Result<Calibration, CalibError> {
+    let bad = |m: String| Err(CalibError::Invalid(m));
+    if !(g.pixel_size_um.is_finite() && g.pixel_size_um > 0.0) {
+        return bad(format!(
+            "invalid pixel_size_um {} (expected a finite pixel_size_um > 0)",
+            g.pixel_size_um
+        ));
+    }
+    if !(g.vergence_deg > 0.0 && g.vergence_deg <= 90.0) {
+        return bad(format!(
+            "invalid vergence_deg {} (expected 0 < vergence_deg <= 90)",
+            g.vergence_deg
+        ));
+    }
+    if !(g.reference_disparity_px.is_finite() && g.reference_disparity_px.abs() <= MAX_ABS_DISPARITY_PX) {
+        return bad(format!(
+            "invalid reference_disparity_px {} (expected a finite value with magnitude <= {MAX_ABS_DISPARITY_PX:e})",
+            g.reference_disparity_px
+        ));
+    }
+    check_tilt_axis(g.tilt_axis_deg)?;
+    let um_per_px = g.pixel_size_um / (2.0 * (g.vergence_deg.to_radians() / 2.0).sin());
+    let poly = CenteredPoly {
+        center_px: g.reference_disparity_px,
+        scale_px: 1.0,
+        coefficients: vec![0.0, um_per_px],
+    };
+    Ok(Calibration {
+        spec: CalibrationSpec::Geometric(g),
+        coefficients: vec![-g.reference_disparity_px * um_per_px, um_per_px],
+        stats: None,
+        poly,
+    })
+}
+
+fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
+    if !(1..=2).contains(&f.degree) {
+        return Err(CalibError::Invalid(format!(
+            "invalid degree {} (expected 1 or 2)",
+            f.degree
+        )));
+    }
+    check_tilt_axis(f.tilt_axis_deg)?;
+    if f.samples.len() > MAX_SAMPLES {
+        return Err(CalibError::TooManySamples {
+            samples: f.samples.len(),
+            max: MAX_SAMPLES,
+        });
+    }
+    for (i, s) in f.samples.iter().enumerate() {
+        if !(s.disparity_px.is_finite() && s.disparity_px.abs() <= MAX_ABS_DISPARITY_PX) {
+            return Err(CalibError::Invalid(format!(
+                "invalid samples[{i}].disparity_px {} (expected a finite value with magnitude <= {MAX_ABS_DISPARITY_PX:e})",
+                s.disparity_px
+            )));
+        }
+        if !(s.z_um.is_finite() && s.z_um.abs() <= MAX_ABS_Z_UM) {
+            return Err(CalibError::Invalid(format!(
+                "invalid samples[{i}].z_um {} (expected a finite value with magnitude <= {MAX_ABS_Z_UM:e})",
+                s.z_um
+            )));
+        }
+    }
+    let needed = f.degree as usize + 1;
+    let d: Vec<f64> = f.samples.iter().map(|s| s.disparity_px).collect();
+    let z: Vec<f64> = f.samples.iter().map(|s| s.z_um).collect();
+    let distinct = count_distinct(&d, DISTINCT_DISPARITY_TOLERANCE_PX);
+    if distinct < needed {
+        return Err(CalibError::TooFewSamples {
+            degree: f.degree,
+            needed,
+            distinct,
+            samples: d.len(),
+        });
+    }
+    let (poly, stats) = fit_polynomial(&d, &z, f.degree)?;
+    let coefficients = poly.monomial();
+    if coefficients.iter().any(|c| !c.is_finite()) {
+        return Err(CalibError::DegenerateFit(
+            "the coefficients overflow; spread the samples over a wider range of disparities".into(),
+        ));
+    }
+    Ok(Calibration {
+        spec: CalibrationSpec::Fit(f),
+        coefficients,
+        stats: Some(stats),
+        poly,
+    })
+}
+
+/// Number of groups of values, where sorted neighbours closer than `tol` join a group.
+fn count_distinct(values: &[f64], tol: f64) -> usize {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let mut count = 0;
+    let mut last = f64::NEG_INFINITY;
+    for x in v {
+        if x - last > tol {
+            count += 1;
+        }
+        last = x;
+    }
+    count
+}
+
+/// Least squares `z = sum_k b_k u^k`, `u = (d - mean d) / max |d - mean d|`, by
+/// Householder QR of the design matrix (no normal equations).
+fn fit_polynomial(d: &[f64], z: &[f64], degree: u8) -> Result<(CenteredPoly, FitStats), CalibError> {
+    let n = d.len();
+    let p = degree as usize + 1;
+    let center_px = d.iter().sum::<f64>() / n as f64;
+    let scale_px = d.iter().map(|x| (x - center_px).abs()).fold(0.0, f64::max);
+    if scale_px.is_nan() || scale_px <= 0.0 {
+        return Err(CalibError::DegenerateFit(
+            "all disparity_px values are equal".into(),
+        ));
+    }
+    let u: Vec<f64> = d.iter().map(|x| (x - center_px) / scale_px).collect();
+    // Columns of the design matrix: 1, u, u^2.
+    let mut cols: Vec<Vec<f64>> = (0..p)
+        .map(|k| u.iter().map(|x| x.powi(k as i32)).collect())
+        .collect();
+    let mut y = z.to_vec();
+    for k in 0..p {
+        let norm = cols[k][k..].iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm == 0.0 {
+            return Err(singular());
+        }
+        let alpha = if cols[k][k] > 0.0 { -norm } else { norm };
+        let mut v: Vec<f64> = cols[k][k..].to_vec();
+        v[0] -= alpha;
+        let vv: f64 = v.iter().map(|x| x * x).sum();
+        if vv > 0.0 {
+            let reflect = |c: &mut [f64]| {
+                let s = 2.0 * v.iter().zip(c.iter()).map(|(a, b)| a * b).sum::<f64>() / vv;
+                c.iter_mut().zip(&v).for_each(|(ci, vi)| *ci -= s * vi);
+            };
+            for col in cols.iter_mut().skip(k) {
+                reflect(&mut col[k..]);
+            }
+            reflect(&mut y[k..]);
+        }
+    }
+    // R is upper triangular: r[i][j] = cols[j][i] for i <= j.
+    let r = |i: usize, j: usize| cols[j][i];
+    let cond = condition_number_1(p, &r);
+    if cond.is_nan() || cond > MAX_CONDITION_NUMBER {
+        return Err(CalibError::DegenerateFit(format!(
+            "the design matrix is ill-conditioned (condition number {cond:.3e} > {MAX_CONDITION_NUMBER:e}): the \
+             disparity_px values are too close together for a degree-{degree} fit; spread the samples over a \
+             wider range of heights"
+        )));
+    }
+    let mut b = vec![0.0; p];
+    for i in (0..p).rev() {
+        let s: f64 = (i + 1..p).map(|j| r(i, j) * b[j]).sum();
+        b[i] = (y[i] - s) / r(i, i);
+    }
+    let poly = CenteredPoly {
+        center_px,
+        scale_px,
+        coefficients: b,
+    };
+    let ss_res: f64 = d
+        .iter()
+        .zip(z)
+        .map(|(&di, &zi)| (zi - poly.eval(di)).powi(2))
+        .sum();
+    let z_mean = z.iter().sum::<f64>() / n as f64;
+    let ss_tot: f64 = z.iter().map(|zi| (zi - z_mean).powi(2)).sum();
+    let z_max = z.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    // Sums of squares at the level of rounding noise count as zero.
+    let noise = n as f64 * (16.0 * f64::EPSILON * z_max).powi(2);
+    let r_squared = if ss_tot <= noise {
+        1.0
+    } else {
+        (1.0 - ss_res / ss_tot).clamp(0.0, 1.0)
+    };
+    let residual_rms_um = (ss_res / n as f64).sqrt();
+    if !residual_rms_um.is_finite() {
+        return Err(singular());
+    }
+    Ok((
+        poly,
+        FitStats {
+            residual_rms_um,
+            r_squared,
+        },
+    ))
+}
+
+fn singular() -> CalibError {
+    CalibError::DegenerateFit(
+        "the design matrix is singular; spread the samples over a wider range of heights".into(),
+    )
+}
+
+/// 1-norm condition number of a p x p upper-triangular matrix given by `r(i, j)`;
+/// infinite when a diagonal entry is zero.
+fn condition_number_1(p: usize, r: &dyn Fn(usize, usize) -> f64) -> f64 {
+    if (0..p).any(|i| r(i, i) == 0.0) {
+        return f64::INFINITY;
+    }
+    let col_norm = |m: &dyn Fn(usize, usize) -> f64| {
+        (0..p)
+            .map(|j| (0..p).map(|i| m(i, j).abs()).sum::<f64>())
+            .fold(0.0, f64::max)
+    };
+    // Inverse by back substitution, column by column.
+    let mut inv = vec![vec![0.0; p]; p];
+    for (j, inv_col) in inv.iter_mut().enumerate() {
+        for i in (0..p).rev() {
+            let e = if i == j { 1.0 } else { 0.0 };
+            let s: f64 = (i + 1..p).map(|k| r(i, k) * inv_col[k]).sum();
+            inv_col[i] = (e - s) / r(i, i);
+        }
+    }
+    col_norm(r) * col_norm(&|i, j| inv[j][i])
+}
+
+/// The JSON form of a [`Calibration`]: the spec's fields plus the derived ones,
+/// which are optional on input (recomputed, and checked when present).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
+enum CalibrationWire {
+    Geometric {
+        pixel_size_um: f64,
+        vergence_deg: f64,
+        #[serde(default)]
+        reference_disparity_px: f64,
+        #[serde(default = "default_tilt_axis_deg")]
+        tilt_axis_deg: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        coefficients: Option<Vec<f64>>,
+    },
+    Fit {
+        #[serde(default = "default_fit_degree")]
+        degree: u8,
+        samples: Vec<Sample>,
+        #[serde(default = "default_tilt_axis_deg")]
+        tilt_axis_deg: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        coefficients: Option<Vec<f64>>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        residual_rms_um: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        r_squared: Option<f64>,
+    },
+}
+
+impl From<Calibration> for CalibrationWire {
+    fn from(c: Calibration) -> Self {
+        match c.spec {
+            CalibrationSpec::Geometric(g) => Self::Geometric {
+                pixel_size_um: g.pixel_size_um,
+                vergence_deg: g.vergence_deg,
+                reference_disparity_px: g.reference_disparity_px,
+                tilt_axis_deg: g.tilt_axis_deg,
+                coefficients: Some(c.coefficients),
+            },
+            CalibrationSpec::Fit(f) => Self::Fit {
+                degree: f.degree,
+                samples: f.samples,
+                tilt_axis_deg: f.tilt_axis_deg,
+                coefficients: Some(c.coefficients),
+                residual_rms_um: c.stats.map(|s| s.residual_rms_um),
+                r_squared: c.stats.map(|s| s.r_squared),
+            },
+        }
+    }
+}
+
+impl TryFrom<CalibrationWire> for Calibration {
+    type Error = CalibError;
+
+    fn try_from(w: CalibrationWire) -> Result<Self, CalibError> {
+        let (spec, coefficients, rms, r2) = match w {
+            CalibrationWire::Geometric {
+                pixel_size_um,
+                vergence_deg,
+                reference_disparity_px,
+                tilt_axis_deg,
+                coefficients,
+            } => (
+                CalibrationSpec::Geometric(GeometricSpec {
+                    pixel_size_um,
+                    vergence_deg,
+                    reference_disparity_px,
+                    tilt_axis_deg,
+                }),
+                coefficients,
+                None,
+                None,
+            ),
+            CalibrationWire::Fit {
+                degree,
+                samples,
+                tilt_axis_deg,
+                coefficients,
+                residual_rms_um,
+                r_squared,
+            } => (
+                CalibrationSpec::Fit(FitSpec {
+                    degree,
+                    samples,
+                    tilt_axis_deg,
+                }),
+                coefficients,
+                residual_rms_um,
+                r_squared,
+            ),
+        };
+        let cal = build(spec)?;
+        if let Some(stored) = coefficients {
+            let scale = cal.coefficients.iter().fold(1.0_f64, |m, c| m.max(c.abs()));
+            let agrees = stored.len() == cal.coefficients.len()
+                && stored
+                    .iter()
+                    .zip(&cal.coefficients)
+                    .all(|(a, b)| close(*a, *b, 1e-12 * scale));
+            if !agrees {
+                return Err(CalibError::Invalid(format!(
+                    "coefficients {stored:?} do not match the parameters (recomputed {:?}); remove \
+                     `coefficients` to have them recomputed",
+                    cal.coefficients
+                )));
+            }
+        }
+        if let Some(stats) = cal.stats {
+            let z_scale = 1.0 + cal.samples().iter().fold(0.0_f64, |m, s| m.max(s.z_um.abs()));
+            if let Some(stored) = rms {
+                if !close(stored, stats.residual_rms_um, 1e-9 * z_scale) {
+                    return Err(CalibError::Invalid(format!(
+                        "residual_rms_um {stored} does not match the samples (recomputed {})",
+                        stats.residual_rms_um
+                    )));
+                }
+            }
+            if let Some(stored) = r2 {
+                if !close(stored, stats.r_squared, 1e-9) {
+                    return Err(CalibError::Invalid(format!(
+                        "r_squared {stored} does not match the samples (recomputed {})",
+                        stats.r_squared
+                    )));
+                }
+            }
+        }
+        Ok(cal)
+    }
+}
+
+/// `a` and `b` agree to a relative 1e-6 or within `abs_tol`.
+fn close(a: f64, b: f64, abs_tol: f64) -> bool {
+    let diff = (a - b).abs();
+    diff <= abs_tol || diff <= 1e-6 * a.abs().max(b.abs())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    fn geometric(pixel_size_um: f64, vergence_deg: f64, d0: f64, tilt: f64) -> Calibration {
+        build(CalibrationSpec::Geometric(GeometricSpec {
+            pixel_size_um,
+            vergence_deg,
+            reference_disparity_px: d0,
+            tilt_axis_deg: tilt,
+        }))
+        .unwrap()
+    }
+
+    fn fit_spec(degree: u8, samples: Vec<Sample>) -> CalibrationSpec {
+        CalibrationSpec::Fit(FitSpec {
+            degree,
+            samples,
+            tilt_axis_deg: DEFAULT_TILT_AXIS_DEG,
+        })
+    }
+
+    fn samples_of(d: &[f64], f: impl Fn(f64) -> f64) -> Vec<Sample> {
+        d.iter().map(|&x| Sample::new(x, f(x))).collect()
+    }
+
+    fn rel_close(a: f64, b: f64, rel: f64) -> bool {
+        (a - b).abs() <= rel * a.abs().max(b.abs()).max(1e-300)
+    }
+
+    #[test]
+    fn geometric_ten_degrees_one_pixel_is_5_737_um() {
+        let cal = geometric(1.0, 10.0, 0.0, 90.0);
+        let z = cal.z_from_axis(1.0);
+        assert!((z - 5.737).abs() < 5e-4, "{z}");
+        assert!(rel_close(z, 1.0 / (2.0 * 5f64.to_radians().sin()), 1e-15));
+        assert_eq!(cal.coefficients(), &[0.0, z]);
+        assert_eq!(cal.z_um([1.0, 123.0]), z, "tilt axis 90: only dx counts");
+        assert!((cal.z_from_axis(0.05) - 0.29).abs() < 5e-3, "0.05 px is 0.29 s");
+        assert_eq!(cal.model_name(), "geometric");
+        assert!(cal.fit_stats().is_none() && cal.samples().is_empty());
+    }
+
+    #[test]
+    fn geometric_reference_disparity_offsets_zero() {
+        let cal = geometric(0.5, 6.0, 2.5, 90.0);
+        let k = 0.5 / (2.0 * 3f64.to_radians().sin());
+        assert_eq!(cal.z_from_axis(2.5), 0.0);
+        assert!(rel_close(cal.z_from_axis(3.5), k, 1e-14));
+        assert!(rel_close(cal.z_from_axis(1.5), -k, 1e-14));
+        let c = cal.coefficients();
+        assert!(rel_close(c[1], k, 1e-15) && rel_close(c[0], -2.5 * k, 1e-15));
+        for d in [-10.0, 0.0, 7.25] {
+            assert!((c[0] + c[1] * d - cal.z_from_axis(d)).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn axis_component_sign_convention() {
+        let d = [3.0, -2.0];
+        assert_eq!(axis_component(90.0, d), 3.0);
+        assert_eq!(axis_component(0.0, d), 2.0, "axis along x: -dy");
+        assert_eq!(axis_component(180.0, d), -2.0, "dy");
+        assert_eq!(axis_component(270.0, d), -3.0, "-dx");
+        assert_eq!(axis_component(-90.0, d), -3.0);
+        assert_eq!(axis_component(-180.0, d), -2.0);
+        assert_eq!(axis_component(450.0, d), 3.0);
+        let s = 45f64.to_radians().sin();
+        assert!((axis_component(45.0, d) - (3.0 * s + 2.0 * s)).abs() < 1e-12);
+        // Tilt axis 0 deg: the calibration uses -dy.
+        let cal = geometric(1.0, 10.0, 0.0, 0.0);
+        assert_eq!(cal.z_um([100.0, -1.0]), cal.z_from_axis(1.0));
+        assert_eq!(cal.z_um([100.0, 2.0]), cal.z_from_axis(-2.0));
+    }
+
+    #[test]
+    fn linear_fit_recovers_exact_coefficients() {
+        let d = [-2.0, -1.0, -0.5, 0.0, 1.0, 2.0, 3.5];
+        let cal = build(fit_spec(1, samples_of(&d, |x| 3.0 + 40.0 * x))).unwrap();
+        let c = cal.coefficients();
+        assert_eq!(c.len(), 2);
+        assert!((c[0] - 3.0).abs() < 1e-12 && (c[1] - 40.0).abs() < 1e-12, "{c:?}");
+        let stats = cal.fit_stats().unwrap();
+        assert!(stats.residual_rms_um < 1e-12);
+        assert_eq!(stats.r_squared, 1.0);
+        assert!((cal.z_um([0.25, 9.0]) - 13.0).abs() < 1e-12);
+        assert_eq!(cal.model_name(), "fit");
+    }
+
+    #[test]
+    fn quadratic_fit_recovers_c2() {
+        let d: Vec<f64> = (0..9).map(|i| -4.0 + i as f64).collect();
+        let cal = build(fit_spec(2, samples_of(&d, |x| -1.5 + 12.0 * x + 0.75 * x * x))).unwrap();
+        let c = cal.coefficients();
+        assert_eq!(c.len(), 3);
+        assert!((c[0] + 1.5).abs() < 1e-12);
+        assert!((c[1] - 12.0).abs() < 1e-12);
+        assert!((c[2] - 0.75).abs() < 1e-12, "{c:?}");
+        assert!(cal.residual_rms_um().unwrap() < 1e-12);
+    }
+
+    #[test]
+    fn noisy_fit_has_plausible_rms_and_r_squared() {
+        // Like the paper's 60x data: ~4 px over 400 um, with 2 um of height noise.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let noise = Normal::new(0.0, 2.0).unwrap();
+        let samples: Vec<Sample> = (0..41)
+            .map(|i| {
+                let d = 10.0 + 0.1 * i as f64;
+                Sample::new(d, -1000.0 + 100.0 * d + noise.sample(&mut rng))
+            })
+            .collect();
+        let cal = build(fit_spec(1, samples)).unwrap();
+        let stats = cal.fit_stats().unwrap();
+        assert!(
+            stats.residual_rms_um > 1.2 && stats.residual_rms_um < 2.8,
+            "{stats:?}"
+        );
+        assert!(stats.r_squared > 0.999 && stats.r_squared < 1.0, "{stats:?}");
+        assert!(
+            (cal.coefficients()[1] - 100.0).abs() < 2.0,
+            "{:?}",
+            cal.coefficients()
+        );
+    }
+
+    #[test]
+    fn refuses_too_few_distinct_disparities() {
+        let err = build(fit_spec(1, samples_of(&[2.0; 10], |_| 5.0))).unwrap_err();
+        assert_eq!(err.code(), "too_few_samples");
+        assert_eq!(
+            err,
+            CalibError::TooFewSamples {
+                degree: 1,
+                needed: 2,
+                distinct: 1,
+                samples: 10
+            }
+        );
+        assert!(
+            err.to_string().contains("at least 2 distinct disparity_px"),
+            "{err}"
+        );
+
+        let d: Vec<f64> = (0..12).map(|i| if i % 2 == 0 { 1.0 } else { 4.0 }).collect();
+        let err = build(fit_spec(2, samples_of(&d, |x| x * 3.0 + (x * 7.0).sin()))).unwrap_err();
+        assert_eq!(err.code(), "too_few_samples");
+        assert!(matches!(
+            err,
+            CalibError::TooFewSamples {
+                distinct: 2,
+                needed: 3,
+                samples: 12,
+                ..
+            }
+        ));
+
+        // Values closer than the tolerance are one distinct disparity.
+        let err = build(fit_spec(1, samples_of(&[1.0, 1.0 + 1e-9], |x| x))).unwrap_err();
+        assert_eq!(err.code(), "too_few_samples");
+        assert_eq!(build(fit_spec(1, vec![])).unwrap_err().code(), "too_few_samples");
+        // But two distinct disparities are enough for a line.
+        assert!(build(fit_spec(1, samples_of(&[1.0, 2.0], |x| x))).is_ok());
+    }
+
+    #[test]
+    fn refuses_ill_conditioned_fit() {
+        // Three distinct disparities, two of them 2e-6 px apart over a 2e6 px range.
+        let d = [-1e6, -1e6 + 2e-6, 1e6];
+        let err = build(fit_spec(2, samples_of(&d, |x| x * 1e-3))).unwrap_err();
+        assert_eq!(err.code(), "degenerate_fit", "{err}");
+        assert!(err.to_string().contains("ill-conditioned"), "{err}");
+    }
+
+    #[test]
+    fn refuses_invalid_and_non_finite_inputs() {
+        let geo = |s: f64, v: f64, d0: f64, t: f64| {
+            build(CalibrationSpec::Geometric(GeometricSpec {
+                pixel_size_um: s,
+                vergence_deg: v,
+                reference_disparity_px: d0,
+                tilt_axis_deg: t,
+            }))
+            .unwrap_err()
+        };
+        let err = geo(1.0, 0.0, 0.0, 90.0);
+        assert_eq!(err.code(), "invalid_calibration");
+        assert_eq!(
+            err.to_string(),
+            "invalid vergence_deg 0 (expected 0 < vergence_deg <= 90)"
+        );
+        assert!(geo(1.0, 90.5, 0.0, 90.0).to_string().contains("vergence_deg"));
+        assert!(geo(1.0, f64::NAN, 0.0, 90.0).to_string().contains("vergence_deg"));
+        assert!(geo(0.0, 5.0, 0.0, 90.0).to_string().contains("pixel_size_um > 0"));
+        assert!(geo(f64::INFINITY, 5.0, 0.0, 90.0)
+            .to_string()
+            .contains("pixel_size_um"));
+        assert!(geo(-1.0, 5.0, 0.0, 90.0).to_string().contains("pixel_size_um"));
+        assert!(geo(1.0, 5.0, f64::NAN, 90.0)
+            .to_string()
+            .contains("reference_disparity_px"));
+        assert!(geo(1.0, 5.0, 0.0, f64::NAN).to_string().contains("tilt_axis_deg"));
+        assert!(build(CalibrationSpec::Geometric(GeometricSpec {
+            pixel_size_um: 1.0,
+            vergence_deg: 90.0,
+            reference_disparity_px: 0.0,
+            tilt_axis_deg: 90.0,
+        }))
+        .is_ok());
+
+        let good = samples_of(&[0.0, 1.0, 2.0, 3.0], |x| 2.0 * x);
+        for (i, bad) in [
+            Sample::new(f64::NAN, 1.0),
+            Sample::new(f64::INFINITY, 1.0),
+            Sample::new(1.5, f64::NAN),
+            Sample::new(1.5, f64::NEG_INFINITY),
+            Sample::new(1e7, 1.0),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let mut s = good.clone();
+            s.push(bad);
+            let err = build(fit_spec(1, s)).unwrap_err();
+            assert_eq!(err.code(), "invalid_calibration", "case {i}: {err}");
+            assert!(err.to_string().contains("samples[4]"), "case {i}: {err}");
+        }
+        for degree in [0, 3] {
+            let err = build(fit_spec(degree, good.clone())).unwrap_err();
+            assert_eq!(
+                err.to_string(),
+                format!("invalid degree {degree} (expected 1 or 2)")
+            );
+        }
+        let too_many = samples_of(&vec![1.0; MAX_SAMPLES + 1], |x| x);
+        assert_eq!(
+            build(fit_spec(1, too_many)).unwrap_err().code(),
+            "too_many_samples"
+        );
+    }
+
+    #[test]
+    fn all_equal_heights_fit_with_r_squared_one() {
+        let cal = build(fit_spec(1, samples_of(&[0.1, 0.7, 1.3, 2.2], |_| 0.3))).unwrap();
+        let stats = cal.fit_stats().unwrap();
+        assert_eq!(stats.r_squared, 1.0);
+        assert!(stats.residual_rms_um < 1e-15);
+        assert!(cal.coefficients()[1].abs() < 1e-14);
+        assert!((cal.z_from_axis(5.0) - 0.3).abs() < 1e-13);
+    }
+
+    #[test]
+    fn add_sample_refits() {
+        let mut cal = build(fit_spec(1, samples_of(&[0.0, 1.0], |x| 10.0 * x))).unwrap();
+        assert!((cal.coefficients()[1] - 10.0).abs() < 1e-12);
+        assert_eq!(cal.r_squared(), Some(1.0));
+        cal.add_sample(Sample::new(2.0, 26.0)).unwrap();
+        assert_eq!(cal.samples().len(), 3);
+        // Least squares through (0,0), (1,10), (2,26): slope 13, intercept -1.
+        let c = cal.coefficients();
+        assert!((c[0] + 1.0).abs() < 1e-12 && (c[1] - 13.0).abs() < 1e-12, "{c:?}");
+        assert!(cal.residual_rms_um().unwrap() > 0.5);
+        assert!(cal.r_squared().unwrap() < 1.0);
+
+        // A failed add leaves the calibration unchanged.
+        let before = cal.clone();
+        assert_eq!(
+            cal.add_sample(Sample::new(f64::NAN, 1.0)).unwrap_err().code(),
+            "invalid_calibration"
+        );
+        assert_eq!(cal, before);
+
+        let mut geo = geometric(1.0, 5.0, 0.0, 90.0);
+        let err = geo.add_sample(Sample::new(1.0, 1.0)).unwrap_err();
+        assert_eq!(err.code(), "not_a_fit");
+        assert!(
+            err.to_string()
+                .contains("samples only apply to fitted calibrations"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn json_round_trip_of_spec_and_calibration() {
+        // Spec with defaults.
+        let spec: CalibrationSpec =
+            serde_json::from_str(r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0}"#)
+                .unwrap();
+        assert_eq!(
+            spec,
+            CalibrationSpec::Geometric(GeometricSpec {
+                pixel_size_um: 0.5,
+                vergence_deg: 6.0,
+                reference_disparity_px: 0.0,
+                tilt_axis_deg: 90.0
+            })
+        );
+        let text = serde_json::to_string(&spec).unwrap();
+        assert_eq!(serde_json::from_str::<CalibrationSpec>(&text).unwrap(), spec);
+        let fit: CalibrationSpec = serde_json::from_str(
+            r#"{"model": "fit", "samples": [{"disparity_px": 1.2, "z_um": 0.0}, {"disparity_px": 2.2, "z_um": 50.0}]}"#,
+        )
+        .unwrap();
+        let CalibrationSpec::Fit(f) = &fit else { panic!() };
+        assert_eq!((f.degree, f.tilt_axis_deg, f.samples.len()), (1, 90.0, 2));
+
+        // Full calibrations, both models.
+        let noisy = samples_of(&[0.0, 0.5, 1.1, 1.4, 2.0, 3.3], |x| {
+            1.0 + 7.0 * x + (x * 13.0).sin()
+        });
+        for spec in [
+            CalibrationSpec::Geometric(GeometricSpec {
+                pixel_size_um: 0.37,
+                vergence_deg: 7.5,
+                reference_disparity_px: -1.25,
+                tilt_axis_deg: 30.0,
+            }),
+            fit_spec(2, noisy),
+        ] {
+            let cal = build(spec.clone()).unwrap();
+            let text = serde_json::to_string(&cal).unwrap();
+            let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+            assert_eq!(v["model"], spec.model_name());
+            assert!(v["coefficients"].is_array() && v["tilt_axis_deg"].is_number());
+            assert_eq!(v.get("r_squared").is_some(), cal.is_fit());
+            assert_eq!(v.get("residual_rms_um").is_some(), cal.is_fit());
+            assert_eq!(serde_json::from_str::<Calibration>(&text).unwrap(), cal);
+            assert_eq!(from_json(&text).unwrap(), cal);
+            // from_json also takes the bare spec, and the service's metadata.
+            assert_eq!(from_json(&serde_json::to_string(&spec).unwrap()).unwrap(), cal);
+            let mut with_meta = v.clone();
+            with_meta["id"] = "cal_1".into();
+            with_meta["name"] = "stage A".into();
+            with_meta["created_at"] = "2024-01-01T00:00:00Z".into();
+            assert_eq!(from_json(&with_meta.to_string()).unwrap(), cal);
+        }
+        let fit_json =
+            serde_json::to_value(build(fit_spec(1, samples_of(&[0.0, 1.0, 2.0], |x| x))).unwrap()).unwrap();
+        assert_eq!(fit_json["samples"][1]["disparity_px"], 1.0);
+        assert_eq!(fit_json["samples"][1]["z_um"], 1.0);
+        assert_eq!(fit_json["degree"], 1);
+    }
+
+    #[test]
+    fn json_refuses_typos_and_tampering() {
+        let err = from_json(r#"{"model": "geometric", "pixel_size": 0.5, "vergence_deg": 6.0}"#).unwrap_err();
+        assert_eq!(err.code(), "invalid_calibration_json");
+        assert!(err.to_string().contains("pixel_size"), "{err}");
+        assert!(serde_json::from_str::<CalibrationSpec>(
+            r#"{"model": "fit", "samples": [{"disparity_px": 1, "z": 0}]}"#
+        )
+        .is_err());
+        assert!(serde_json::from_str::<CalibrationSpec>(r#"{"model": "spline", "samples": []}"#).is_err());
+        assert_eq!(
+            from_json("[1, 2]").unwrap_err().code(),
+            "invalid_calibration_json"
+        );
+        assert_eq!(from_json("{").unwrap_err().code(), "invalid_calibration_json");
+        // Validation errors keep their own codes through from_json.
+        let err =
+            from_json(r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 0}"#).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "invalid vergence_deg 0 (expected 0 < vergence_deg <= 90)"
+        );
+        let err = from_json(r#"{"model": "fit", "degree": 2, "samples": [{"disparity_px": 1, "z_um": 0}]}"#)
+            .unwrap_err();
+        assert_eq!(err.code(), "too_few_samples");
+
+        // Edited coefficients or statistics are refused, not silently replaced.
+        let cal = geometric(1.0, 10.0, 0.0, 90.0);
+        let mut v = serde_json::to_value(&cal).unwrap();
+        v["coefficients"][1] = 6.0.into();
+        let err = from_json(&v.to_string()).unwrap_err();
+        assert_eq!(err.code(), "invalid_calibration");
+        assert!(err.to_string().contains("coefficients"), "{err}");
+        assert!(serde_json::from_value::<Calibration>(v).is_err());
+        let fit = build(fit_spec(1, samples_of(&[0.0, 1.0, 2.0], |x| x * x))).unwrap();
+        let mut v = serde_json::to_value(&fit).unwrap();
+        v["r_squared"] = 0.5.into();
+        assert!(from_json(&v.to_string())
+            .unwrap_err()
+            .to_string()
+            .contains("r_squared"));
+        // A geometric calibration has no fit statistics.
+        let mut v = serde_json::to_value(&cal).unwrap();
+        v["r_squared"] = 1.0.into();
+        assert_eq!(
+            from_json(&v.to_string()).unwrap_err().code(),
+            "invalid_calibration_json"
+        );
+    }
+
+    #[test]
+    fn ill_conditioned_disparities_still_fit_degree_two() {
+        // Disparities 1000 +- 0.5 px: naive normal equations in d lose all digits here.
+        let truth = |d: f64| {
+            let e = d - 1000.0;
+            5.0 + 40.0 * e + 30.0 * e * e
+        };
+        let d: Vec<f64> = (-10..=10).map(|k| 1000.0 + 0.05 * k as f64).collect();
+        let cal = build(fit_spec(2, samples_of(&d, truth))).unwrap();
+        let z_max = d.iter().map(|&x| truth(x).abs()).fold(0.0, f64::max);
+        for &x in &d {
+            let err = (cal.z_from_axis(x) - truth(x)).abs();
+            assert!(err <= 1e-6 * z_max, "d={x}: err {err}");
+        }
+        // The monomial coefficients too: c2 = 30, c1 = 40 - 60000, c0 = 5 - 40000 + 3e7.
+        let c = cal.coefficients();
+        assert!(rel_close(c[2], 30.0, 1e-6), "{c:?}");
+        assert!(rel_close(c[1], 40.0 - 60_000.0, 1e-6), "{c:?}");
+        assert!(rel_close(c[0], 5.0 - 40_000.0 + 30_000_000.0, 1e-6), "{c:?}");
+        let stats = cal.fit_stats().unwrap();
+        assert!(stats.residual_rms_um <= 1e-6 * z_max, "{stats:?}");
+        assert!(stats.r_squared > 1.0 - 1e-9);
+        // Reading it back gives the same calibration.
+        let text = serde_json::to_string(&cal).unwrap();
+        assert_eq!(from_json(&text).unwrap(), cal);
+    }
+}
