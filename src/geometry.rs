@@ -183,6 +183,28 @@ impl Polygon {
         )
     }
 
+    /// Every vertex moved by `distance` along the outward normal (the
+    /// perpendicular of the line through its two neighbours); negative values
+    /// move inwards. For small distances this grows or shrinks the outline
+    /// by about `distance` everywhere.
+    pub fn offset_along_normals(&self, distance: f64) -> Self {
+        let n = self.points.len();
+        let outward = if self.signed_area() >= 0.0 { 1.0 } else { -1.0 };
+        let points = (0..n)
+            .map(|i| {
+                let (a, b) = (self.points[(i + n - 1) % n], self.points[(i + 1) % n]);
+                let t = [b[0] - a[0], b[1] - a[1]];
+                let l = t[0].hypot(t[1]).max(1e-12);
+                let p = self.points[i];
+                [
+                    p[0] + distance * outward * t[1] / l,
+                    p[1] - distance * outward * t[0] / l,
+                ]
+            })
+            .collect();
+        Self::new(points)
+    }
+
     /// Resamples the outline to `n` vertices evenly spaced along its length,
     /// starting at the first vertex.
     pub fn resampled(&self, n: usize) -> Self {
@@ -352,6 +374,22 @@ mod tests {
         assert_eq!(differ, 0);
         let count = mask.iter().filter(|&&m| m).count() as f64;
         assert!((count - p.area()).abs() < 0.05 * p.area());
+    }
+
+    #[test]
+    fn offset_grows_a_circle_by_the_distance() {
+        for c in [Polygon::circle([0.0, 0.0], 10.0, 360), {
+            let mut p = Polygon::circle([0.0, 0.0], 10.0, 360);
+            p.points.reverse();
+            p
+        }] {
+            let grown = c.offset_along_normals(1.5);
+            assert!(
+                (grown.area() - std::f64::consts::PI * 11.5f64.powi(2)).abs() < 0.5,
+                "{}",
+                grown.area()
+            );
+        }
     }
 
     #[test]
