@@ -1,0 +1,48 @@
+//! Prints the energy of the true outline grown/shrunk radially, and shifted,
+//! on clean synthetic frames: `cargo run --release --example energy_profile`.
+use semdepth::energy::{evaluate, EnergyParams};
+use semdepth::region::{PixelRect, PrefixSums};
+use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
+
+fn main() {
+    for shape in Shape::ALL {
+        let mut cfg = SynthConfig {
+            frames: 1,
+            ..SynthConfig::preset(Preset::Clean, shape, 11)
+        };
+        if std::env::var("PLAIN").is_ok() {
+            cfg.rim_strength = 0.0;
+            cfg.object_texture = 0.0;
+            cfg.shading = 0.0;
+            cfg.clutter.texture_amplitude = 0.0;
+            cfg.background_gradient = 0.0;
+        }
+        let pair = Scene::new(&cfg).unwrap().render(0);
+        let truth = pair.truth.left.polygon.resampled(400);
+        let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+        let p = EnergyParams {
+            lambda: 0.0,
+            ..EnergyParams::default()
+        };
+        let margin = p.margin_for_area(truth.area());
+        let n = truth.len();
+        let mut line = format!("{:>6} grow:", shape.name());
+        for g in [-1.0, -0.5, -0.25, 0.0, 0.25, 0.5, 1.0] {
+            // Offset each vertex along its normal by g px.
+            let pts: Vec<[f64; 2]> = (0..n)
+                .map(|i| {
+                    let (a, b) = (truth.points[(i + n - 1) % n], truth.points[(i + 1) % n]);
+                    let t = [b[0] - a[0], b[1] - a[1]];
+                    let l = t[0].hypot(t[1]);
+                    let s = if truth.signed_area() > 0.0 { 1.0 } else { -1.0 };
+                    [
+                        truth.points[i][0] + g * s * t[1] / l,
+                        truth.points[i][1] - g * s * t[0] / l,
+                    ]
+                })
+                .collect();
+            line += &format!(" {g:+}:{:.2}", evaluate(&sums, &pts, &p, margin).energy);
+        }
+        println!("{line}");
+    }
+}

@@ -1,0 +1,73 @@
+//! Tracks synthetic sequences and prints the disparity and centroid errors
+//! per condition: `cargo run --release --example track_eval -- [SEEDS] [FRAMES]`.
+use semdepth::synth::{frames, Preset, Shape, SynthConfig};
+use semdepth::tracker::{Status, StereoTracker, TrackerParams};
+
+fn main() {
+    let args: Vec<usize> = std::env::args().skip(1).map(|s| s.parse().unwrap()).collect();
+    let seeds = *args.first().unwrap_or(&5) as u64;
+    let nframes = *args.get(1).unwrap_or(&10);
+    for preset in [
+        Preset::Clean,
+        Preset::Noisy,
+        Preset::Occluded,
+        Preset::Flicker,
+        Preset::Cluttered,
+    ] {
+        let (mut sq_d, mut sq_c, mut n, mut lost, mut worst) = (0.0, 0.0, 0usize, 0usize, 0.0f64);
+        let t = std::time::Instant::now();
+        for shape in Shape::ALL {
+            for seed in 0..seeds {
+                let cfg = SynthConfig {
+                    frames: nframes,
+                    ..SynthConfig::preset(preset, shape, seed)
+                };
+                let mut tracker = StereoTracker::new(TrackerParams::default());
+                let mut errs = Vec::new();
+                for pair in frames(&cfg).unwrap() {
+                    let r = tracker.process(&pair.left, &pair.right).unwrap();
+                    if r.status == Status::Lost {
+                        lost += 1;
+                        eprintln!(
+                            "{}/{}/{seed} frame {}: lost: {:?}",
+                            preset.name(),
+                            shape.name(),
+                            r.frame,
+                            r.reason
+                        );
+                        continue;
+                    }
+                    let d = r.disparity_px.unwrap()[0] - pair.truth.disparity_px[0];
+                    let c = r.left.as_ref().unwrap().centroid;
+                    let tc = pair.truth.left.centroid;
+                    sq_c += (c[0] - tc[0]).powi(2) + (c[1] - tc[1]).powi(2);
+                    errs.push(d);
+                }
+                let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
+                let seq_sq: f64 = errs.iter().map(|e| (e - mean).powi(2)).sum();
+                let seq_rms = (seq_sq / errs.len().max(1) as f64).sqrt();
+                if seq_rms > 0.1 {
+                    eprintln!(
+                        "{}/{}/{seed}: seq rms {seq_rms:.3} errs {:?}",
+                        preset.name(),
+                        shape.name(),
+                        errs.iter()
+                            .map(|e| ((e - mean) * 1000.0).round() / 1000.0)
+                            .collect::<Vec<_>>()
+                    );
+                }
+                worst = worst.max(errs.iter().map(|e| (e - mean).abs()).fold(0.0, f64::max));
+                sq_d += seq_sq;
+                n += errs.len();
+            }
+        }
+        println!(
+            "{:>9}: disparity RMS {:.4} px (max {:.3}), left centroid RMS {:.3} px, lost {lost}, {n} pairs, {:.1} ms/pair incl. rendering",
+            preset.name(),
+            (sq_d / n as f64).sqrt(),
+            worst,
+            (sq_c / n as f64).sqrt(),
+            t.elapsed().as_secs_f64() * 1e3 / (n + lost) as f64
+        );
+    }
+}

@@ -1,0 +1,535 @@
+//! Minimising the region energy ([`crate::energy`]): a free fit in which
+//! vertices move individually (first pair, left image) and a rigid fit in
+//! which the contour only translates and rotates (Dahmen et al., ICINCO 2009,
+//! section 3; method note section 2, "Minimisation").
+
+use serde::{Deserialize, Serialize};
+
+use crate::energy::{combine, evaluate, window_of, EnergyParams, EnergyTerms};
+use crate::geometry::{dist, Point, Polygon};
+use crate::region::PrefixSums;
+
+/// Parameters of the free (vertex-wise) fit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FreeFitParams {
+    /// Target spacing of the vertices in pixels. Default 3; range 1..=20.
+    pub spacing_px: f64,
+    /// First trial move along the normal, pixels. Default 1.
+    pub initial_step_px: f64,
+    /// Smallest trial move; when no vertex can improve the energy by a move
+    /// of this size the fit has converged. Default 0.125.
+    pub min_step_px: f64,
+    /// Cap on the number of sweeps over all vertices. Default 300.
+    pub max_sweeps: usize,
+    /// Resample to even spacing every this many sweeps. Default 4.
+    pub resample_every: usize,
+}
+
+impl Default for FreeFitParams {
+    fn default() -> Self {
+        Self {
+            spacing_px: 3.0,
+            initial_step_px: 1.0,
+            min_step_px: 0.125,
+            max_sweeps: 300,
+            resample_every: 4,
+        }
+    }
+}
+
+impl FreeFitParams {
+    /// Checks ranges; the message says what was expected.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.spacing_px.is_finite() && (1.0..=20.0).contains(&self.spacing_px)) {
+            return Err(format!(
+                "invalid spacing_px {} (expected 1..=20)",
+                self.spacing_px
+            ));
+        }
+        if !(self.min_step_px > 0.0
+            && self.min_step_px <= self.initial_step_px
+            && self.initial_step_px <= 10.0)
+        {
+            return Err(format!(
+                "invalid steps {}..{} (expected 0 < min_step_px <= initial_step_px <= 10)",
+                self.min_step_px, self.initial_step_px
+            ));
+        }
+        if !(1..=10_000).contains(&self.max_sweeps) || self.resample_every == 0 {
+            return Err("invalid max_sweeps or resample_every (expected 1..=10000 and >= 1)".into());
+        }
+        Ok(())
+    }
+}
+
+/// Result of a free fit.
+#[derive(Clone, Debug)]
+pub struct FreeFitOutcome {
+    /// The fitted contour.
+    pub polygon: Polygon,
+    /// Its energy.
+    pub terms: EnergyTerms,
+    /// Sweeps made.
+    pub sweeps: usize,
+    /// True when it stopped because no move of `min_step_px` helped (false:
+    /// stopped at `max_sweeps`).
+    pub converged: bool,
+}
+
+/// Free minimisation: each vertex in turn tries a move of `step` along its
+/// outward normal, then the opposite move, and keeps the first that lowers
+/// the energy. Only the vertex's two edges change, so each trial costs O(1)
+/// (two edge integrals). When a sweep moves fewer than 2% of the vertices,
+/// the step halves; when that happens at `min_step_px`, the fit has
+/// converged. The window is held fixed within a
+/// sweep (so trials compare like with like) and updated between sweeps; the
+/// outline is resampled to even spacing every `resample_every` sweeps.
+pub fn fit_free(
+    sums: &PrefixSums,
+    initial: &Polygon,
+    energy: &EnergyParams,
+    params: &FreeFitParams,
+) -> FreeFitOutcome {
+    let margin = energy.margin_for_area(initial.area());
+    let m_ref = sums.total().mean();
+    let n = ((initial.length() / params.spacing_px).round() as usize).max(8);
+    let mut pts = initial.resampled(n).points;
+    let mut step = params.initial_step_px;
+    let mut converged = false;
+    let mut sweeps = 0;
+    while sweeps < params.max_sweeps {
+        sweeps += 1;
+        let [wx0, wy0, wx1, wy1] = window_of(&pts, margin);
+        let window = if energy.whole_image_background {
+            sums.total()
+        } else {
+            sums.rect_sum(wx0, wy0, wx1, wy1)
+        };
+        let n = pts.len();
+        let (mut twice_area, mut length, mut integral) = (0.0, 0.0, 0.0);
+        for i in 0..n {
+            let (a, b) = (pts[i], pts[(i + 1) % n]);
+            twice_area += cross(a, b);
+            length += dist(a, b);
+            integral += sums.edge_integral(a, b);
+        }
+        let sign = if twice_area < 0.0 { -1.0 } else { 1.0 };
+        let terms_of = |twice_area: f64, length: f64, integral: f64| {
+            let inside = crate::region::RegionSum {
+                count: 0.5 * twice_area * sign,
+                sum: integral * sign,
+            };
+            combine(energy, inside, window, length, m_ref)
+        };
+        let mut current = terms_of(twice_area, length, integral).energy;
+        if !current.is_finite() {
+            break;
+        }
+        let mut moved = 0usize;
+        for i in 0..n {
+            let (prev, p, next) = (pts[(i + n - 1) % n], pts[i], pts[(i + 1) % n]);
+            let tangent = [next[0] - prev[0], next[1] - prev[1]];
+            let tl = tangent[0].hypot(tangent[1]);
+            if tl == 0.0 {
+                continue;
+            }
+            let normal = [sign * tangent[1] / tl, -sign * tangent[0] / tl];
+            let old_cross = cross(prev, p) + cross(p, next);
+            let old_len = dist(prev, p) + dist(p, next);
+            let old_int = sums.edge_integral(prev, p) + sums.edge_integral(p, next);
+            for dir in [1.0, -1.0] {
+                let q = [p[0] + dir * step * normal[0], p[1] + dir * step * normal[1]];
+                if !sums.contains(&[q]) {
+                    continue;
+                }
+                let new_cross = cross(prev, q) + cross(q, next);
+                let new_len = dist(prev, q) + dist(q, next);
+                let new_int = sums.edge_integral(prev, q) + sums.edge_integral(q, next);
+                let ta = twice_area - old_cross + new_cross;
+                if ta * sign <= 0.0 {
+                    continue; // would turn the contour inside out
+                }
+                let e = terms_of(ta, length - old_len + new_len, integral - old_int + new_int).energy;
+                if e < current - 1e-12 * current.abs() {
+                    pts[i] = q;
+                    twice_area = ta;
+                    length += new_len - old_len;
+                    integral += new_int - old_int;
+                    current = e;
+                    moved += 1;
+                    break;
+                }
+            }
+        }
+        // Noise lets a few vertices find an improving move on almost every
+        // sweep; once fewer than 2% of them (at least one) still move, the
+        // outline as a whole has settled at this step size.
+        if moved <= n / 50 {
+            if step <= params.min_step_px {
+                converged = true;
+                break;
+            }
+            step = (step * 0.5).max(params.min_step_px);
+        }
+        if sweeps % params.resample_every == 0 {
+            let polygon = Polygon::new(std::mem::take(&mut pts));
+            let n = ((polygon.length() / params.spacing_px).round() as usize).max(8);
+            pts = polygon.resampled(n).points;
+        }
+    }
+    let terms = evaluate(sums, &pts, energy, margin);
+    FreeFitOutcome {
+        polygon: Polygon::new(pts),
+        terms,
+        sweeps,
+        converged,
+    }
+}
+
+/// Position and rotation of a rigid contour: the template (vertices relative
+/// to its area centroid) rotated by `theta` and moved to `(x, y)`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Pose {
+    /// Centroid x, pixels.
+    pub x: f64,
+    /// Centroid y, pixels.
+    pub y: f64,
+    /// Rotation from the template, radians (clockwise on screen, y down).
+    pub theta: f64,
+}
+
+impl Pose {
+    /// The centroid as a point.
+    pub fn center(&self) -> Point {
+        [self.x, self.y]
+    }
+}
+
+/// The template's vertices placed at `pose`.
+pub fn place(template: &[Point], pose: Pose) -> Vec<Point> {
+    let (s, c) = pose.theta.sin_cos();
+    template
+        .iter()
+        .map(|p| [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]])
+        .collect()
+}
+
+/// Parameters of the rigid fit.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RigidParams {
+    /// Largest motion between two pairs that the search is built to catch,
+    /// pixels; the prefix sums cover the contour's reach plus this. Default
+    /// 24; range 1..=500.
+    pub search_radius_px: f64,
+    /// First step of the coarse stage, pixels. Default 8.
+    pub coarse_step_px: f64,
+    /// Vertices of the decimated contour used in the coarse stage. Default 48.
+    pub coarse_vertices: usize,
+    /// Smallest step: the fit's resolution, pixels (rotation: arc length at
+    /// the contour's outermost vertex). Default 1/64.
+    pub min_step_px: f64,
+    /// Also search the rotation (the paper does). Default true.
+    pub rotate: bool,
+    /// Cap on energy evaluations per fit. Default 3000.
+    pub max_evaluations: usize,
+}
+
+impl Default for RigidParams {
+    fn default() -> Self {
+        Self {
+            search_radius_px: 24.0,
+            coarse_step_px: 8.0,
+            coarse_vertices: 48,
+            min_step_px: 1.0 / 64.0,
+            rotate: true,
+            max_evaluations: 3000,
+        }
+    }
+}
+
+impl RigidParams {
+    /// Checks ranges; the message says what was expected.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.search_radius_px.is_finite() && (1.0..=500.0).contains(&self.search_radius_px)) {
+            return Err(format!(
+                "invalid search_radius_px {} (expected 1..=500)",
+                self.search_radius_px
+            ));
+        }
+        if !(self.min_step_px > 0.0 && self.min_step_px <= 1.0) {
+            return Err(format!(
+                "invalid min_step_px {} (expected 0 < min_step_px <= 1)",
+                self.min_step_px
+            ));
+        }
+        if !(self.coarse_step_px.is_finite() && (1.0..=100.0).contains(&self.coarse_step_px)) {
+            return Err(format!(
+                "invalid coarse_step_px {} (expected 1..=100)",
+                self.coarse_step_px
+            ));
+        }
+        if !(8..=4096).contains(&self.coarse_vertices) {
+            return Err(format!(
+                "invalid coarse_vertices {} (expected 8..=4096)",
+                self.coarse_vertices
+            ));
+        }
+        if !(10..=1_000_000).contains(&self.max_evaluations) {
+            return Err(format!(
+                "invalid max_evaluations {} (expected 10..=1000000)",
+                self.max_evaluations
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Result of a rigid fit.
+#[derive(Clone, Copy, Debug)]
+pub struct RigidOutcome {
+    /// Best pose found.
+    pub pose: Pose,
+    /// Energy there.
+    pub terms: EnergyTerms,
+    /// Energy evaluations used.
+    pub evaluations: usize,
+}
+
+/// A rigid template with what the fit needs precomputed.
+#[derive(Clone, Debug)]
+pub struct RigidTemplate {
+    /// Vertices relative to the area centroid, at rotation 0.
+    pub points: Vec<Point>,
+    /// A decimated copy for the coarse stage.
+    pub coarse: Vec<Point>,
+    /// Largest vertex distance from the centroid (turns pixel steps into angles).
+    pub radius: f64,
+    /// Window margin (fixed for the template's area).
+    pub margin: f64,
+}
+
+impl RigidTemplate {
+    /// A template from an outline in image coordinates; returns it with the
+    /// pose that reproduces the outline (centroid, rotation 0).
+    pub fn new(outline: &Polygon, coarse_vertices: usize, energy: &EnergyParams) -> (Self, Pose) {
+        let c = outline.centroid();
+        let points: Vec<Point> = outline
+            .points
+            .iter()
+            .map(|p| [p[0] - c[0], p[1] - c[1]])
+            .collect();
+        let radius = points
+            .iter()
+            .map(|p| p[0].hypot(p[1]))
+            .fold(0.0, f64::max)
+            .max(1.0);
+        let coarse = Polygon::new(points.clone())
+            .resampled(coarse_vertices.min(points.len()).max(8))
+            .points;
+        let template = Self {
+            points,
+            coarse,
+            radius,
+            margin: energy.margin_for_area(outline.area()),
+        };
+        (
+            template,
+            Pose {
+                x: c[0],
+                y: c[1],
+                theta: 0.0,
+            },
+        )
+    }
+
+    /// The box the template can reach from `pose` within `reach` pixels,
+    /// window margin included: `[x0, y0, x1, y1]`.
+    pub fn reach(&self, pose: Pose, reach: f64) -> [f64; 4] {
+        let r = self.radius + self.margin + reach + 2.0;
+        [pose.x - r, pose.y - r, pose.x + r, pose.y + r]
+    }
+}
+
+/// Rigid minimisation by compass search, in the paper's order: translation
+/// in x, translation in y, rotation about the centroid, repeated until
+/// nothing improves; then the step halves, down to `min_step_px`. A move
+/// that helps is repeated while it keeps helping. The coarse stage runs on a
+/// decimated contour with steps from `coarse_step_px` down to 1 px
+/// (translation only), so motion of tens of pixels costs little; the fine
+/// stage uses every vertex.
+pub fn fit_rigid(
+    sums: &PrefixSums,
+    template: &RigidTemplate,
+    start: Pose,
+    energy: &EnergyParams,
+    params: &RigidParams,
+) -> RigidOutcome {
+    let mut evaluations = 0usize;
+    let mut pose = start;
+    let eval = |pts: &[Point], pose: Pose, evaluations: &mut usize| {
+        *evaluations += 1;
+        evaluate(sums, &place(pts, pose), energy, template.margin)
+    };
+    // Coarse stage: translation only, decimated contour.
+    if params.coarse_step_px > 1.0 {
+        let mut best = eval(&template.coarse, pose, &mut evaluations).energy;
+        let mut step = params.coarse_step_px;
+        while step >= 1.0 && evaluations < params.max_evaluations {
+            let (p, e, improved) = compass_round(pose, best, step, template.radius, false, |p| {
+                eval(&template.coarse, p, &mut evaluations).energy
+            });
+            pose = p;
+            best = e;
+            if !improved {
+                step *= 0.5;
+            }
+        }
+    }
+    // Fine stage: every vertex, with rotation.
+    let mut best = eval(&template.points, pose, &mut evaluations).energy;
+    let mut step = 1.0f64.max(params.min_step_px);
+    loop {
+        let (p, e, improved) = compass_round(pose, best, step, template.radius, params.rotate, |p| {
+            eval(&template.points, p, &mut evaluations).energy
+        });
+        pose = p;
+        best = e;
+        if evaluations >= params.max_evaluations {
+            break;
+        }
+        if !improved {
+            if step <= params.min_step_px {
+                break;
+            }
+            step = (step * 0.5).max(params.min_step_px);
+        }
+    }
+    let terms = evaluate(sums, &place(&template.points, pose), energy, template.margin);
+    RigidOutcome {
+        pose,
+        terms,
+        evaluations,
+    }
+}
+
+/// One round of compass search over x, y (and rotation); returns the new
+/// pose, its energy, and whether anything improved.
+fn compass_round(
+    mut pose: Pose,
+    mut best: f64,
+    step: f64,
+    radius: f64,
+    rotate: bool,
+    mut energy_at: impl FnMut(Pose) -> f64,
+) -> (Pose, f64, bool) {
+    let mut improved = false;
+    let axes: &[usize] = if rotate { &[0, 1, 2] } else { &[0, 1] };
+    for &axis in axes {
+        let delta = if axis == 2 { step / radius } else { step };
+        for dir in [1.0, -1.0] {
+            let mut moved = false;
+            // Keep going while the move helps (bounded: 64 steps).
+            for _ in 0..64 {
+                let mut candidate = pose;
+                match axis {
+                    0 => candidate.x += dir * delta,
+                    1 => candidate.y += dir * delta,
+                    _ => candidate.theta += dir * delta,
+                }
+                let e = energy_at(candidate);
+                if e < best {
+                    pose = candidate;
+                    best = e;
+                    moved = true;
+                } else {
+                    break;
+                }
+            }
+            if moved {
+                improved = true;
+                break;
+            }
+        }
+    }
+    (pose, best, improved)
+}
+
+#[inline]
+fn cross(a: Point, b: Point) -> f64 {
+    a[0] * b[1] - b[0] * a[1]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::mask_iou;
+    use crate::region::PixelRect;
+    use crate::synth::{Preset, Scene, Shape, SynthConfig};
+
+    #[test]
+    fn free_fit_pulls_a_rough_outline_onto_the_object() {
+        for shape in Shape::ALL {
+            let config = SynthConfig {
+                frames: 1,
+                ..SynthConfig::preset(Preset::Noisy, shape, 5)
+            };
+            let pair = Scene::new(&config).unwrap().render(0);
+            let truth = &pair.truth.left.polygon;
+            // Start 3 px too large (as a dilated initialisation would be).
+            let c = truth.centroid();
+            let r = truth.area().sqrt();
+            let grow = 1.0 + 3.0 / r;
+            let start = truth.scaled(grow, [c[0] * (1.0 - grow), c[1] * (1.0 - grow)]);
+            let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+            let out = fit_free(&sums, &start, &EnergyParams::default(), &FreeFitParams::default());
+            let (w, h) = (config.width, config.height);
+            let truth_mask = truth.rasterize(w, h);
+            let before = mask_iou(&start.rasterize(w, h), &truth_mask);
+            let after = mask_iou(&out.polygon.rasterize(w, h), &truth_mask);
+            assert!(
+                after > 0.95 && after > before,
+                "{shape:?}: IoU {before:.3} -> {after:.3}"
+            );
+            assert!(
+                out.converged,
+                "{shape:?} did not converge in {} sweeps",
+                out.sweeps
+            );
+        }
+    }
+
+    #[test]
+    fn rigid_fit_recovers_shift_and_rotation() {
+        let config = SynthConfig {
+            frames: 1,
+            ..SynthConfig::preset(Preset::Clean, Shape::Tip, 2)
+        };
+        let pair = Scene::new(&config).unwrap().render(0);
+        let truth = &pair.truth.left.polygon;
+        let energy = EnergyParams::default();
+        let (template, true_pose) = RigidTemplate::new(&truth.resampled(240), 48, &energy);
+        let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+        for (dx, dy, dt) in [
+            (0.3, -0.2, 0.0),
+            (-12.0, 9.0, 0.03),
+            (20.0, 0.0, -0.02),
+            (0.0, -19.5, 0.0),
+        ] {
+            let start = Pose {
+                x: true_pose.x + dx,
+                y: true_pose.y + dy,
+                theta: dt,
+            };
+            let out = fit_rigid(&sums, &template, start, &energy, &RigidParams::default());
+            let err = (out.pose.x - true_pose.x).hypot(out.pose.y - true_pose.y);
+            assert!(
+                err < 0.05,
+                "start offset ({dx}, {dy}, {dt}): error {err:.3} px, pose {:?}",
+                out.pose
+            );
+            assert!(out.pose.theta.abs() < 0.002, "rotation {}", out.pose.theta);
+        }
+    }
+}
