@@ -14,7 +14,8 @@ fn main() {
         Preset::Flicker,
         Preset::Cluttered,
     ] {
-        let (mut sq_d, mut sq_c, mut n, mut lost, mut worst) = (0.0, 0.0, 0usize, 0usize, 0.0f64);
+        let (mut sq_d, mut sq_c, mut n, mut lost, mut worst, mut flagged) =
+            (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
         let t = std::time::Instant::now();
         for shape in Shape::ALL {
             for seed in 0..seeds {
@@ -22,7 +23,17 @@ fn main() {
                     frames: nframes,
                     ..SynthConfig::preset(preset, shape, seed)
                 };
-                let mut tracker = StereoTracker::new(TrackerParams::default());
+                let mut params = TrackerParams::default();
+                if let Ok(v) = std::env::var("LAMBDA") {
+                    params.energy.lambda = v.parse().unwrap();
+                }
+                if let Ok(v) = std::env::var("SPACING") {
+                    params.free.spacing_px = v.parse().unwrap();
+                }
+                if let Ok(v) = std::env::var("TSPACING") {
+                    params.template_spacing_px = v.parse().unwrap();
+                }
+                let mut tracker = StereoTracker::new(params);
                 let mut errs = Vec::new();
                 for pair in frames(&cfg).unwrap() {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
@@ -37,6 +48,11 @@ fn main() {
                         );
                         continue;
                     }
+                    if r.left.as_ref().unwrap().occluded_fraction > 0.0
+                        || r.right.as_ref().unwrap().occluded_fraction > 0.0
+                    {
+                        flagged += 1;
+                    }
                     let d = r.disparity_px.unwrap()[0] - pair.truth.disparity_px[0];
                     let c = r.left.as_ref().unwrap().centroid;
                     let tc = pair.truth.left.centroid;
@@ -44,6 +60,12 @@ fn main() {
                     errs.push(d);
                 }
                 let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
+                if std::env::var("VERBOSE").is_ok() {
+                    let rms = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>()
+                        / errs.len().max(1) as f64)
+                        .sqrt();
+                    eprintln!("{}/{}/{seed}: rms {rms:.4}", preset.name(), shape.name());
+                }
                 let seq_sq: f64 = errs.iter().map(|e| (e - mean).powi(2)).sum();
                 let seq_rms = (seq_sq / errs.len().max(1) as f64).sqrt();
                 if seq_rms > 0.1 {
@@ -62,7 +84,7 @@ fn main() {
             }
         }
         println!(
-            "{:>9}: disparity RMS {:.4} px (max {:.3}), left centroid RMS {:.3} px, lost {lost}, {n} pairs, {:.1} ms/pair incl. rendering",
+            "{:>9}: disparity RMS {:.4} px (max {:.3}), left centroid RMS {:.3} px, lost {lost}, occlusion flagged in {flagged}, {n} pairs, {:.1} ms/pair incl. rendering",
             preset.name(),
             (sq_d / n as f64).sqrt(),
             worst,

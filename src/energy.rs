@@ -202,8 +202,22 @@ pub fn window_of(points: &[Point], margin: f64) -> [f64; 4] {
     [b[0] - margin, b[1] - margin, b[2] + margin, b[3] + margin]
 }
 
-/// Full evaluation of a closed polygon: O(contour length).
+/// Full evaluation of a closed polygon: O(contour length). The window is
+/// the polygon's bounding box grown by `margin`.
 pub fn evaluate(sums: &PrefixSums, points: &[Point], params: &EnergyParams, margin: f64) -> EnergyTerms {
+    evaluate_in_window(sums, points, params, window_of(points, margin))
+}
+
+/// Evaluation with a given window `[x0, y0, x1, y1]` (held fixed while a
+/// fit makes small moves, so that the energy only trades pixels between the
+/// two regions at the boundary instead of also sliding the window over
+/// background texture).
+pub fn evaluate_in_window(
+    sums: &PrefixSums,
+    points: &[Point],
+    params: &EnergyParams,
+    window: [f64; 4],
+) -> EnergyTerms {
     if points.len() < 3 || !sums.contains(points) {
         return EnergyTerms::INVALID;
     }
@@ -211,7 +225,7 @@ pub fn evaluate(sums: &PrefixSums, points: &[Point], params: &EnergyParams, marg
     let window = if params.whole_image_background {
         sums.total()
     } else {
-        let [x0, y0, x1, y1] = window_of(points, margin);
+        let [x0, y0, x1, y1] = window;
         sums.rect_sum(x0, y0, x1, y1)
     };
     let n = points.len();

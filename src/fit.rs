@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::energy::{combine, evaluate, window_of, EnergyParams, EnergyTerms};
+use crate::energy::{combine, evaluate, evaluate_in_window, window_of, EnergyParams, EnergyTerms};
 use crate::geometry::{dist, Point, Polygon};
 use crate::region::PrefixSums;
 
@@ -13,7 +13,10 @@ use crate::region::PrefixSums;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct FreeFitParams {
-    /// Target spacing of the vertices in pixels. Default 3; range 1..=20.
+    /// Target spacing of the vertices in pixels (at least 40 vertices are
+    /// kept). Default 6; range 1..=20. Denser outlines fit the first image's
+    /// pixel grid too closely: measured on synthetic sequences, spacing 3
+    /// gave 0.049 px disparity RMS on clean data, spacing 6 0.033 px.
     pub spacing_px: f64,
     /// First trial move along the normal, pixels. Default 1.
     pub initial_step_px: f64,
@@ -29,7 +32,7 @@ pub struct FreeFitParams {
 impl Default for FreeFitParams {
     fn default() -> Self {
         Self {
-            spacing_px: 3.0,
+            spacing_px: 6.0,
             initial_step_px: 1.0,
             min_step_px: 0.125,
             max_sweeps: 300,
@@ -63,6 +66,9 @@ impl FreeFitParams {
     }
 }
 
+/// Fewest vertices of a freely fitted outline, whatever the spacing.
+pub const MIN_FREE_VERTICES: usize = 40;
+
 /// Result of a free fit.
 #[derive(Clone, Debug)]
 pub struct FreeFitOutcome {
@@ -93,8 +99,8 @@ pub fn fit_free(
 ) -> FreeFitOutcome {
     let margin = energy.margin_for_area(initial.area());
     let m_ref = sums.total().mean();
-    let n = ((initial.length() / params.spacing_px).round() as usize).max(8);
-    let mut pts = initial.resampled(n).points;
+    let vertices = |p: &Polygon| ((p.length() / params.spacing_px).round() as usize).max(MIN_FREE_VERTICES);
+    let mut pts = initial.resampled(vertices(initial)).points;
     let mut step = params.initial_step_px;
     let mut converged = false;
     let mut sweeps = 0;
@@ -174,8 +180,7 @@ pub fn fit_free(
         }
         if sweeps % params.resample_every == 0 {
             let polygon = Polygon::new(std::mem::take(&mut pts));
-            let n = ((polygon.length() / params.spacing_px).round() as usize).max(8);
-            pts = polygon.resampled(n).points;
+            pts = polygon.resampled(vertices(&polygon)).points;
         }
     }
     let terms = evaluate(sums, &pts, energy, margin);
@@ -308,6 +313,10 @@ pub struct RigidTemplate {
     pub radius: f64,
     /// Window margin (fixed for the template's area).
     pub margin: f64,
+    /// False for outlines that look the same when rotated (a disc): their
+    /// rotation cannot be measured, and letting it wander would only turn
+    /// the template against the image's fixed shading.
+    pub rotation_observable: bool,
 }
 
 impl RigidTemplate {
@@ -328,11 +337,13 @@ impl RigidTemplate {
         let coarse = Polygon::new(points.clone())
             .resampled(coarse_vertices.min(points.len()).max(8))
             .points;
+        let rotation_observable = rotation_is_observable(&points);
         let template = Self {
             points,
             coarse,
             radius,
             margin: energy.margin_for_area(outline.area()),
+            rotation_observable,
         };
         (
             template,
@@ -366,52 +377,212 @@ pub fn fit_rigid(
     energy: &EnergyParams,
     params: &RigidParams,
 ) -> RigidOutcome {
-    let mut evaluations = 0usize;
+    let eval = |pts: &[Point], pose: Pose| evaluate(sums, &place(pts, pose), energy, template.margin).energy;
     let mut pose = start;
-    let eval = |pts: &[Point], pose: Pose, evaluations: &mut usize| {
-        *evaluations += 1;
-        evaluate(sums, &place(pts, pose), energy, template.margin)
-    };
+    let mut evaluations = 0;
     // Coarse stage: translation only, decimated contour.
     if params.coarse_step_px > 1.0 {
-        let mut best = eval(&template.coarse, pose, &mut evaluations).energy;
-        let mut step = params.coarse_step_px;
-        while step >= 1.0 && evaluations < params.max_evaluations {
-            let (p, e, improved) = compass_round(pose, best, step, template.radius, false, |p| {
-                eval(&template.coarse, p, &mut evaluations).energy
-            });
-            pose = p;
-            best = e;
-            if !improved {
-                step *= 0.5;
-            }
-        }
+        let coarse = CompassSearch {
+            first_step: params.coarse_step_px,
+            min_step: 1.0,
+            radius: template.radius,
+            rotate: false,
+            max_evaluations: params.max_evaluations,
+        };
+        let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, p));
+        pose = p;
+        evaluations += used;
     }
     // Fine stage: every vertex, with rotation.
-    let mut best = eval(&template.points, pose, &mut evaluations).energy;
-    let mut step = 1.0f64.max(params.min_step_px);
-    loop {
-        let (p, e, improved) = compass_round(pose, best, step, template.radius, params.rotate, |p| {
-            eval(&template.points, p, &mut evaluations).energy
-        });
-        pose = p;
-        best = e;
-        if evaluations >= params.max_evaluations {
-            break;
-        }
-        if !improved {
-            if step <= params.min_step_px {
-                break;
-            }
-            step = (step * 0.5).max(params.min_step_px);
-        }
-    }
-    let terms = evaluate(sums, &place(&template.points, pose), energy, template.margin);
+    let fine = CompassSearch {
+        first_step: 1.0f64.max(params.min_step_px),
+        min_step: params.min_step_px,
+        radius: template.radius,
+        rotate: params.rotate && template.rotation_observable,
+        max_evaluations: params.max_evaluations.saturating_sub(evaluations).max(1),
+    };
+    // The fine stage moves the contour by a pixel or two: hold the window
+    // where the coarse stage left it.
+    let window = window_of(&place(&template.points, pose), template.margin);
+    let energy_at = |p: Pose| evaluate_in_window(sums, &place(&template.points, p), energy, window).energy;
+    let (pose, best, used) = fine.run(pose, energy_at);
+    let (pose, _, polished) = newton_polish(pose, best, template.radius, fine.rotate, energy_at);
+    let terms = evaluate_in_window(sums, &place(&template.points, pose), energy, window);
     RigidOutcome {
         pose,
         terms,
-        evaluations,
+        evaluations: evaluations + used + polished,
     }
+}
+
+/// Refines a compass-search result with Newton steps on a local quadratic
+/// model. Compass search stops when no single axis improves by a full step,
+/// which in a valley where x, y and rotation are coupled can be a tenth of a
+/// pixel from the minimum (measured on synthetic blobs: right-view errors of
+/// +-0.13 px with the true minimum within 0.05 px). Gradient and Hessian come
+/// from central differences at h = 0.25 px (1 + 2d + 2d(d-1) evaluations
+/// for d = 2 or 3 parameters); a step is kept only if it lowers the energy
+/// and moves less than 1 px. Two iterations at most.
+pub fn newton_polish(
+    start: Pose,
+    start_energy: f64,
+    radius: f64,
+    rotate: bool,
+    energy_at: impl Fn(Pose) -> f64,
+) -> (Pose, f64, usize) {
+    const H: f64 = 0.25;
+    let d = if rotate { 3 } else { 2 };
+    // Parameter scales: pixels for x and y, arc length at `radius` for rotation.
+    let scale = [1.0, 1.0, 1.0 / radius];
+    let shifted = |p: Pose, delta: [f64; 3]| Pose {
+        x: p.x + delta[0] * scale[0],
+        y: p.y + delta[1] * scale[1],
+        theta: p.theta + delta[2] * scale[2],
+    };
+    let (mut pose, mut best, mut evaluations) = (start, start_energy, 0usize);
+    for _ in 0..2 {
+        if !best.is_finite() {
+            break;
+        }
+        let mut g = [0.0; 3];
+        let mut hess = [[0.0; 3]; 3];
+        for i in 0..d {
+            let mut e = [0.0; 3];
+            e[i] = H;
+            let (plus, minus) = (
+                energy_at(shifted(pose, e)),
+                energy_at(shifted(pose, e.map(|v| -v))),
+            );
+            evaluations += 2;
+            g[i] = (plus - minus) / (2.0 * H);
+            hess[i][i] = (plus - 2.0 * best + minus) / (H * H);
+        }
+        for i in 0..d {
+            for j in i + 1..d {
+                let mut corner = |si: f64, sj: f64| {
+                    let mut e = [0.0; 3];
+                    e[i] = si * H;
+                    e[j] = sj * H;
+                    evaluations += 1;
+                    energy_at(shifted(pose, e))
+                };
+                let v = (corner(1.0, 1.0) - corner(1.0, -1.0) - corner(-1.0, 1.0) + corner(-1.0, -1.0))
+                    / (4.0 * H * H);
+                hess[i][j] = v;
+                hess[j][i] = v;
+            }
+        }
+        let Some(step) = solve_newton(&hess, &g, d) else {
+            break;
+        };
+        if step.iter().map(|v| v * v).sum::<f64>().sqrt() > 1.0 {
+            break;
+        }
+        let candidate = shifted(pose, step);
+        let e = energy_at(candidate);
+        evaluations += 1;
+        if e < best {
+            pose = candidate;
+            best = e;
+        } else {
+            break;
+        }
+    }
+    (pose, best, evaluations)
+}
+
+/// Solves H x = -g for the leading `d` x `d` block when H is positive
+/// definite (a minimum); `None` otherwise.
+fn solve_newton(h: &[[f64; 3]; 3], g: &[f64; 3], d: usize) -> Option<[f64; 3]> {
+    // Cholesky factorisation of the d x d block, then two triangular solves.
+    let mut l = [[0.0; 3]; 3];
+    for i in 0..d {
+        for j in 0..=i {
+            let sum = h[i][j] - l[i][..j].iter().zip(&l[j][..j]).map(|(a, b)| a * b).sum::<f64>();
+            if i == j {
+                if sum <= 0.0 || !sum.is_finite() {
+                    return None;
+                }
+                l[i][i] = sum.sqrt();
+            } else {
+                l[i][j] = sum / l[j][j];
+            }
+        }
+    }
+    let mut y = [0.0; 3];
+    for i in 0..d {
+        y[i] = (-g[i] - l[i][..i].iter().zip(&y[..i]).map(|(a, b)| a * b).sum::<f64>()) / l[i][i];
+    }
+    let mut x = [0.0; 3];
+    for i in (0..d).rev() {
+        x[i] = (y[i] - (i + 1..d).map(|k| l[k][i] * x[k]).sum::<f64>()) / l[i][i];
+    }
+    Some(x)
+}
+
+/// Compass search over poses: the schedule of step sizes and what to vary.
+#[derive(Clone, Copy, Debug)]
+pub struct CompassSearch {
+    /// First step, pixels.
+    pub first_step: f64,
+    /// The search stops after a round without improvement at this step.
+    pub min_step: f64,
+    /// Turns a pixel step into a rotation step (arc length at this radius).
+    pub radius: f64,
+    /// Vary the rotation too.
+    pub rotate: bool,
+    /// Cap on energy evaluations.
+    pub max_evaluations: usize,
+}
+
+impl CompassSearch {
+    /// Minimises `energy_at` from `start`; returns the best pose, its
+    /// energy and the evaluations used.
+    pub fn run(&self, start: Pose, mut energy_at: impl FnMut(Pose) -> f64) -> (Pose, f64, usize) {
+        let mut evaluations = 1;
+        let mut pose = start;
+        let mut best = energy_at(pose);
+        let mut step = self.first_step.max(self.min_step);
+        loop {
+            let (p, e, improved) = compass_round(pose, best, step, self.radius, self.rotate, |p| {
+                evaluations += 1;
+                energy_at(p)
+            });
+            pose = p;
+            best = e;
+            if evaluations >= self.max_evaluations {
+                break;
+            }
+            if !improved {
+                if step <= self.min_step {
+                    break;
+                }
+                step = (step * 0.5).max(self.min_step);
+            }
+        }
+        (pose, best, evaluations)
+    }
+}
+
+/// Whether rotating an outline (vertices relative to its centroid) by
+/// 2 px of arc at its outermost vertex changes it visibly: the symmetric
+/// difference must exceed a quarter of a pixel per pixel of perimeter (a disc
+/// gives about 0; a rod or an irregular grain far more).
+fn rotation_is_observable(points: &[Point]) -> bool {
+    let polygon = Polygon::new(points.to_vec());
+    let radius = points.iter().map(|p| p[0].hypot(p[1])).fold(0.0, f64::max);
+    if radius < 2.0 {
+        return false;
+    }
+    let rotated = polygon.rotated_about([0.0, 0.0], 2.0 / radius);
+    // Rasterise both on a 4x finer grid around the origin.
+    let scale = 4.0;
+    let side = (2.0 * radius * scale).ceil() as u32 + 4;
+    let shift = side as f64 / 2.0;
+    let raster = |p: &Polygon| p.scaled(scale, [shift, shift]).rasterize(side, side);
+    let (a, b) = (raster(&polygon), raster(&rotated));
+    let differing = a.iter().zip(&b).filter(|(x, y)| x != y).count() as f64 / (scale * scale);
+    differing > 0.25 * polygon.length()
 }
 
 /// One round of compass search over x, y (and rotation); returns the new

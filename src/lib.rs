@@ -7,6 +7,7 @@
 //! Module map (all pure: no async, no HTTP):
 //! - [`imageio`]: decode PNG/TIFF/JPEG/BMP and raw buffers into [`imageio::GrayFrame`]s, with limits.
 //! - [`geometry`]: closed polygons (length, area, centroid, orientation, resampling, rasterisation).
+//! - [`occlusion`]: per-sector detection of partial occlusion and a band energy over the visible sectors.
 //! - [`region`]: region sums in O(contour length) (Green's theorem on row prefix sums), window sums.
 //! - [`synth`]: synthetic SEM stereo sequences with ground truth.
 //! - [`energy`]: the region energy E = lambda L^k/A - D (two-region Poisson likelihood ratio).
@@ -23,6 +24,7 @@ pub mod fit;
 pub mod geometry;
 pub mod imageio;
 pub mod init;
+pub mod occlusion;
 pub mod region;
 pub mod synth;
 pub mod tracker;

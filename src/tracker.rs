@@ -13,11 +13,14 @@ use serde::{Deserialize, Serialize};
 
 use crate::calib::{axis_component, Calibration};
 use crate::energy::{evaluate, EnergyParams, EnergyTerms};
-use crate::fit::{fit_free, fit_rigid, place, FreeFitParams, Pose, RigidParams, RigidTemplate};
+use crate::fit::{
+    fit_free, fit_rigid, place, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
+};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{initialise, InitParams};
-use crate::region::{PixelRect, PrefixSums};
+use crate::occlusion::{occluded_sectors, OcclusionParams, SectorTemplate};
+use crate::region::{PixelRect, PrefixSums, RegionSum};
 
 /// Added to every grey value so that f(z) = z ln z is defined (method note:
 /// "+1 on 8-bit counts"); the same for every frame, so energies compare.
@@ -35,6 +38,8 @@ pub struct TrackerParams {
     pub free: FreeFitParams,
     /// The rigid fits.
     pub rigid: RigidParams,
+    /// Detection of partial occlusion and the fit that ignores it.
+    pub occlusion: OcclusionParams,
     /// Direction of the beam's tilt axis in the image, degrees from +x
     /// towards +y. Default 90 (the image y axis): disparity is then along x.
     pub tilt_axis_deg: f64,
@@ -55,6 +60,7 @@ impl Default for TrackerParams {
             energy: EnergyParams::default(),
             free: FreeFitParams::default(),
             rigid: RigidParams::default(),
+            occlusion: OcclusionParams::default(),
             tilt_axis_deg: 90.0,
             max_disparity_px: 64.0,
             template_spacing_px: 2.0,
@@ -72,6 +78,9 @@ impl TrackerParams {
             .map_err(|e| format!("tracker.energy: {e}"))?;
         self.free.validate().map_err(|e| format!("tracker.free: {e}"))?;
         self.rigid.validate().map_err(|e| format!("tracker.rigid: {e}"))?;
+        self.occlusion
+            .validate()
+            .map_err(|e| format!("tracker.occlusion: {e}"))?;
         if !(self.tilt_axis_deg.is_finite() && (-360.0..=360.0).contains(&self.tilt_axis_deg)) {
             return Err(format!(
                 "invalid tilt_axis_deg {} (expected -360..=360)",
@@ -134,8 +143,11 @@ pub struct ImageResult {
     pub angle_rad: f64,
     /// Energy of the contour (lower is better).
     pub energy: f64,
-    /// Michelson contrast of inside against the background window, -1..=1.
+    /// Michelson contrast of inside against the background window, -1..=1
+    /// (over the visible sectors' bands when part of the outline is occluded).
     pub contrast: f64,
+    /// Fraction of the outline found occluded (0 when fully visible).
+    pub occluded_fraction: f64,
 }
 
 /// The measurement of one stereo pair.
@@ -208,6 +220,17 @@ pub struct TrackerState {
     pub height: u32,
     /// True after a lost pair: the next pair initialises again.
     pub lost: bool,
+    /// Left pose change over the last pair (x, y, rotation): the next pair
+    /// is predicted to continue it.
+    #[serde(default)]
+    pub left_velocity: [f64; 3],
+    /// Per-sector contrasts of the left view on the first pair (reference
+    /// appearance for occlusion detection).
+    #[serde(default)]
+    pub left_sector_contrasts: Vec<f64>,
+    /// The same for the right view.
+    #[serde(default)]
+    pub right_sector_contrasts: Vec<f64>,
 }
 
 /// One tracked object in a stereo sequence.
@@ -215,7 +238,8 @@ pub struct TrackerState {
 pub struct StereoTracker {
     params: TrackerParams,
     state: Option<TrackerState>,
-    template: Option<RigidTemplate>,
+    /// Rigid template and its sectors, derived from `state.template`.
+    template: Option<(RigidTemplate, SectorTemplate)>,
     /// Pairs processed so far (the next pair's frame index).
     frames: u64,
 }
@@ -234,7 +258,7 @@ impl StereoTracker {
 
     /// A tracker continuing from a saved state after `frames` pairs.
     pub fn from_state(params: TrackerParams, state: Option<TrackerState>, frames: u64) -> Self {
-        let template = state.as_ref().map(|s| rigid_template(&s.template, &params));
+        let template = state.as_ref().map(|s| templates(&s.template, &params));
         Self {
             params,
             state,
@@ -281,9 +305,9 @@ impl StereoTracker {
         let frame = self.frames;
         self.frames += 1;
         let result = match (&self.state, &self.template) {
-            (Some(state), Some(template)) if !state.lost => {
-                let (state, template) = (state.clone(), template.clone());
-                self.track(frame, left, right, state, &template)
+            (Some(state), Some(templates)) if !state.lost => {
+                let (state, templates) = (state.clone(), templates.clone());
+                self.track(frame, left, right, state, &templates)
             }
             _ => self.initialise(frame, left, right),
         };
@@ -328,6 +352,10 @@ impl StereoTracker {
             None => return lost_result(frame, "object not found in the right image".into()),
         };
         let right_terms = right_pose.1;
+        let sectors = SectorTemplate::new(&template, self.params.occlusion.sectors);
+        let left_sector_contrasts = sectors.contrasts(&left_sums, &template, left_pose);
+        let right_sums = self.sums_around(right, &template, right_pose.0, 0.0);
+        let right_sector_contrasts = sectors.contrasts(&right_sums, &template, right_pose.0);
         let disparity = [right_pose.0.x - left_pose.x, right_pose.0.y - left_pose.y];
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
         let state = TrackerState {
@@ -339,16 +367,21 @@ impl StereoTracker {
             width: left.width,
             height: left.height,
             lost: false,
+            left_velocity: [0.0; 3],
+            left_sector_contrasts,
+            right_sector_contrasts,
         };
+        let left_fit = ImageFit::full(left_pose, left_terms);
+        let right_fit = ImageFit::full(right_pose.0, right_terms);
         let mut result = self.pair_result(
             frame,
             Status::Initialised,
             &state,
             &template,
-            left_terms,
-            right_terms,
+            &left_fit,
+            &right_fit,
         );
-        if let Some(reason) = self.loss_reason(&state, &template, left_terms, right_terms) {
+        if let Some(reason) = self.loss_reason(&state, &template, &left_fit, &right_fit) {
             result.status = Status::Lost;
             result.reason = Some(reason);
             self.state = None;
@@ -356,35 +389,53 @@ impl StereoTracker {
             return result;
         }
         self.state = Some(state);
-        self.template = Some(template);
+        self.template = Some((template, sectors));
         result
     }
 
-    /// A later pair: rigid fits from the last poses.
+    /// A later pair: rigid fits from the predicted poses.
     fn track(
         &mut self,
         frame: u64,
         left: &GrayFrame,
         right: &GrayFrame,
         mut state: TrackerState,
-        template: &RigidTemplate,
+        (template, sectors): &(RigidTemplate, SectorTemplate),
     ) -> PairResult {
-        let energy = &self.params.energy;
-        let rigid = &self.params.rigid;
-        let left_sums = self.sums_around(left, template, state.left, rigid.search_radius_px);
-        let left_fit = fit_rigid(&left_sums, template, state.left, energy, rigid);
-        let last_disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
-        let last_angle_diff = state.right.theta - state.left.theta;
-        let right_start = Pose {
-            x: left_fit.pose.x + last_disparity[0],
-            y: left_fit.pose.y + last_disparity[1],
-            theta: left_fit.pose.theta + last_angle_diff,
+        let v = state.left_velocity;
+        let left_predicted = Pose {
+            x: state.left.x + v[0],
+            y: state.left.y + v[1],
+            theta: state.left.theta + v[2],
         };
-        let right_sums = self.sums_around(right, template, right_start, rigid.search_radius_px);
-        let right_fit = fit_rigid(&right_sums, template, right_start, energy, rigid);
+        let left_fit = self.fit_view(
+            left,
+            template,
+            sectors,
+            &state.left_sector_contrasts,
+            left_predicted,
+        );
+        let right_predicted = Pose {
+            x: left_fit.pose.x + state.right.x - state.left.x,
+            y: left_fit.pose.y + state.right.y - state.left.y,
+            theta: left_fit.pose.theta + state.right.theta - state.left.theta,
+        };
+        let right_fit = self.fit_view(
+            right,
+            template,
+            sectors,
+            &state.right_sector_contrasts,
+            right_predicted,
+        );
+        let reach = self.params.rigid.search_radius_px;
         let candidate = TrackerState {
             left: left_fit.pose,
             right: right_fit.pose,
+            left_velocity: [
+                (left_fit.pose.x - state.left.x).clamp(-reach, reach),
+                (left_fit.pose.y - state.left.y).clamp(-reach, reach),
+                left_fit.pose.theta - state.left.theta,
+            ],
             ..state.clone()
         };
         let mut result = self.pair_result(
@@ -392,10 +443,10 @@ impl StereoTracker {
             Status::Tracked,
             &candidate,
             template,
-            left_fit.terms,
-            right_fit.terms,
+            &left_fit,
+            &right_fit,
         );
-        if let Some(reason) = self.loss_reason(&candidate, template, left_fit.terms, right_fit.terms) {
+        if let Some(reason) = self.loss_reason(&candidate, template, &left_fit, &right_fit) {
             // Keep the last good poses; the next pair initialises again.
             result.status = Status::Lost;
             result.reason = Some(reason);
@@ -405,6 +456,87 @@ impl StereoTracker {
             self.state = Some(candidate);
         }
         result
+    }
+
+    /// Rigid fit in one view from a predicted pose, ignoring occluded
+    /// sectors: when the prediction is roughly right (median sector contrast
+    /// ratio >= 0.6) occlusion is judged there, before anything can slide
+    /// onto the occluder; otherwise (large motion) after a full fit. A masked
+    /// fit re-derives the mask at its result and refits once if it changed.
+    fn fit_view(
+        &self,
+        frame: &GrayFrame,
+        template: &RigidTemplate,
+        sectors: &SectorTemplate,
+        reference: &[f64],
+        predicted: Pose,
+    ) -> ImageFit {
+        let (energy, rigid, occlusion) = (&self.params.energy, &self.params.rigid, &self.params.occlusion);
+        let sums = self.sums_around(frame, template, predicted, rigid.search_radius_px);
+        let full_fit = |start: Pose| {
+            let out = fit_rigid(&sums, template, start, energy, rigid);
+            ImageFit::full(out.pose, out.terms)
+        };
+        if !occlusion.enabled || reference.len() != sectors.len() {
+            return full_fit(predicted);
+        }
+        let judge = |pose: Pose| {
+            occluded_sectors(
+                reference,
+                &sectors.contrasts(&sums, template, pose),
+                occlusion.max_contrast_change,
+            )
+        };
+        let (mut mask, median) = judge(predicted);
+        let mut pose = predicted;
+        if median < 0.6 || !mask.contains(&true) {
+            let fit = full_fit(predicted);
+            mask = judge(fit.pose).0;
+            if !mask.contains(&true) {
+                return fit;
+            }
+            pose = fit.pose;
+        }
+        let m_ref = sums.total().mean();
+        let search = CompassSearch {
+            first_step: 4.0,
+            min_step: rigid.min_step_px,
+            radius: template.radius,
+            rotate: rigid.rotate && template.rotation_observable,
+            max_evaluations: rigid.max_evaluations,
+        };
+        for _ in 0..2 {
+            if fraction(&mask) > occlusion.max_occluded_fraction {
+                break;
+            }
+            pose = search
+                .run(pose, |p| sectors.masked_energy(&sums, template, p, &mask, m_ref))
+                .0;
+            let new_mask = judge(pose).0;
+            if new_mask == mask {
+                break;
+            }
+            mask = new_mask;
+        }
+        let terms = evaluate(&sums, &place(&template.points, pose), energy, template.margin);
+        // Contrast over the visible sectors' bands: the occluder does not
+        // make a well-tracked object look faint.
+        let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
+        for (k, (inside, outside)) in sectors.band_sums(&sums, template, pose).into_iter().enumerate() {
+            if !mask[k] {
+                a.count += inside.count;
+                a.sum += inside.sum;
+                b.count += outside.count;
+                b.sum += outside.sum;
+            }
+        }
+        let (ma, mb) = (a.mean(), b.mean());
+        ImageFit {
+            pose,
+            terms,
+            contrast: if ma + mb > 0.0 { (ma - mb) / (ma + mb) } else { 0.0 },
+            occluded_fraction: fraction(&mask),
+        }
     }
 
     /// Searches the right image along the disparity axis for the template
@@ -482,11 +614,11 @@ impl StereoTracker {
         &self,
         state: &TrackerState,
         template: &RigidTemplate,
-        left: EnergyTerms,
-        right: EnergyTerms,
+        left: &ImageFit,
+        right: &ImageFit,
     ) -> Option<String> {
-        for (name, pose, terms) in [("left", state.left, left), ("right", state.right, right)] {
-            let pts = place(&template.points, pose);
+        for (name, fit) in [("left", left), ("right", right)] {
+            let pts = place(&template.points, fit.pose);
             let inside = pts.iter().all(|p| {
                 p[0] >= 0.0
                     && p[1] >= 0.0
@@ -496,15 +628,21 @@ impl StereoTracker {
             if !inside {
                 return Some(format!("the contour left the {name} image"));
             }
-            if !terms.energy.is_finite() {
+            if !fit.terms.energy.is_finite() {
                 return Some(format!("no valid contour position in the {name} image"));
             }
-            let reference = state.reference_contrast;
-            let contrast = terms.contrast();
-            if contrast * reference.signum() < self.params.min_contrast_ratio * reference.abs() {
+            if fit.occluded_fraction > self.params.occlusion.max_occluded_fraction {
                 return Some(format!(
-                    "contrast collapsed in the {name} image ({contrast:.3}, was {reference:.3} at initialisation; limit {:.2} of it)",
-                    self.params.min_contrast_ratio
+                    "{:.0}% of the outline is occluded in the {name} image (limit {:.0}%)",
+                    100.0 * fit.occluded_fraction,
+                    100.0 * self.params.occlusion.max_occluded_fraction
+                ));
+            }
+            let reference = state.reference_contrast;
+            if fit.contrast * reference.signum() < self.params.min_contrast_ratio * reference.abs() {
+                return Some(format!(
+                    "contrast collapsed in the {name} image ({:.3}, was {reference:.3} at initialisation; limit {:.2} of it)",
+                    fit.contrast, self.params.min_contrast_ratio
                 ));
             }
         }
@@ -517,18 +655,19 @@ impl StereoTracker {
         status: Status,
         state: &TrackerState,
         template: &RigidTemplate,
-        left: EnergyTerms,
-        right: EnergyTerms,
+        left: &ImageFit,
+        right: &ImageFit,
     ) -> PairResult {
-        let image = |pose: Pose, terms: EnergyTerms| {
-            let contour = place(&template.points, pose);
+        let image = |fit: &ImageFit| {
+            let contour = place(&template.points, fit.pose);
             let angle = Polygon::new(contour.clone()).orientation();
             ImageResult {
                 contour,
-                centroid: pose.center(),
+                centroid: fit.pose.center(),
                 angle_rad: angle,
-                energy: terms.energy,
-                contrast: terms.contrast(),
+                energy: fit.terms.energy,
+                contrast: fit.contrast,
+                occluded_fraction: fit.occluded_fraction,
             }
         };
         let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
@@ -537,8 +676,8 @@ impl StereoTracker {
             frame,
             status,
             reason: None,
-            left: Some(image(state.left, left)),
-            right: Some(image(state.right, right)),
+            left: Some(image(left)),
+            right: Some(image(right)),
             disparity_px: Some(disparity),
             disparity_axis_px: Some(axis),
             relative_disparity_axis_px: Some(axis - state.first_disparity_axis_px),
@@ -548,14 +687,51 @@ impl StereoTracker {
     }
 }
 
-fn rigid_template(points: &[Point], params: &TrackerParams) -> RigidTemplate {
-    // The saved template is relative to its centroid already.
-    RigidTemplate::new(
+/// The fit of one view of a pair.
+#[derive(Clone, Copy, Debug)]
+struct ImageFit {
+    /// Where the contour ended up.
+    pose: Pose,
+    /// The full energy there.
+    terms: EnergyTerms,
+    /// Contrast (over the visible sectors when some are occluded).
+    contrast: f64,
+    /// Fraction of sectors found occluded.
+    occluded_fraction: f64,
+}
+
+impl ImageFit {
+    /// A fit without occlusion.
+    fn full(pose: Pose, terms: EnergyTerms) -> Self {
+        Self {
+            pose,
+            terms,
+            contrast: terms.contrast(),
+            occluded_fraction: 0.0,
+        }
+    }
+}
+
+/// Fraction of true marks.
+fn fraction(marks: &[bool]) -> f64 {
+    if marks.is_empty() {
+        0.0
+    } else {
+        marks.iter().filter(|&&m| m).count() as f64 / marks.len() as f64
+    }
+}
+
+/// The rigid template and its sectors from saved template vertices (which
+/// are relative to their centroid already).
+fn templates(points: &[Point], params: &TrackerParams) -> (RigidTemplate, SectorTemplate) {
+    let rigid = RigidTemplate::new(
         &Polygon::new(points.to_vec()),
         params.rigid.coarse_vertices,
         &params.energy,
     )
-    .0
+    .0;
+    let sectors = SectorTemplate::new(&rigid, params.occlusion.sectors);
+    (rigid, sectors)
 }
 
 fn lost_result(frame: u64, reason: String) -> PairResult {

@@ -1,0 +1,263 @@
+//! Partial occlusion: which parts of a rigid contour are hidden, and an
+//! energy that ignores them.
+//!
+//! The rigid contour is split into sectors (runs of consecutive vertices).
+//! For each sector, a thin band just inside the contour and one just outside
+//! it give a local contrast. On the first pair these contrasts are the
+//! object's reference appearance. On a later pair, something covering part of
+//! the object (a gripper, a second particle, debris) changes the contrast of
+//! the sectors it covers far more than noise, drift or charging do (global
+//! gain changes are normalised out by the median ratio). Those sectors are
+//! dropped, and the pose is fitted with a band energy over the remaining
+//! sectors: the same two-region likelihood ratio as [`crate::energy`], with
+//! region a the union of the inner bands and b the union of the outer bands.
+//! The rigid shape then keeps the centroid right from the visible part of the
+//! outline (the paper's claim, method note section 2, "Robustness").
+
+use serde::{Deserialize, Serialize};
+
+use crate::energy::f;
+use crate::fit::{place, Pose, RigidTemplate};
+use crate::geometry::{Point, Polygon};
+use crate::region::{PrefixSums, RegionSum};
+
+/// Parameters of the occlusion handling.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OcclusionParams {
+    /// Look for occlusion at all. Default true.
+    pub enabled: bool,
+    /// Number of sectors along the contour. Default 24; range 8..=256.
+    pub sectors: usize,
+    /// A sector counts as occluded when its contrast, relative to its
+    /// reference and to the median over all sectors, changes by more than
+    /// this fraction. Default 0.35.
+    pub max_contrast_change: f64,
+    /// Beyond this fraction of occluded sectors the pair is lost: too little
+    /// of the outline is visible to place the contour. Default 0.6.
+    pub max_occluded_fraction: f64,
+}
+
+impl Default for OcclusionParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            sectors: 24,
+            max_contrast_change: 0.35,
+            max_occluded_fraction: 0.6,
+        }
+    }
+}
+
+impl OcclusionParams {
+    /// Checks ranges; the message says what was expected.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(8..=256).contains(&self.sectors) {
+            return Err(format!("invalid sectors {} (expected 8..=256)", self.sectors));
+        }
+        if !(self.max_contrast_change.is_finite() && (0.05..=5.0).contains(&self.max_contrast_change)) {
+            return Err(format!(
+                "invalid max_contrast_change {} (expected 0.05..=5)",
+                self.max_contrast_change
+            ));
+        }
+        if !(self.max_occluded_fraction.is_finite() && (0.0..=0.9).contains(&self.max_occluded_fraction)) {
+            return Err(format!(
+                "invalid max_occluded_fraction {} (expected 0..=0.9)",
+                self.max_occluded_fraction
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The sector layout of a rigid template, with its inner and outer band
+/// outlines (in template coordinates, like the template's vertices).
+#[derive(Clone, Debug)]
+pub struct SectorTemplate {
+    /// First vertex of each sector; sector k runs from `starts[k]` to
+    /// `starts[k + 1]` inclusive (wrapping), so neighbours share a vertex.
+    starts: Vec<usize>,
+    /// Vertices moved inwards by the inner band width.
+    inner: Vec<Point>,
+    /// Vertices moved outwards by the outer band width.
+    outer: Vec<Point>,
+}
+
+impl SectorTemplate {
+    /// Sectors of about equal vertex count. The inner band is at most a
+    /// third of the object's mean thickness (2A/L) wide, so it stays inside
+    /// thin objects; the outer band is as wide as the template's margin, up
+    /// to 12 px.
+    pub fn new(template: &RigidTemplate, sectors: usize) -> Self {
+        let polygon = Polygon::new(template.points.clone());
+        let n = polygon.len();
+        let sectors = sectors.clamp(1, n.max(1));
+        let starts = (0..sectors).map(|k| k * n / sectors).collect();
+        let thickness = 2.0 * polygon.area() / polygon.length().max(1e-9);
+        let inner_width = (thickness / 3.0).clamp(1.5, 8.0);
+        let outer_width = template.margin.clamp(3.0, 12.0);
+        Self {
+            starts,
+            inner: polygon.offset_along_normals(-inner_width).points,
+            outer: polygon.offset_along_normals(outer_width).points,
+        }
+    }
+
+    /// Number of sectors.
+    pub fn len(&self) -> usize {
+        self.starts.len()
+    }
+
+    /// True when there are no sectors.
+    pub fn is_empty(&self) -> bool {
+        self.starts.is_empty()
+    }
+
+    /// Inner- and outer-band sums of every sector at `pose`.
+    pub fn band_sums(
+        &self,
+        sums: &PrefixSums,
+        template: &RigidTemplate,
+        pose: Pose,
+    ) -> Vec<(RegionSum, RegionSum)> {
+        let contour = place(&template.points, pose);
+        let inner = place(&self.inner, pose);
+        let outer = place(&self.outer, pose);
+        let n = contour.len();
+        let mut band = Vec::with_capacity(2 * n / self.starts.len().max(1) + 4);
+        (0..self.starts.len())
+            .map(|k| {
+                let (start, end) = (self.starts[k], self.starts.get(k + 1).copied().unwrap_or(n));
+                let arc = |out: &mut Vec<Point>, other: &[Point]| {
+                    out.clear();
+                    out.extend((start..=end).map(|i| contour[i % n]));
+                    out.extend((start..=end).rev().map(|i| other[i % n]));
+                };
+                arc(&mut band, &inner);
+                let inside = sums.polygon(&band);
+                arc(&mut band, &outer);
+                let outside = sums.polygon(&band);
+                (inside, outside)
+            })
+            .collect()
+    }
+
+    /// Michelson contrast of every sector's inner band against its outer band.
+    pub fn contrasts(&self, sums: &PrefixSums, template: &RigidTemplate, pose: Pose) -> Vec<f64> {
+        self.band_sums(sums, template, pose)
+            .into_iter()
+            .map(|(a, b)| {
+                let (ma, mb) = (a.mean(), b.mean());
+                if ma + mb > 0.0 {
+                    (ma - mb) / (ma + mb)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    /// Band energy over the sectors not marked occluded: minus the
+    /// two-region likelihood ratio of the union of their inner bands against
+    /// the union of their outer bands, divided by `m_ref`. `+inf` when the
+    /// contour leaves the covered area or nothing is left.
+    pub fn masked_energy(
+        &self,
+        sums: &PrefixSums,
+        template: &RigidTemplate,
+        pose: Pose,
+        occluded: &[bool],
+        m_ref: f64,
+    ) -> f64 {
+        if !sums.contains(&place(&self.outer, pose)) {
+            return f64::INFINITY;
+        }
+        let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
+        for (k, (inside, outside)) in self.band_sums(sums, template, pose).into_iter().enumerate() {
+            if occluded.get(k).copied().unwrap_or(false) {
+                continue;
+            }
+            a.count += inside.count;
+            a.sum += inside.sum;
+            b.count += outside.count;
+            b.sum += outside.sum;
+        }
+        if a.count <= 0.0 || b.count <= 0.0 {
+            return f64::INFINITY;
+        }
+        let (n, s) = (a.count + b.count, a.sum + b.sum);
+        let d = a.count * f(a.sum / a.count) + b.count * f(b.sum / b.count) - n * f(s / n);
+        -d / m_ref
+    }
+}
+
+/// Which sectors are occluded, comparing current contrasts with the
+/// reference ones. Each sector's ratio current/reference is divided by the
+/// median ratio (so a global change of gain or offset, e.g. charging, does
+/// not count); a sector is occluded when that normalised ratio is off 1 by
+/// more than `max_change`. Sectors whose reference contrast is weak (below a
+/// quarter of the median) carry too little signal to judge and are never
+/// marked. Returns the marks and the median ratio (near 1 when the pose is
+/// right and the view unobstructed; low when the contour is misplaced).
+pub fn occluded_sectors(reference: &[f64], current: &[f64], max_change: f64) -> (Vec<bool>, f64) {
+    let mut magnitudes: Vec<f64> = reference.iter().map(|r| r.abs()).collect();
+    magnitudes.sort_by(|a, b| a.total_cmp(b));
+    let typical = magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0);
+    let strong: Vec<bool> = reference
+        .iter()
+        .map(|r| r.abs() >= 0.25 * typical && *r != 0.0)
+        .collect();
+    let ratios: Vec<f64> = reference
+        .iter()
+        .zip(current)
+        .map(|(r, c)| if *r != 0.0 { c / r } else { 1.0 })
+        .collect();
+    let mut strong_ratios: Vec<f64> = ratios
+        .iter()
+        .zip(&strong)
+        .filter(|(_, s)| **s)
+        .map(|(r, _)| *r)
+        .collect();
+    if strong_ratios.is_empty() {
+        return (vec![false; reference.len()], 1.0);
+    }
+    strong_ratios.sort_by(|a, b| a.total_cmp(b));
+    let median = strong_ratios[strong_ratios.len() / 2];
+    let marks = ratios
+        .iter()
+        .zip(&strong)
+        .map(|(r, s)| *s && median > 0.0 && (r / median - 1.0).abs() > max_change)
+        .collect();
+    (marks, median)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_changed_sector_is_marked_and_a_global_gain_is_not() {
+        let reference = vec![0.4; 24];
+        let mut current: Vec<f64> = reference.iter().map(|r| r * 0.8).collect(); // charging
+        let (marks, median) = occluded_sectors(&reference, &current, 0.35);
+        assert!(marks.iter().all(|m| !m) && (median - 0.8).abs() < 1e-12);
+        for c in current.iter_mut().take(6) {
+            *c = 0.02; // covered by something as bright as the object
+        }
+        current[10] = -0.3; // covered by something dark
+        let (marks, _) = occluded_sectors(&reference, &current, 0.35);
+        let marked: Vec<usize> = (0..24).filter(|&k| marks[k]).collect();
+        assert_eq!(marked, vec![0, 1, 2, 3, 4, 5, 10]);
+    }
+
+    #[test]
+    fn weak_reference_sectors_are_never_marked() {
+        let mut reference = vec![0.4; 16];
+        reference[3] = 0.01;
+        let mut current = reference.clone();
+        current[3] = 0.2;
+        let (marks, _) = occluded_sectors(&reference, &current, 0.35);
+        assert!(!marks[3]);
+    }
+}
