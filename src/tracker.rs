@@ -748,3 +748,142 @@ fn lost_result(frame: u64, reason: String) -> PairResult {
         z_um: None,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::{frames, Preset, Scene, Shape, SynthConfig};
+
+    fn sequence(preset: Preset, shape: Shape, seed: u64, n: usize) -> Vec<crate::synth::SynthPair> {
+        let config = SynthConfig {
+            frames: n,
+            ..SynthConfig::preset(preset, shape, seed)
+        };
+        frames(&config).unwrap().collect()
+    }
+
+    #[test]
+    fn first_pair_initialises_then_tracks() {
+        let pairs = sequence(Preset::Clean, Shape::Blob, 3, 3);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        let statuses: Vec<Status> = pairs
+            .iter()
+            .map(|p| tracker.process(&p.left, &p.right).unwrap().status)
+            .collect();
+        assert_eq!(
+            statuses,
+            vec![Status::Initialised, Status::Tracked, Status::Tracked]
+        );
+        assert_eq!(tracker.frames(), 3);
+    }
+
+    #[test]
+    fn blank_right_image_is_lost_not_a_confident_answer() {
+        let pairs = sequence(Preset::Clean, Shape::Sphere, 4, 2);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        let blank = GrayFrame::filled(pairs[1].right.width, pairs[1].right.height, 8, 70);
+        let r = tracker.process(&pairs[1].left, &blank).unwrap();
+        assert_eq!(r.status, Status::Lost, "{r:?}");
+        let reason = r.reason.unwrap();
+        assert!(reason.contains("right image"), "{reason}");
+        // The next pair initialises again and measures normally.
+        let again = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
+        assert_eq!(again.status, Status::Initialised, "{:?}", again.reason);
+    }
+
+    #[test]
+    fn state_round_trip_continues_the_session() {
+        let pairs = sequence(Preset::Clean, Shape::Tip, 5, 4);
+        let mut a = StereoTracker::new(TrackerParams::default());
+        for p in &pairs[..2] {
+            a.process(&p.left, &p.right).unwrap();
+        }
+        let json = serde_json::to_string(a.state().unwrap()).unwrap();
+        let state: TrackerState = serde_json::from_str(&json).unwrap();
+        let mut b = StereoTracker::from_state(TrackerParams::default(), Some(state), a.frames());
+        for p in &pairs[2..] {
+            let (ra, rb) = (
+                a.process(&p.left, &p.right).unwrap(),
+                b.process(&p.left, &p.right).unwrap(),
+            );
+            assert_eq!(rb.status, Status::Tracked);
+            assert_eq!(ra.frame, rb.frame);
+            let (da, db) = (ra.disparity_px.unwrap(), rb.disparity_px.unwrap());
+            assert!(
+                (da[0] - db[0]).abs() < 1e-9 && (da[1] - db[1]).abs() < 1e-9,
+                "{da:?} vs {db:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_twenty_pixel_jump_between_pairs_is_caught() {
+        let config = SynthConfig {
+            frames: 1,
+            ..SynthConfig::preset(Preset::Noisy, Shape::Blob, 6)
+        };
+        let first = Scene::new(&config).unwrap().render(0);
+        // The same scene with the object started 20 px further right and 5 px down.
+        let start = first.truth.left.centroid;
+        let mut moved_config = config.clone();
+        moved_config.motion.start_px = Some([start[0] + 20.0, start[1] + 5.0]);
+        let moved = Scene::new(&moved_config).unwrap().render(0);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        tracker.process(&first.left, &first.right).unwrap();
+        let r = tracker.process(&moved.left, &moved.right).unwrap();
+        assert_eq!(r.status, Status::Tracked, "{:?}", r.reason);
+        let c = r.left.unwrap().centroid;
+        let t = moved.truth.left.centroid;
+        assert!(
+            (c[0] - t[0]).hypot(c[1] - t[1]) < 0.5,
+            "left centroid {c:?} vs truth {t:?}"
+        );
+        let d = r.disparity_px.unwrap()[0] - moved.truth.disparity_px[0];
+        let d0 = first.truth.disparity_px[0];
+        assert!(d.abs() < 0.5, "disparity error {d} (first pair's disparity {d0})");
+    }
+
+    #[test]
+    fn size_change_mid_session_is_an_error() {
+        let pairs = sequence(Preset::Clean, Shape::Blob, 7, 1);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        let small = GrayFrame::filled(320, 240, 8, 50);
+        let e = tracker.process(&small, &small).unwrap_err();
+        assert!(matches!(e, TrackError::SizeChanged { width: 320, .. }), "{e}");
+        let mismatched = tracker.process(&pairs[0].left, &small).unwrap_err();
+        assert!(matches!(
+            mismatched,
+            TrackError::Input(ImageInputError::PairSizeMismatch { .. })
+        ));
+    }
+
+    #[test]
+    fn tilt_axis_selects_the_disparity_component() {
+        let pairs = sequence(Preset::Clean, Shape::Rod, 8, 1);
+        let params = TrackerParams {
+            tilt_axis_deg: 0.0,
+            ..TrackerParams::default()
+        };
+        let mut tracker = StereoTracker::new(params);
+        let r = tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        let d = r.disparity_px.unwrap();
+        // Tilt axis along x: the useful component is across it, -dy.
+        assert!((r.disparity_axis_px.unwrap() + d[1]).abs() < 1e-12);
+        assert_eq!(r.relative_disparity_axis_px, Some(0.0));
+    }
+
+    #[test]
+    fn invalid_parameters_are_named() {
+        let params = TrackerParams {
+            min_contrast_ratio: 2.0,
+            ..TrackerParams::default()
+        };
+        let e = params.validate().unwrap_err();
+        assert!(e.contains("min_contrast_ratio") && e.contains("expected"), "{e}");
+        let mut p = TrackerParams::default();
+        p.occlusion.sectors = 2;
+        assert!(p.validate().unwrap_err().contains("occlusion"));
+    }
+}
