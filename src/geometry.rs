@@ -243,6 +243,48 @@ impl Polygon {
         Self::new(out)
     }
 
+    /// True when no two non-adjacent edges intersect (the outline does not
+    /// cross or touch itself). Edges are bucketed in a grid of cells about
+    /// twice the mean edge length, so the check is O(n) for even spacing.
+    pub fn is_simple(&self) -> bool {
+        let n = self.points.len();
+        if n < 4 {
+            return n == 3;
+        }
+        let [x0, y0, x1, y1] = self.bounds();
+        let cell = (2.0 * self.length() / n as f64).max(1e-9);
+        let cols = (((x1 - x0) / cell).floor() as usize + 1).min(4096);
+        let rows = (((y1 - y0) / cell).floor() as usize + 1).min(4096);
+        let cell_x = |x: f64| (((x - x0) / cell).floor().max(0.0) as usize).min(cols - 1);
+        let cell_y = |y: f64| (((y - y0) / cell).floor().max(0.0) as usize).min(rows - 1);
+        let mut grid: Vec<Vec<usize>> = vec![Vec::new(); cols * rows];
+        for i in 0..n {
+            let (a, b) = (self.points[i], self.points[(i + 1) % n]);
+            for cy in cell_y(a[1].min(b[1]))..=cell_y(a[1].max(b[1])) {
+                for cx in cell_x(a[0].min(b[0]))..=cell_x(a[0].max(b[0])) {
+                    grid[cy * cols + cx].push(i);
+                }
+            }
+        }
+        for bucket in &grid {
+            for (k, &i) in bucket.iter().enumerate() {
+                for &j in &bucket[k + 1..] {
+                    let adjacent =
+                        j == i + 1 || i == j + 1 || (i == 0 && j == n - 1) || (j == 0 && i == n - 1);
+                    if adjacent || i == j {
+                        continue;
+                    }
+                    let (a, b) = (self.points[i], self.points[(i + 1) % n]);
+                    let (c, d) = (self.points[j], self.points[(j + 1) % n]);
+                    if segments_intersect(a, b, c, d) {
+                        return false;
+                    }
+                }
+            }
+        }
+        true
+    }
+
     /// True when `p` lies inside (even-odd rule; points exactly on an edge
     /// may go either way).
     pub fn contains(&self, p: Point) -> bool {
@@ -300,6 +342,25 @@ impl Polygon {
 #[inline]
 pub fn dist(a: Point, b: Point) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+}
+
+/// True when segments a-b and c-d share a point (touching counts).
+pub fn segments_intersect(a: Point, b: Point, c: Point, d: Point) -> bool {
+    let orient = |p: Point, q: Point, r: Point| (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]);
+    let (d1, d2) = (orient(c, d, a), orient(c, d, b));
+    let (d3, d4) = (orient(a, b, c), orient(a, b, d));
+    if ((d1 > 0.0 && d2 < 0.0) || (d1 < 0.0 && d2 > 0.0))
+        && ((d3 > 0.0 && d4 < 0.0) || (d3 < 0.0 && d4 > 0.0))
+    {
+        return true;
+    }
+    let on_segment = |p: Point, q: Point, r: Point| {
+        r[0] >= p[0].min(q[0]) && r[0] <= p[0].max(q[0]) && r[1] >= p[1].min(q[1]) && r[1] <= p[1].max(q[1])
+    };
+    (d1 == 0.0 && on_segment(c, d, a))
+        || (d2 == 0.0 && on_segment(c, d, b))
+        || (d3 == 0.0 && on_segment(a, b, c))
+        || (d4 == 0.0 && on_segment(a, b, d))
 }
 
 /// Intersection over union of two equally sized masks (1.0 when both are empty).
@@ -390,6 +451,19 @@ mod tests {
                 grown.area()
             );
         }
+    }
+
+    #[test]
+    fn simple_and_self_crossing_outlines() {
+        assert!(Polygon::circle([5.0, 5.0], 20.0, 500).is_simple());
+        assert!(rect(0.0, 0.0, 3.0, 2.0).is_simple());
+        // A bow tie crosses itself.
+        let bow = Polygon::new(vec![[0.0, 0.0], [10.0, 10.0], [10.0, 0.0], [0.0, 10.0]]);
+        assert!(!bow.is_simple());
+        // A circle with one vertex pushed across the far side.
+        let mut c = Polygon::circle([0.0, 0.0], 10.0, 60);
+        c.points[0] = [-15.0, 0.5];
+        assert!(!c.is_simple());
     }
 
     #[test]

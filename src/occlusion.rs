@@ -30,9 +30,15 @@ pub struct OcclusionParams {
     /// Number of sectors along the contour. Default 24; range 8..=256.
     pub sectors: usize,
     /// A sector counts as occluded when its contrast, relative to its
-    /// reference and to the median over all sectors, changes by more than
-    /// this fraction. Default 0.35.
-    pub max_contrast_change: f64,
+    /// reference and to the median over all sectors, falls below this
+    /// fraction of it. Default 0.35: something in front of the outline
+    /// wipes out or inverts its contrast, while a change of viewpoint or
+    /// shading only weakens it (the real quartz tilt series weakens sectors
+    /// to 0.4..0.7 of their contrast).
+    pub min_contrast_ratio: f64,
+    /// ... or rises above this multiple of it (an occluder covering only
+    /// the outer band). Default 2.
+    pub max_contrast_ratio: f64,
     /// Beyond this fraction of occluded sectors the pair is lost: too little
     /// of the outline is visible to place the contour. Default 0.6.
     pub max_occluded_fraction: f64,
@@ -43,7 +49,8 @@ impl Default for OcclusionParams {
         Self {
             enabled: true,
             sectors: 24,
-            max_contrast_change: 0.35,
+            min_contrast_ratio: 0.35,
+            max_contrast_ratio: 2.0,
             max_occluded_fraction: 0.6,
         }
     }
@@ -55,10 +62,16 @@ impl OcclusionParams {
         if !(8..=256).contains(&self.sectors) {
             return Err(format!("invalid sectors {} (expected 8..=256)", self.sectors));
         }
-        if !(self.max_contrast_change.is_finite() && (0.05..=5.0).contains(&self.max_contrast_change)) {
+        if !(self.min_contrast_ratio.is_finite()
+            && self.max_contrast_ratio.is_finite()
+            && 0.0 <= self.min_contrast_ratio
+            && self.min_contrast_ratio < 1.0
+            && 1.0 < self.max_contrast_ratio
+            && self.max_contrast_ratio <= 100.0)
+        {
             return Err(format!(
-                "invalid max_contrast_change {} (expected 0.05..=5)",
-                self.max_contrast_change
+                "invalid min_contrast_ratio {} / max_contrast_ratio {} (expected 0 <= min < 1 < max <= 100)",
+                self.min_contrast_ratio, self.max_contrast_ratio
             ));
         }
         if !(self.max_occluded_fraction.is_finite() && (0.0..=0.9).contains(&self.max_occluded_fraction)) {
@@ -195,12 +208,17 @@ impl SectorTemplate {
 /// Which sectors are occluded, comparing current contrasts with the
 /// reference ones. Each sector's ratio current/reference is divided by the
 /// median ratio (so a global change of gain or offset, e.g. charging, does
-/// not count); a sector is occluded when that normalised ratio is off 1 by
-/// more than `max_change`. Sectors whose reference contrast is weak (below a
+/// not count); a sector is occluded when that normalised ratio lies outside
+/// `min_ratio..=max_ratio`. Sectors whose reference contrast is weak (below a
 /// quarter of the median) carry too little signal to judge and are never
 /// marked. Returns the marks and the median ratio (near 1 when the pose is
 /// right and the view unobstructed; low when the contour is misplaced).
-pub fn occluded_sectors(reference: &[f64], current: &[f64], max_change: f64) -> (Vec<bool>, f64) {
+pub fn occluded_sectors(
+    reference: &[f64],
+    current: &[f64],
+    min_ratio: f64,
+    max_ratio: f64,
+) -> (Vec<bool>, f64) {
     let mut magnitudes: Vec<f64> = reference.iter().map(|r| r.abs()).collect();
     magnitudes.sort_by(|a, b| a.total_cmp(b));
     let typical = magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0);
@@ -224,12 +242,19 @@ pub fn occluded_sectors(reference: &[f64], current: &[f64], max_change: f64) -> 
     }
     strong_ratios.sort_by(|a, b| a.total_cmp(b));
     let median = strong_ratios[strong_ratios.len() / 2];
-    let marks = ratios
+    let marks: Vec<bool> = ratios
         .iter()
         .zip(&strong)
-        .map(|(r, s)| *s && median > 0.0 && (r / median - 1.0).abs() > max_change)
+        .map(|(r, s)| *s && median > 0.0 && !(min_ratio..=max_ratio).contains(&(r / median)))
         .collect();
-    (marks, median)
+    // An occluder covers a contiguous stretch of the outline, and the
+    // sectors at its ends are only partly covered (their contrast changes
+    // less than the threshold): each marked run grows by one sector per side.
+    let n = marks.len();
+    let grown = (0..n)
+        .map(|k| marks[k] || marks[(k + 1) % n] || marks[(k + n - 1) % n])
+        .collect();
+    (grown, median)
 }
 
 #[cfg(test)]
@@ -240,15 +265,17 @@ mod tests {
     fn a_changed_sector_is_marked_and_a_global_gain_is_not() {
         let reference = vec![0.4; 24];
         let mut current: Vec<f64> = reference.iter().map(|r| r * 0.8).collect(); // charging
-        let (marks, median) = occluded_sectors(&reference, &current, 0.35);
+        let (marks, median) = occluded_sectors(&reference, &current, 0.35, 2.0);
         assert!(marks.iter().all(|m| !m) && (median - 0.8).abs() < 1e-12);
         for c in current.iter_mut().take(6) {
             *c = 0.02; // covered by something as bright as the object
         }
         current[10] = -0.3; // covered by something dark
-        let (marks, _) = occluded_sectors(&reference, &current, 0.35);
+        current[20] = 0.25; // weakened by a change of view: not occlusion
+        let (marks, _) = occluded_sectors(&reference, &current, 0.35, 2.0);
         let marked: Vec<usize> = (0..24).filter(|&k| marks[k]).collect();
-        assert_eq!(marked, vec![0, 1, 2, 3, 4, 5, 10]);
+        // Runs 0..=5 and 10, each grown by one sector (wrapping round to 23).
+        assert_eq!(marked, vec![0, 1, 2, 3, 4, 5, 6, 9, 10, 11, 23]);
     }
 
     #[test]
@@ -257,7 +284,7 @@ mod tests {
         reference[3] = 0.01;
         let mut current = reference.clone();
         current[3] = 0.2;
-        let (marks, _) = occluded_sectors(&reference, &current, 0.35);
+        let (marks, _) = occluded_sectors(&reference, &current, 0.35, 2.0);
         assert!(!marks[3]);
     }
 }
