@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod init_cmd;
+pub mod process_cmd;
 pub mod synth_cmd;
 
 /// Command line of the `semdepth` binary.
@@ -26,6 +27,8 @@ pub enum Command {
     Synth(synth_cmd::SynthArgs),
     /// Find the object in one image and print its initial contour as JSON.
     Init(init_cmd::InitArgs),
+    /// Track a folder of stereo pairs and print one record per pair.
+    Process(process_cmd::ProcessArgs),
 }
 
 /// A failed command: the message goes to stderr, the code is the exit status.
@@ -72,5 +75,6 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
     match cli.command {
         Command::Synth(args) => synth_cmd::run(args),
         Command::Init(args) => init_cmd::run(args),
+        Command::Process(args) => process_cmd::run(args),
     }
 }

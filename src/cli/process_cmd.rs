@@ -1,0 +1,500 @@
+//! `semdepth process DIR`: track a folder of stereo pairs (`*_left.EXT` /
+//! `*_right.EXT`) as one sequence and print one record per pair (JSON lines or
+//! CSV) as it goes.
+
+use std::collections::BTreeMap;
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use clap::{Args, ValueEnum};
+
+use super::CliError;
+use crate::calib::{from_json, Calibration};
+use crate::imageio::{read_file, DecodeLimits, GrayFrame};
+use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
+
+/// Image extensions recognised in the folder (compared case-insensitively).
+pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "jpg", "jpeg", "bmp"];
+
+/// Output format of `semdepth process`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Format {
+    /// One JSON object per line.
+    Jsonl,
+    /// A header line, then one row per pair.
+    Csv,
+}
+
+/// Arguments of `semdepth process`.
+#[derive(Debug, Args)]
+pub struct ProcessArgs {
+    /// Folder with the pairs NAME_left.EXT / NAME_right.EXT (EXT: png, tif,
+    /// tiff, jpg, jpeg, bmp), processed in order of NAME.
+    pub dir: PathBuf,
+    /// Calibration JSON (geometric or fit); fills z_um.
+    #[arg(long, value_name = "CAL.json")]
+    pub calibration: Option<PathBuf>,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Jsonl)]
+    pub format: Format,
+    /// Full tracker parameters as JSON (the flags below override its fields).
+    #[arg(long, value_name = "PARAMS.json")]
+    pub params: Option<PathBuf>,
+    /// Direction of the tilt axis in the image, degrees from +x towards +y
+    /// [default: 90, or the calibration's axis].
+    #[arg(long, allow_negative_numbers = true)]
+    pub tilt_axis_deg: Option<f64>,
+    /// Largest disparity searched on the first pair, pixels [default: 64].
+    #[arg(long)]
+    pub max_disparity: Option<f64>,
+    /// Largest motion between two pairs the rigid fit catches, pixels [default: 24].
+    #[arg(long)]
+    pub search_radius: Option<f64>,
+    /// Smallest expected object area in pixels.
+    #[arg(long)]
+    pub min_area: Option<f64>,
+    /// Largest expected object area in pixels.
+    #[arg(long)]
+    pub max_area: Option<f64>,
+    /// Leave out the contour points.
+    #[arg(long)]
+    pub no_contour: bool,
+    /// Report progress on stderr (on by default when stderr is a terminal).
+    #[arg(long)]
+    pub progress: bool,
+}
+
+/// One stereo pair found in the folder.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PairFiles {
+    /// The common prefix before `_left` / `_right`.
+    pub name: String,
+    /// The left image.
+    pub left: PathBuf,
+    /// The right image.
+    pub right: PathBuf,
+}
+
+/// Finds the pairs in `dir`, sorted by name. Other files are ignored; a left
+/// image without a right one (or the other way round), two images for the
+/// same side and name, and a folder without pairs are errors (exit 2).
+pub fn find_pairs(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| {
+        CliError::input(format!(
+            "error[io_error]: cannot read the folder {}: {e}",
+            dir.display()
+        ))
+    })?;
+    // name -> (left, right)
+    let mut sides: BTreeMap<String, [Option<PathBuf>; 2]> = BTreeMap::new();
+    for entry in entries {
+        let entry = entry.map_err(|e| {
+            CliError::input(format!(
+                "error[io_error]: cannot read the folder {}: {e}",
+                dir.display()
+            ))
+        })?;
+        let path = entry.path();
+        let Some((name, side)) = classify(&path) else {
+            continue;
+        };
+        if !path.is_file() {
+            continue;
+        }
+        let slot = &mut sides.entry(name.clone()).or_default()[side];
+        if let Some(other) = slot {
+            return Err(CliError::input(format!(
+                "error[duplicate_image]: two {} images for pair {name:?}: {} and {} (expected one)",
+                ["left", "right"][side],
+                other.display(),
+                path.display()
+            )));
+        }
+        *slot = Some(path);
+    }
+    if sides.is_empty() {
+        return Err(CliError::input(format!(
+            "error[no_pairs]: no stereo pairs in {} (expected files NAME_left.EXT and NAME_right.EXT, EXT one of {})",
+            dir.display(),
+            IMAGE_EXTENSIONS.join(", ")
+        )));
+    }
+    sides
+        .into_iter()
+        .map(|(name, [left, right])| match (left, right) {
+            (Some(left), Some(right)) => Ok(PairFiles { name, left, right }),
+            (Some(left), None) => Err(CliError::input(format!(
+                "error[unpaired_image]: {} has no right image (expected {name}_right.EXT beside it)",
+                left.display()
+            ))),
+            (None, Some(right)) => Err(CliError::input(format!(
+                "error[unpaired_image]: {} has no left image (expected {name}_left.EXT beside it)",
+                right.display()
+            ))),
+            (None, None) => unreachable!("a pair is only recorded with one of its images"),
+        })
+        .collect()
+}
+
+/// `(name, 0 for left / 1 for right)` when the file is NAME_left.EXT or
+/// NAME_right.EXT with a supported extension.
+fn classify(path: &Path) -> Option<(String, usize)> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    if !IMAGE_EXTENSIONS.contains(&ext.as_str()) {
+        return None;
+    }
+    let stem = path.file_stem()?.to_str()?;
+    if let Some(name) = stem.strip_suffix("_left") {
+        Some((name.to_string(), 0))
+    } else {
+        stem.strip_suffix("_right").map(|name| (name.to_string(), 1))
+    }
+}
+
+impl ProcessArgs {
+    /// The tracker parameters: the `--params` file (or the defaults), the
+    /// flags on top, the calibration's tilt axis when none was given, validated.
+    pub fn tracker_params(&self, calibration: Option<&Calibration>) -> Result<TrackerParams, CliError> {
+        let (mut params, file_sets_axis) = match &self.params {
+            Some(path) => {
+                let text = std::fs::read_to_string(path)
+                    .map_err(|e| CliError::input(format!("error[io_error]: {}: {e}", path.display())))?;
+                let params: TrackerParams = serde_json::from_str(&text).map_err(|e| {
+                    CliError::input(format!(
+                        "error[invalid_params]: {}: not valid tracker parameters: {e}",
+                        path.display()
+                    ))
+                })?;
+                let sets_axis = serde_json::from_str::<serde_json::Value>(&text)
+                    .ok()
+                    .and_then(|v| v.get("tilt_axis_deg").cloned())
+                    .is_some();
+                (params, sets_axis)
+            }
+            None => (TrackerParams::default(), false),
+        };
+        if let Some(v) = self.tilt_axis_deg {
+            params.tilt_axis_deg = v;
+        }
+        if let Some(v) = self.max_disparity {
+            params.max_disparity_px = v;
+        }
+        if let Some(v) = self.search_radius {
+            params.rigid.search_radius_px = v;
+        }
+        if let Some(v) = self.min_area {
+            params.init.min_area_px = Some(v);
+        }
+        if let Some(v) = self.max_area {
+            params.init.max_area_px = Some(v);
+        }
+        if let Some(cal) = calibration {
+            let explicit = self.tilt_axis_deg.is_some() || file_sets_axis;
+            let (a, b) = (params.tilt_axis_deg, cal.tilt_axis_deg());
+            if !explicit {
+                params.tilt_axis_deg = b;
+            } else if (a - b).rem_euclid(360.0) != 0.0 {
+                return Err(CliError::input(format!(
+                    "error[invalid_params]: tilt axis {a} deg disagrees with the calibration's {b} deg \
+                     (expected the same axis for disparity_axis_px and z_um; leave --tilt-axis-deg out to use the calibration's)"
+                )));
+            }
+        }
+        params
+            .validate()
+            .map_err(|e| CliError::input(format!("error[invalid_params]: {e}")))?;
+        Ok(params)
+    }
+}
+
+/// Runs `semdepth process`: exit code 2 for bad arguments or input (including
+/// an image that cannot be read, after the records already printed).
+pub fn run(args: ProcessArgs) -> Result<(), CliError> {
+    let calibration = match &args.calibration {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| CliError::input(format!("error[io_error]: {}: {e}", path.display())))?;
+            Some(
+                from_json(&text)
+                    .map_err(|e| CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())))?,
+            )
+        }
+        None => None,
+    };
+    let params = args.tracker_params(calibration.as_ref())?;
+    let pairs = find_pairs(&args.dir)?;
+    let limits = DecodeLimits::default();
+    let mut tracker = StereoTracker::new(params);
+    let mut progress = Progress::new(pairs.len(), args.progress || std::io::stderr().is_terminal());
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    if args.format == Format::Csv && !emit(&mut out, CSV_HEADER)? {
+        return Ok(());
+    }
+    for pair in &pairs {
+        let started = Instant::now();
+        let left = read_image(&pair.left, &limits)?;
+        let right = read_image(&pair.right, &limits)?;
+        let decoded = Instant::now();
+        let mut result = tracker.process(&left, &right).map_err(|e| {
+            CliError::input(format!(
+                "error[{}]: pair {:?} ({}, {}): {e}",
+                track_error_code(&e),
+                pair.name,
+                pair.left.display(),
+                pair.right.display()
+            ))
+        })?;
+        let tracked = Instant::now();
+        result.apply_calibration(calibration.as_ref());
+        let timing = Timing {
+            decode: ms(decoded - started),
+            track: ms(tracked - decoded),
+        };
+        let line = match args.format {
+            Format::Jsonl => json_record(&result, &pair.name, timing, !args.no_contour)?,
+            Format::Csv => csv_record(&result, &pair.name),
+        };
+        if !emit(&mut out, &line)? {
+            return Ok(()); // stdout closed (e.g. `| head`): stop quietly
+        }
+        progress.record(result.status);
+    }
+    progress.finish();
+    Ok(())
+}
+
+fn read_image(path: &Path, limits: &DecodeLimits) -> Result<GrayFrame, CliError> {
+    read_file(path, limits).map_err(|e| match e {
+        // The I/O error names the path already.
+        crate::imageio::ImageInputError::Io { .. } => CliError::input(format!("error[{}]: {e}", e.code())),
+        _ => CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())),
+    })
+}
+
+fn track_error_code(e: &TrackError) -> &'static str {
+    match e {
+        TrackError::Input(e) => e.code(),
+        TrackError::SizeChanged { .. } => "pair_size_changed",
+    }
+}
+
+fn ms(d: Duration) -> f64 {
+    // Microsecond resolution is plenty and keeps the lines short.
+    (d.as_secs_f64() * 1e6).round() / 1e3
+}
+
+/// Writes one line and flushes; false when stdout is closed.
+fn emit(out: &mut impl Write, line: &str) -> Result<bool, CliError> {
+    match writeln!(out, "{line}").and_then(|_| out.flush()) {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(false),
+        Err(e) => Err(CliError::with_code(
+            1,
+            format!("error[io_error]: writing to stdout: {e}"),
+        )),
+    }
+}
+
+/// Decode and tracking time of one pair, milliseconds.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+struct Timing {
+    decode: f64,
+    track: f64,
+}
+
+/// Keys written first, in this order; any others follow alphabetically.
+const JSON_KEY_ORDER: [&str; 12] = [
+    "frame",
+    "name",
+    "status",
+    "reason",
+    "disparity_px",
+    "disparity_axis_px",
+    "relative_disparity_axis_px",
+    "angle_diff_rad",
+    "z_um",
+    "left",
+    "right",
+    "timing_ms",
+];
+
+/// The pair's result as one JSON object: the [`PairResult`] fields as they
+/// serialise, plus `name` and `timing_ms`.
+fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -> Result<String, CliError> {
+    let internal = |e: serde_json::Error| CliError::with_code(1, format!("error[internal]: {e}"));
+    let serde_json::Value::Object(mut map) = serde_json::to_value(result).map_err(internal)? else {
+        return Err(CliError::with_code(
+            1,
+            "error[internal]: a pair result is not a JSON object",
+        ));
+    };
+    map.insert("name".into(), name.into());
+    map.insert(
+        "timing_ms".into(),
+        serde_json::to_value(timing).map_err(internal)?,
+    );
+    if !contour {
+        for side in ["left", "right"] {
+            if let Some(serde_json::Value::Object(image)) = map.get_mut(side) {
+                image.remove("contour");
+            }
+        }
+    }
+    let mut keys: Vec<String> = JSON_KEY_ORDER
+        .iter()
+        .filter(|k| map.contains_key(**k))
+        .map(|k| k.to_string())
+        .collect();
+    keys.extend(
+        map.keys()
+            .filter(|k| !JSON_KEY_ORDER.contains(&k.as_str()))
+            .cloned(),
+    );
+    let mut line = String::from("{");
+    for (i, key) in keys.iter().enumerate() {
+        if i > 0 {
+            line.push(',');
+        }
+        line.push_str(&serde_json::to_string(key).map_err(internal)?);
+        line.push(':');
+        line.push_str(&serde_json::to_string(&map[key]).map_err(internal)?);
+    }
+    line.push('}');
+    Ok(line)
+}
+
+/// The CSV header.
+pub const CSV_HEADER: &str = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,\
+right_x,right_y,right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,\
+relative_disparity_axis_px,angle_diff_rad,z_um";
+
+fn csv_record(r: &PairResult, name: &str) -> String {
+    // Same number format as the JSON output (shortest round-trip form; a
+    // non-finite value, which JSON cannot hold either, is an empty cell).
+    let num = |v: Option<f64>| {
+        v.filter(|v| v.is_finite())
+            .and_then(|v| serde_json::to_string(&v).ok())
+            .unwrap_or_default()
+    };
+    let mut cells = vec![
+        r.frame.to_string(),
+        csv_text(name),
+        r.status.name().to_string(),
+        r.reason.as_deref().map(quote).unwrap_or_default(),
+    ];
+    for image in [&r.left, &r.right] {
+        cells.push(num(image.as_ref().map(|i| i.centroid[0])));
+        cells.push(num(image.as_ref().map(|i| i.centroid[1])));
+        cells.push(num(image.as_ref().map(|i| i.angle_rad)));
+        cells.push(num(image.as_ref().map(|i| i.contrast)));
+    }
+    cells.push(num(r.disparity_px.map(|d| d[0])));
+    cells.push(num(r.disparity_px.map(|d| d[1])));
+    cells.push(num(r.disparity_axis_px));
+    cells.push(num(r.relative_disparity_axis_px));
+    cells.push(num(r.angle_diff_rad));
+    cells.push(num(r.z_um));
+    cells.join(",")
+}
+
+/// A text cell, quoted when it needs to be.
+fn csv_text(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        quote(s)
+    } else {
+        s.to_string()
+    }
+}
+
+fn quote(s: &str) -> String {
+    format!("\"{}\"", s.replace('"', "\"\""))
+}
+
+/// Progress and summary lines on stderr.
+struct Progress {
+    enabled: bool,
+    total: usize,
+    done: usize,
+    tracked: usize,
+    initialised: usize,
+    lost: usize,
+    started: Instant,
+}
+
+impl Progress {
+    fn new(total: usize, enabled: bool) -> Self {
+        Self {
+            enabled,
+            total,
+            done: 0,
+            tracked: 0,
+            initialised: 0,
+            lost: 0,
+            started: Instant::now(),
+        }
+    }
+
+    fn record(&mut self, status: Status) {
+        self.done += 1;
+        match status {
+            Status::Initialised => self.initialised += 1,
+            Status::Tracked => self.tracked += 1,
+            Status::Lost => self.lost += 1,
+        }
+        if self.enabled && self.done % 10 == 0 && self.done < self.total {
+            let rate = self.done as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
+            eprintln!("processed {}/{} pairs ({rate:.1} pairs/s)", self.done, self.total);
+        }
+    }
+
+    fn finish(&self) {
+        if self.enabled {
+            let elapsed = self.started.elapsed().as_secs_f64();
+            eprintln!(
+                "processed {} pairs in {elapsed:.2} s ({:.1} pairs/s): {} initialised, {} tracked, {} lost",
+                self.done,
+                self.done as f64 / elapsed.max(1e-9),
+                self.initialised,
+                self.tracked,
+                self.lost
+            );
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn classify_names() {
+        assert_eq!(classify(Path::new("a/0001_left.PNG")), Some(("0001".into(), 0)));
+        assert_eq!(classify(Path::new("x_y_right.tiff")), Some(("x_y".into(), 1)));
+        assert_eq!(classify(Path::new("_left.jpg")), Some(("".into(), 0)));
+        assert_eq!(classify(Path::new("0001_left.json")), None);
+        assert_eq!(classify(Path::new("0001_middle.png")), None);
+        assert_eq!(classify(Path::new("truth.json")), None);
+    }
+
+    #[test]
+    fn csv_quotes_reason_and_leaves_nulls_empty() {
+        // Built from JSON so that fields added to PairResult later (all
+        // optional) do not break the test.
+        let r: PairResult = serde_json::from_value(serde_json::json!({
+            "frame": 3,
+            "status": "lost",
+            "reason": "contrast \"collapsed\", left",
+        }))
+        .unwrap();
+        let line = csv_record(&r, "a,b");
+        let expected = format!(
+            "3,\"a,b\",lost,\"contrast \"\"collapsed\"\", left\"{}",
+            ",".repeat(14)
+        );
+        assert_eq!(line, expected);
+        // Two of the commas are inside quoted cells.
+        assert_eq!(line.matches(',').count() - 2, CSV_HEADER.matches(',').count());
+    }
+}

@@ -1,0 +1,394 @@
+//! `semdepth process DIR` end to end: a synthetic sequence from `semdepth
+//! synth` (checked against its truth.json), JSONL and CSV output, a
+//! calibration, bad input, and the real quartz images as a fixture folder.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use serde_json::Value;
+
+fn semdepth(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_semdepth"))
+        .args(args)
+        .output()
+        .expect("run semdepth")
+}
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn assert_success(out: &Output) {
+    assert!(
+        out.status.success(),
+        "exit {:?}: {}",
+        out.status.code(),
+        stderr(out)
+    );
+}
+
+/// Asserts exit code 2 and that stderr mentions each of `needles`.
+fn assert_input_error(out: &Output, needles: &[&str]) {
+    let err = stderr(out);
+    assert_eq!(out.status.code(), Some(2), "stderr: {err}");
+    for needle in needles {
+        assert!(err.contains(needle), "stderr should mention {needle:?}: {err}");
+    }
+}
+
+fn jsonl(out: &Output) -> Vec<Value> {
+    String::from_utf8(out.stdout.clone())
+        .expect("utf-8 stdout")
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
+        .collect()
+}
+
+fn path_str(p: &Path) -> &str {
+    p.to_str().expect("utf-8 path")
+}
+
+/// A clean 10-pair blob sequence (seed 1) in `dir/seq`; returns its folder
+/// and truth.json.
+fn synth_clean(dir: &Path) -> (PathBuf, Value) {
+    let seq = dir.join("seq");
+    let out = semdepth(&[
+        "synth",
+        path_str(&seq),
+        "--preset",
+        "clean",
+        "--shape",
+        "blob",
+        "--seed",
+        "1",
+        "--frames",
+        "10",
+    ]);
+    assert_success(&out);
+    let truth = serde_json::from_slice(&std::fs::read(seq.join("truth.json")).unwrap()).unwrap();
+    (seq, truth)
+}
+
+fn f(v: &Value) -> f64 {
+    v.as_f64().unwrap_or_else(|| panic!("expected a number, got {v}"))
+}
+
+#[test]
+fn process_tracks_a_synthetic_sequence_against_its_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, truth) = synth_clean(dir.path());
+    let out = semdepth(&["process", path_str(&seq)]);
+    assert_success(&out);
+    let records = jsonl(&out);
+    assert_eq!(records.len(), 10);
+    let mut residuals = Vec::new();
+    for (k, r) in records.iter().enumerate() {
+        assert_eq!(r["frame"], k as u64);
+        assert_eq!(r["name"], format!("{k:04}"));
+        assert_eq!(r["status"], if k == 0 { "initialised" } else { "tracked" }, "{r}");
+        assert!(r["reason"].is_null());
+        for side in ["left", "right"] {
+            let image = &r[side];
+            for key in ["centroid", "angle_rad", "energy", "contrast"] {
+                assert!(!image[key].is_null(), "{side}.{key} missing: {r}");
+            }
+            assert!(
+                image["contour"].as_array().is_some_and(|c| c.len() >= 16),
+                "{side}.contour"
+            );
+        }
+        for key in [
+            "disparity_px",
+            "disparity_axis_px",
+            "relative_disparity_axis_px",
+            "angle_diff_rad",
+        ] {
+            assert!(!r[key].is_null(), "{key} missing: {r}");
+        }
+        assert!(r["z_um"].is_null(), "no calibration, no z: {r}");
+        assert!(f(&r["timing_ms"]["decode"]) >= 0.0 && f(&r["timing_ms"]["track"]) >= 0.0);
+        // Default tilt axis 90 deg: the axis component is the x disparity.
+        assert_eq!(r["disparity_axis_px"], r["disparity_px"][0]);
+        let truth_d = f(&truth["frames"][k]["disparity_px"][0]);
+        residuals.push(f(&r["disparity_axis_px"]) - truth_d);
+    }
+    let mean = residuals.iter().sum::<f64>() / residuals.len() as f64;
+    let centred: Vec<f64> = residuals.iter().map(|r| r - mean).collect();
+    let spread =
+        centred.iter().cloned().fold(f64::MIN, f64::max) - centred.iter().cloned().fold(f64::MAX, f64::min);
+    eprintln!(
+        "disparity residuals (tracked - truth): mean {mean:+.4} px, spread {spread:.4} px: {residuals:.3?}"
+    );
+    assert!(
+        spread < 0.2,
+        "disparity error spread {spread:.3} px (limit 0.2): {residuals:.3?}"
+    );
+}
+
+#[test]
+fn process_with_a_geometric_calibration_fills_z() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+    let cal = dir.path().join("cal.json");
+    std::fs::write(
+        &cal,
+        r#"{"model":"geometric","pixel_size_um":1.0,"vergence_deg":10.0}"#,
+    )
+    .unwrap();
+    let out = semdepth(&[
+        "process",
+        path_str(&seq),
+        "--calibration",
+        path_str(&cal),
+        "--no-contour",
+    ]);
+    assert_success(&out);
+    let records = jsonl(&out);
+    assert_eq!(records.len(), 10);
+    let per_px = 1.0 / (2.0 * 5.0f64.to_radians().sin());
+    for r in &records {
+        let z = f(&r["z_um"]);
+        let expected = (f(&r["disparity_axis_px"]) - 0.0) * per_px;
+        assert!((z - expected).abs() < 1e-6, "z_um {z} != {expected}: {r}");
+        for side in ["left", "right"] {
+            assert!(
+                r[side].get("contour").is_none(),
+                "--no-contour keeps {side}.contour"
+            );
+            assert!(!r[side]["centroid"].is_null());
+        }
+    }
+}
+
+/// Splits one CSV line into cells (quoted cells may hold commas and `""`).
+fn csv_cells(line: &str) -> Vec<String> {
+    let (mut cells, mut cell, mut quoted, mut chars) =
+        (Vec::new(), String::new(), false, line.chars().peekable());
+    while let Some(c) = chars.next() {
+        match (c, quoted) {
+            ('"', true) if chars.peek() == Some(&'"') => {
+                cell.push('"');
+                chars.next();
+            }
+            ('"', _) => quoted = !quoted,
+            (',', false) => cells.push(std::mem::take(&mut cell)),
+            (c, _) => cell.push(c),
+        }
+    }
+    assert!(!quoted, "unterminated quote: {line}");
+    cells.push(cell);
+    cells
+}
+
+#[test]
+fn process_csv_has_the_documented_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+    let out = semdepth(&["process", path_str(&seq), "--format", "csv"]);
+    assert_success(&out);
+    let text = String::from_utf8(out.stdout.clone()).unwrap();
+    let mut lines = text.lines();
+    let header = csv_cells(lines.next().expect("header"));
+    let expected = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,right_x,right_y,\
+right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,relative_disparity_axis_px,\
+angle_diff_rad,z_um";
+    assert_eq!(header.join(","), expected);
+    let rows: Vec<Vec<String>> = lines.map(csv_cells).collect();
+    assert_eq!(rows.len(), 10);
+    // The same numbers as the JSON output.
+    let json = jsonl(&semdepth(&["process", path_str(&seq), "--no-contour"]));
+    for (k, row) in rows.iter().enumerate() {
+        assert_eq!(row.len(), header.len(), "row {k}: {row:?}");
+        let cell = |name: &str| &row[header.iter().position(|h| h == name).unwrap()];
+        assert_eq!(cell("frame"), &k.to_string());
+        assert_eq!(cell("name"), &format!("{k:04}"));
+        assert_eq!(cell("status"), json[k]["status"].as_str().unwrap());
+        assert_eq!(cell("reason"), "");
+        assert_eq!(cell("z_um"), "", "no calibration: empty z_um");
+        let num = |name: &str| {
+            cell(name)
+                .parse::<f64>()
+                .unwrap_or_else(|e| panic!("row {k} {name}: {e}"))
+        };
+        assert_eq!(num("left_x"), f(&json[k]["left"]["centroid"][0]));
+        assert_eq!(num("right_y"), f(&json[k]["right"]["centroid"][1]));
+        assert_eq!(num("disparity_x_px"), f(&json[k]["disparity_px"][0]));
+        assert_eq!(num("disparity_axis_px"), f(&json[k]["disparity_axis_px"]));
+        assert_eq!(num("angle_diff_rad"), f(&json[k]["angle_diff_rad"]));
+    }
+}
+
+#[test]
+fn process_rejects_bad_folders_and_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+
+    // A folder that does not exist.
+    let missing = dir.path().join("no_such_dir");
+    assert_input_error(&semdepth(&["process", path_str(&missing)]), &["no_such_dir"]);
+
+    // An empty folder (and one with only unrelated files).
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    assert_input_error(&semdepth(&["process", path_str(&empty)]), &["no stereo pairs"]);
+    std::fs::write(empty.join("notes_left.txt"), "not an image").unwrap();
+    assert_input_error(&semdepth(&["process", path_str(&empty)]), &["no stereo pairs"]);
+
+    // A left image without its right image.
+    let unpaired = dir.path().join("unpaired");
+    std::fs::create_dir(&unpaired).unwrap();
+    for name in ["0000_left.png", "0000_right.png", "0001_left.png"] {
+        std::fs::copy(seq.join(name), unpaired.join(name)).unwrap();
+    }
+    assert_input_error(
+        &semdepth(&["process", path_str(&unpaired)]),
+        &["0001_left.png", "no right image"],
+    );
+
+    // A corrupt image after a good pair: the good record is printed first.
+    let corrupt = dir.path().join("corrupt");
+    std::fs::create_dir(&corrupt).unwrap();
+    for name in ["0000_left.png", "0000_right.png", "0001_left.png"] {
+        std::fs::copy(seq.join(name), corrupt.join(name)).unwrap();
+    }
+    let bytes = std::fs::read(seq.join("0001_right.png")).unwrap();
+    std::fs::write(corrupt.join("0001_right.png"), &bytes[..bytes.len() / 3]).unwrap();
+    let out = semdepth(&["process", path_str(&corrupt)]);
+    assert_input_error(&out, &["0001_right.png", "corrupt_image"]);
+    let printed = jsonl(&out);
+    assert_eq!(printed.len(), 1, "the pair before the corrupt one is printed");
+    assert_eq!(printed[0]["name"], "0000");
+
+    // Pairs of different sizes within a sequence.
+    let sizes = dir.path().join("sizes");
+    let out = semdepth(&[
+        "synth",
+        path_str(&sizes),
+        "--frames",
+        "1",
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ]);
+    assert_success(&out);
+    for name in ["0000_left.png", "0000_right.png"] {
+        std::fs::copy(seq.join(name), sizes.join(name.replace("0000", "0001"))).unwrap();
+    }
+    let out = semdepth(&["process", path_str(&sizes)]);
+    assert_input_error(&out, &["0001", "pair_size_changed"]);
+    assert_eq!(jsonl(&out).len(), 1);
+}
+
+#[test]
+fn process_rejects_bad_parameters() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+    let params = dir.path().join("params.json");
+
+    // Unknown field.
+    std::fs::write(&params, r#"{"max_disparity_px": 40, "speed": "fast"}"#).unwrap();
+    let out = semdepth(&["process", path_str(&seq), "--params", path_str(&params)]);
+    assert_input_error(&out, &["params.json", "unknown field", "speed"]);
+    assert!(out.stdout.is_empty());
+
+    // Not JSON at all.
+    std::fs::write(&params, "max_disparity_px = 40").unwrap();
+    assert_input_error(
+        &semdepth(&["process", path_str(&seq), "--params", path_str(&params)]),
+        &["params.json"],
+    );
+
+    // Out of range, from the file and from a flag.
+    std::fs::write(&params, r#"{"rigid": {"search_radius_px": 0.0}}"#).unwrap();
+    assert_input_error(
+        &semdepth(&["process", path_str(&seq), "--params", path_str(&params)]),
+        &["search_radius_px"],
+    );
+    assert_input_error(
+        &semdepth(&["process", path_str(&seq), "--max-disparity=-5"]),
+        &["max_disparity_px"],
+    );
+
+    // A valid file with a flag on top is accepted.
+    std::fs::write(
+        &params,
+        r#"{"max_disparity_px": 40, "rigid": {"search_radius_px": 30}}"#,
+    )
+    .unwrap();
+    let out = semdepth(&[
+        "process",
+        path_str(&seq),
+        "--params",
+        path_str(&params),
+        "--search-radius",
+        "20",
+        "--no-contour",
+    ]);
+    assert_success(&out);
+    assert_eq!(jsonl(&out).len(), 10);
+
+    // A calibration file that is not one.
+    let cal = dir.path().join("cal.json");
+    std::fs::write(
+        &cal,
+        r#"{"model":"geometric","pixel_size_um":-1,"vergence_deg":10}"#,
+    )
+    .unwrap();
+    assert_input_error(
+        &semdepth(&["process", path_str(&seq), "--calibration", path_str(&cal)]),
+        &["cal.json"],
+    );
+}
+
+/// The real quartz images as a fixture folder: consecutive tilt steps as a
+/// sequence, pair 0000 = (01, 02), pair 0001 = (02, 03). Each pair's
+/// disparity is about 27 px; between the pairs the left view moves by about
+/// 27 px (tracked rigidly) while the outline changes with the tilt.
+#[test]
+fn process_runs_on_the_real_quartz_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let fixture = dir.path().join("quartz");
+    std::fs::create_dir(&fixture).unwrap();
+    for (name, index) in [
+        ("0000_left.png", 1),
+        ("0000_right.png", 2),
+        ("0001_left.png", 2),
+        ("0001_right.png", 3),
+    ] {
+        std::fs::copy(common::quartz_path(index), fixture.join(name)).unwrap();
+    }
+    let out = semdepth(&["process", path_str(&fixture), "--no-contour", "--progress"]);
+    eprintln!("stderr: {}", stderr(&out));
+    assert_success(&out);
+    let records = jsonl(&out);
+    for r in &records {
+        eprintln!(
+            "{}: status {} reason {} disparity {} axis {} left {} right {}",
+            r["name"],
+            r["status"],
+            r["reason"],
+            r["disparity_px"],
+            r["disparity_axis_px"],
+            r["left"]["centroid"],
+            r["right"]["centroid"]
+        );
+    }
+    assert_eq!(records.len(), 2);
+    assert!(
+        stderr(&out).contains("processed 2 pairs"),
+        "summary line: {}",
+        stderr(&out)
+    );
+    for (r, expected) in records.iter().zip([27.0, 27.0]) {
+        assert_ne!(r["status"], "lost", "{}: {}", r["name"], r["reason"]);
+        let d = f(&r["disparity_axis_px"]);
+        assert!(
+            (d - expected).abs() < 3.0,
+            "{}: disparity_axis_px {d:.2}, expected about {expected} (within 3 px)",
+            r["name"]
+        );
+    }
+}
