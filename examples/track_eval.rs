@@ -18,7 +18,8 @@ fn main() {
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
         let t = std::time::Instant::now();
         for shape in Shape::ALL {
-            for seed in 0..seeds {
+            let seed0: u64 = std::env::var("SEED0").map_or(0, |v| v.parse().unwrap());
+            for seed in seed0..seed0 + seeds {
                 let cfg = SynthConfig {
                     frames: nframes,
                     ..SynthConfig::preset(preset, shape, seed)
@@ -29,6 +30,9 @@ fn main() {
                 }
                 if let Ok(v) = std::env::var("SPACING") {
                     params.free.spacing_px = v.parse().unwrap();
+                }
+                if let Ok(v) = std::env::var("MINSTEP") {
+                    params.rigid.min_step_px = v.parse().unwrap();
                 }
                 if let Ok(v) = std::env::var("TSPACING") {
                     params.template_spacing_px = v.parse().unwrap();
