@@ -114,15 +114,20 @@ impl EnergyTerms {
         area: 0.0,
     };
 
-    /// Michelson contrast (m_a - m_b) / (m_a + m_b), in -1..=1: positive for
-    /// an object brighter than its surroundings.
+    /// Michelson contrast of inside against outside (see [`michelson`]).
     pub fn contrast(&self) -> f64 {
-        let s = self.mean_inside + self.mean_outside;
-        if s > 0.0 {
-            (self.mean_inside - self.mean_outside) / s
-        } else {
-            0.0
-        }
+        michelson(self.mean_inside, self.mean_outside)
+    }
+}
+
+/// Michelson contrast (a - b) / (a + b) of two mean intensities, in -1..=1:
+/// positive when `a` is brighter; 0 when both are 0.
+#[inline]
+pub fn michelson(a: f64, b: f64) -> f64 {
+    if a + b > 0.0 {
+        (a - b) / (a + b)
+    } else {
+        0.0
     }
 }
 

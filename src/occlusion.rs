@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::energy::f;
+use crate::energy::{data_term, michelson};
 use crate::fit::{place, Pose, RigidTemplate};
 use crate::geometry::{Point, Polygon};
 use crate::region::{PrefixSums, RegionSum};
@@ -160,15 +160,30 @@ impl SectorTemplate {
     pub fn contrasts(&self, sums: &PrefixSums, template: &RigidTemplate, pose: Pose) -> Vec<f64> {
         self.band_sums(sums, template, pose)
             .into_iter()
-            .map(|(a, b)| {
-                let (ma, mb) = (a.mean(), b.mean());
-                if ma + mb > 0.0 {
-                    (ma - mb) / (ma + mb)
-                } else {
-                    0.0
-                }
-            })
+            .map(|(a, b)| michelson(a.mean(), b.mean()))
             .collect()
+    }
+
+    /// The inner and outer bands of the sectors not marked occluded, each
+    /// summed into one region.
+    pub fn visible_bands(
+        &self,
+        sums: &PrefixSums,
+        template: &RigidTemplate,
+        pose: Pose,
+        occluded: &[bool],
+    ) -> (RegionSum, RegionSum) {
+        let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
+        for (k, (inside, outside)) in self.band_sums(sums, template, pose).into_iter().enumerate() {
+            if occluded.get(k).copied().unwrap_or(false) {
+                continue;
+            }
+            a.count += inside.count;
+            a.sum += inside.sum;
+            b.count += outside.count;
+            b.sum += outside.sum;
+        }
+        (a, b)
     }
 
     /// Band energy over the sectors not marked occluded: minus the
@@ -186,22 +201,15 @@ impl SectorTemplate {
         if !sums.contains(&place(&self.outer, pose)) {
             return f64::INFINITY;
         }
-        let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
-        for (k, (inside, outside)) in self.band_sums(sums, template, pose).into_iter().enumerate() {
-            if occluded.get(k).copied().unwrap_or(false) {
-                continue;
-            }
-            a.count += inside.count;
-            a.sum += inside.sum;
-            b.count += outside.count;
-            b.sum += outside.sum;
+        let (a, b) = self.visible_bands(sums, template, pose, occluded);
+        let both = RegionSum {
+            count: a.count + b.count,
+            sum: a.sum + b.sum,
+        };
+        match data_term(a, both) {
+            Some(d) => -d / m_ref,
+            None => f64::INFINITY,
         }
-        if a.count <= 0.0 || b.count <= 0.0 {
-            return f64::INFINITY;
-        }
-        let (n, s) = (a.count + b.count, a.sum + b.sum);
-        let d = a.count * f(a.sum / a.count) + b.count * f(b.sum / b.count) - n * f(s / n);
-        -d / m_ref
     }
 }
 

@@ -12,7 +12,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::calib::{axis_component, Calibration};
-use crate::energy::{evaluate, EnergyParams, EnergyTerms};
+use crate::energy::{evaluate, michelson, EnergyParams, EnergyTerms};
 use crate::fit::{
     fit_free, fit_rigid, place, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
@@ -20,7 +20,7 @@ use crate::geometry::{Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{initialise, InitParams};
 use crate::occlusion::{occluded_sectors, OcclusionParams, SectorTemplate};
-use crate::region::{PixelRect, PrefixSums, RegionSum};
+use crate::region::{PixelRect, PrefixSums};
 
 /// Added to every grey value so that f(z) = z ln z is defined (method note:
 /// "+1 on 8-bit counts"); the same for every frame, so energies compare.
@@ -560,20 +560,12 @@ impl StereoTracker {
         let terms = evaluate(&sums, &place(&template.points, pose), energy, template.margin);
         // Contrast over the visible sectors' bands: the occluder does not
         // make a well-tracked object look faint.
-        let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
-        for (k, (inside, outside)) in sectors.band_sums(&sums, template, pose).into_iter().enumerate() {
-            if !mask[k] {
-                a.count += inside.count;
-                a.sum += inside.sum;
-                b.count += outside.count;
-                b.sum += outside.sum;
-            }
-        }
+        let (a, b) = sectors.visible_bands(&sums, template, pose, &mask);
         let (ma, mb) = (a.mean(), b.mean());
         ImageFit {
             pose,
             terms,
-            contrast: if ma + mb > 0.0 { (ma - mb) / (ma + mb) } else { 0.0 },
+            contrast: michelson(ma, mb),
             occluded_fraction: fraction(&mask),
         }
     }
