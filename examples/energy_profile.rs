@@ -25,22 +25,9 @@ fn main() {
             ..EnergyParams::default()
         };
         let margin = p.margin_for_area(truth.area());
-        let n = truth.len();
         let mut line = format!("{:>6} grow:", shape.name());
         for g in [-1.0, -0.5, -0.25, 0.0, 0.25, 0.5, 1.0] {
-            // Offset each vertex along its normal by g px.
-            let pts: Vec<[f64; 2]> = (0..n)
-                .map(|i| {
-                    let (a, b) = (truth.points[(i + n - 1) % n], truth.points[(i + 1) % n]);
-                    let t = [b[0] - a[0], b[1] - a[1]];
-                    let l = t[0].hypot(t[1]);
-                    let s = if truth.signed_area() > 0.0 { 1.0 } else { -1.0 };
-                    [
-                        truth.points[i][0] + g * s * t[1] / l,
-                        truth.points[i][1] - g * s * t[0] / l,
-                    ]
-                })
-                .collect();
+            let pts = truth.offset_along_normals(g).points;
             line += &format!(" {g:+}:{:.2}", evaluate(&sums, &pts, &p, margin).energy);
         }
         println!("{line}");
