@@ -216,30 +216,18 @@ impl InitParams {
 /// Finds the object in `frame` (see the module docs for the steps).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
-    let roi = resolve_roi(frame, params.roi)?;
-    let scale = roi[2].max(roi[3]).div_ceil(params.working_max_side).max(1);
-    let work = downsample(frame, roi, scale);
-    let (w, h) = work.dimensions();
-    if w < 8 || h < 8 {
-        return Err(InitError::InvalidParams(format!(
-            "working image {w}x{h} is too small (expected at least 8x8: enlarge the roi or working_max_side)"
-        )));
-    }
-
-    // Noise of the working copy (box averaging by `scale` divides white
-    // noise by `scale`; reported at full resolution for comparability).
-    let noise_work = estimate_noise(&work);
+    let EdgeStage {
+        roi,
+        scale,
+        noise_work,
+        sigma,
+        low,
+        high,
+        edges,
+        ..
+    } = edge_stage(frame, params)?;
+    let (w, h) = edges.dimensions();
     let noise_full = noise_work * scale as f32;
-    let sigma = params
-        .sigma
-        .unwrap_or_else(|| (1.0 + 60.0 * noise_work).clamp(1.0, 3.0));
-    let blurred = imageproc::filter::gaussian_blur_f32(&work, sigma);
-    let gradient = Gradient::sobel(&blurred);
-    let (auto_low, auto_high) = auto_thresholds(&gradient.magnitude, noise_work * sobel_noise_gain(sigma));
-    let high = params.high_threshold.unwrap_or(auto_high);
-    let low = params.low_threshold.unwrap_or((auto_low).min(high));
-    let thin = non_maximum_suppression(&gradient, low);
-    let edges = hysteresis(&thin, w, h, low, high);
     let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
     if edge_pixels == 0 {
         return Err(InitError::NoEdges { high_threshold: high });
@@ -249,7 +237,7 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
     let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
     let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
     let px_per_work = (scale * scale) as f64;
-    let auto_radius = ((w.min(h) as f32 / 150.0).round() as u8).clamp(2, 6);
+    let auto_radius = auto_dilation_radius(w, h);
     let radii: Vec<u8> = match params.dilation_radius {
         Some(r) => vec![r],
         None => vec![auto_radius, auto_radius * 2],
@@ -305,34 +293,91 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
     Err(last_error.expect("at least one radius tried"))
 }
 
-/// The intermediate images of [`initialise`] (working copy, edges, dilated
-/// edges) for diagnosis; empty when the parameters are invalid.
-pub fn debug_stages(frame: &GrayFrame, params: &InitParams) -> Vec<(&'static str, GrayImage)> {
-    let Ok(roi) = resolve_roi(frame, params.roi) else {
-        return Vec::new();
-    };
+/// The first half of [`initialise`]: the working copy and its edge map,
+/// with the values chosen on the way.
+struct EdgeStage {
+    /// Searched area `[x, y, w, h]` of the frame.
+    roi: [u32; 4],
+    /// Integer downsampling factor of the working copy.
+    scale: u32,
+    /// The working copy (0..=1).
+    work: FloatImage,
+    /// Estimated noise of the working copy.
+    noise_work: f32,
+    /// Gaussian sigma used.
+    sigma: f32,
+    /// The blurred working copy.
+    blurred: FloatImage,
+    /// Canny thresholds used.
+    low: f32,
+    high: f32,
+    /// Edge pixels (255) after hysteresis.
+    edges: GrayImage,
+}
+
+/// Downsamples, blurs and runs Canny as [`initialise`] does.
+fn edge_stage(frame: &GrayFrame, params: &InitParams) -> Result<EdgeStage, InitError> {
+    let roi = resolve_roi(frame, params.roi)?;
     let scale = roi[2].max(roi[3]).div_ceil(params.working_max_side).max(1);
     let work = downsample(frame, roi, scale);
     let (w, h) = work.dimensions();
+    if w < 8 || h < 8 {
+        return Err(InitError::InvalidParams(format!(
+            "working image {w}x{h} is too small (expected at least 8x8: enlarge the roi or working_max_side)"
+        )));
+    }
+    // Noise of the working copy (box averaging by `scale` divides white
+    // noise by `scale`; reported at full resolution for comparability).
     let noise_work = estimate_noise(&work);
     let sigma = params
         .sigma
         .unwrap_or_else(|| (1.0 + 60.0 * noise_work).clamp(1.0, 3.0));
     let blurred = imageproc::filter::gaussian_blur_f32(&work, sigma);
     let gradient = Gradient::sobel(&blurred);
-    let (low, high) = auto_thresholds(&gradient.magnitude, noise_work * sobel_noise_gain(sigma));
+    let (auto_low, auto_high) = auto_thresholds(&gradient.magnitude, noise_work * sobel_noise_gain(sigma));
+    let high = params.high_threshold.unwrap_or(auto_high);
+    let low = params.low_threshold.unwrap_or(auto_low.min(high));
     let edges = hysteresis(&non_maximum_suppression(&gradient, low), w, h, low, high);
-    let radius = ((w.min(h) as f32 / 150.0).round() as u8).clamp(2, 6);
-    let dilated = dilate_disk(&edges, radius);
+    Ok(EdgeStage {
+        roi,
+        scale,
+        work,
+        noise_work,
+        sigma,
+        blurred,
+        low,
+        high,
+        edges,
+    })
+}
+
+/// First dilation radius (working pixels) when none is given: about 1/150
+/// of the working image's shorter side.
+fn auto_dilation_radius(width: u32, height: u32) -> u8 {
+    ((width.min(height) as f32 / 150.0).round() as u8).clamp(2, 6)
+}
+
+/// The intermediate images of [`initialise`] (working copy, blurred copy,
+/// edges, edges dilated by the first radius tried) for diagnosis; empty when
+/// the parameters are invalid.
+pub fn debug_stages(frame: &GrayFrame, params: &InitParams) -> Vec<(&'static str, GrayImage)> {
+    let Ok(stage) = edge_stage(frame, params) else {
+        return Vec::new();
+    };
+    let (w, h) = stage.work.dimensions();
+    let radius = params
+        .dilation_radius
+        .unwrap_or_else(|| auto_dilation_radius(w, h));
+    let dilated = dilate_disk(&stage.edges, radius);
     let to8 = |img: &FloatImage| {
         GrayImage::from_fn(w, h, |x, y| {
             Luma([(img.get_pixel(x, y)[0] * 255.0).clamp(0.0, 255.0) as u8])
         })
     };
     vec![
-        ("work", to8(&work)),
-        ("blurred", to8(&blurred)),
-        ("edges", edges),
+        ("work", to8(&stage.work)),
+        ("blurred", to8(&stage.blurred)),
+        ("edges", stage.edges),
         ("dilated", dilated),
     ]
 }
@@ -1113,9 +1158,7 @@ mod tests {
 
     #[test]
     fn downsample_averages_blocks() {
-        let f = GrayFrame::new(4, 2, 8, vec![0, 255, 0, 0, 255, 255, 0, 255]).unwrap_err();
-        // 4x2 is below the minimum frame size: build the frame directly.
-        let _ = f;
+        // 4x2 is below GrayFrame::new's minimum size: build the frame directly.
         let f = GrayFrame {
             width: 4,
             height: 2,
