@@ -16,6 +16,9 @@
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
 //! - [`cli`]: the command-line front end used by `main.rs`.
+//!
+//! The service (async: tokio, axum, SQLite):
+//! - [`service`]: `semdepth serve`, the HTTP/WebSocket API, sessions and durable storage.
 
 pub mod calib;
 pub mod cli;
@@ -26,5 +29,6 @@ pub mod imageio;
 pub mod init;
 pub mod occlusion;
 pub mod region;
+pub mod service;
 pub mod synth;
 pub mod tracker;
