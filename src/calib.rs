@@ -120,7 +120,7 @@ impl CalibError {
 
 /// One calibration measurement: the disparity across the tilt axis observed
 /// with the object at a known height.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Sample {
     /// Disparity component across the tilt axis, pixels (see [`axis_component`]).

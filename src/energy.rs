@@ -35,7 +35,7 @@ use crate::geometry::Point;
 use crate::region::{PrefixSums, RegionSum};
 
 /// Parameters of the energy.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct EnergyParams {
     /// Weight of the internal (compactness) energy. Default 1.0; range 0..=1000.

@@ -10,7 +10,7 @@ use crate::geometry::{dist, Point, Polygon};
 use crate::region::PrefixSums;
 
 /// Parameters of the free (vertex-wise) fit.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct FreeFitParams {
     /// Target spacing of the vertices in pixels (at least 40 vertices are
@@ -236,7 +236,7 @@ pub fn place(template: &[Point], pose: Pose) -> Vec<Point> {
 }
 
 /// Parameters of the rigid fit.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct RigidParams {
     /// Largest motion between two pairs that the search is built to catch,

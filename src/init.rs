@@ -30,7 +30,7 @@ pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 /// Parameters of the initialisation. Every field has a default that works
 /// without tuning on 640x480 to 4096x4096 SEM frames; `None` means "derive
 /// from the image".
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct InitParams {
     /// Longest side of the working copy in pixels (the image is box-averaged

@@ -15,6 +15,7 @@
 //! - [`init`]: automatic initialisation (Gaussian, Canny, dilation, outer contours, size filter).
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
+//! - [`report`]: CSV rows of pair results (shared by the CLI and the service).
 //! - [`cli`]: the command-line front end used by `main.rs`.
 //!
 //! The service (async: tokio, axum, SQLite):
@@ -29,6 +30,7 @@ pub mod imageio;
 pub mod init;
 pub mod occlusion;
 pub mod region;
+pub mod report;
 pub mod service;
 pub mod synth;
 pub mod tracker;

@@ -22,7 +22,7 @@ use crate::geometry::{Point, Polygon};
 use crate::region::{PrefixSums, RegionSum};
 
 /// Parameters of the occlusion handling.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct OcclusionParams {
     /// Look for occlusion at all. Default true.

@@ -27,7 +27,7 @@ use crate::region::{PixelRect, PrefixSums};
 pub const INTENSITY_OFFSET: f64 = 1.0;
 
 /// All tracking parameters, with documented defaults.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct TrackerParams {
     /// Automatic initialisation on the first pair.
@@ -120,7 +120,7 @@ impl TrackerParams {
 }
 
 /// Outcome of one pair.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Status {
     /// The object was (re)found and fitted on this pair.
@@ -143,11 +143,13 @@ impl Status {
 }
 
 /// The contour in one image of a pair.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ImageResult {
     /// Contour vertices, pixels.
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub contour: Vec<Point>,
     /// Area centroid of the contour, pixels.
+    #[schema(value_type = Vec<f64>)]
     pub centroid: Point,
     /// Orientation of the contour's principal axis, radians in (-pi/2, pi/2].
     pub angle_rad: f64,
@@ -161,7 +163,7 @@ pub struct ImageResult {
 }
 
 /// The measurement of one stereo pair.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct PairResult {
     /// Index of the pair in the sequence, from 0.
     pub frame: u64,
@@ -174,6 +176,7 @@ pub struct PairResult {
     /// The right contour.
     pub right: Option<ImageResult>,
     /// Right minus left centroid, pixels.
+    #[schema(value_type = Option<Vec<f64>>)]
     pub disparity_px: Option<Point>,
     /// Component of the disparity across the tilt axis, pixels.
     pub disparity_axis_px: Option<f64>,
@@ -280,6 +283,13 @@ impl StereoTracker {
     /// The parameters.
     pub fn params(&self) -> &TrackerParams {
         &self.params
+    }
+
+    /// Replaces the parameters from the next pair on (the rigid template is
+    /// rebuilt with them; the contour and pose are kept). Validate first.
+    pub fn set_params(&mut self, params: TrackerParams) {
+        self.template = self.state.as_ref().map(|s| templates(&s.template, &params));
+        self.params = params;
     }
 
     /// The durable state (None before the first successful initialisation).

@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod init_cmd;
 pub mod process_cmd;
+pub mod serve_cmd;
 pub mod synth_cmd;
 
 /// Command line of the `semdepth` binary.
@@ -29,6 +30,12 @@ pub enum Command {
     Init(init_cmd::InitArgs),
     /// Track a folder of stereo pairs and print one record per pair.
     Process(process_cmd::ProcessArgs),
+    /// Run the HTTP/WebSocket depth service.
+    Serve(serve_cmd::ServeArgs),
+    /// Print the service's OpenAPI document.
+    Openapi(serve_cmd::OpenapiArgs),
+    /// Ask a running server whether it is alive (exit 0) or not (exit 1).
+    Healthcheck(serve_cmd::HealthcheckArgs),
 }
 
 /// A failed command: the message goes to stderr, the code is the exit status.
@@ -76,5 +83,8 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Synth(args) => synth_cmd::run(args),
         Command::Init(args) => init_cmd::run(args),
         Command::Process(args) => process_cmd::run(args),
+        Command::Serve(args) => serve_cmd::run(args),
+        Command::Openapi(args) => serve_cmd::run_openapi(args),
+        Command::Healthcheck(args) => serve_cmd::run_healthcheck(args),
     }
 }

@@ -12,6 +12,7 @@ use clap::{Args, ValueEnum};
 use super::CliError;
 use crate::calib::{from_json, Calibration};
 use crate::imageio::{read_file, DecodeLimits, GrayFrame};
+use crate::report::{csv_record, CSV_HEADER};
 use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
 
 /// Image extensions recognised in the folder (compared case-insensitively).
@@ -365,53 +366,6 @@ fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -
     Ok(line)
 }
 
-/// The CSV header.
-pub const CSV_HEADER: &str = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,\
-right_x,right_y,right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,\
-relative_disparity_axis_px,angle_diff_rad,z_um";
-
-fn csv_record(r: &PairResult, name: &str) -> String {
-    // Same number format as the JSON output (shortest round-trip form; a
-    // non-finite value, which JSON cannot hold either, is an empty cell).
-    let num = |v: Option<f64>| {
-        v.filter(|v| v.is_finite())
-            .and_then(|v| serde_json::to_string(&v).ok())
-            .unwrap_or_default()
-    };
-    let mut cells = vec![
-        r.frame.to_string(),
-        csv_text(name),
-        r.status.name().to_string(),
-        r.reason.as_deref().map(quote).unwrap_or_default(),
-    ];
-    for image in [&r.left, &r.right] {
-        cells.push(num(image.as_ref().map(|i| i.centroid[0])));
-        cells.push(num(image.as_ref().map(|i| i.centroid[1])));
-        cells.push(num(image.as_ref().map(|i| i.angle_rad)));
-        cells.push(num(image.as_ref().map(|i| i.contrast)));
-    }
-    cells.push(num(r.disparity_px.map(|d| d[0])));
-    cells.push(num(r.disparity_px.map(|d| d[1])));
-    cells.push(num(r.disparity_axis_px));
-    cells.push(num(r.relative_disparity_axis_px));
-    cells.push(num(r.angle_diff_rad));
-    cells.push(num(r.z_um));
-    cells.join(",")
-}
-
-/// A text cell, quoted when it needs to be.
-fn csv_text(s: &str) -> String {
-    if s.contains([',', '"', '\n', '\r']) {
-        quote(s)
-    } else {
-        s.to_string()
-    }
-}
-
-fn quote(s: &str) -> String {
-    format!("\"{}\"", s.replace('"', "\"\""))
-}
-
 /// Progress and summary lines on stderr.
 struct Progress {
     enabled: bool,
@@ -476,25 +430,5 @@ mod tests {
         assert_eq!(classify(Path::new("0001_left.json")), None);
         assert_eq!(classify(Path::new("0001_middle.png")), None);
         assert_eq!(classify(Path::new("truth.json")), None);
-    }
-
-    #[test]
-    fn csv_quotes_reason_and_leaves_nulls_empty() {
-        // Built from JSON so that fields added to PairResult later (all
-        // optional) do not break the test.
-        let r: PairResult = serde_json::from_value(serde_json::json!({
-            "frame": 3,
-            "status": "lost",
-            "reason": "contrast \"collapsed\", left",
-        }))
-        .unwrap();
-        let line = csv_record(&r, "a,b");
-        let expected = format!(
-            "3,\"a,b\",lost,\"contrast \"\"collapsed\"\", left\"{}",
-            ",".repeat(14)
-        );
-        assert_eq!(line, expected);
-        // Two of the commas are inside quoted cells.
-        assert_eq!(line.matches(',').count() - 2, CSV_HEADER.matches(',').count());
     }
 }

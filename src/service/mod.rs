@@ -1,5 +1,348 @@
-//! The depth service (`semdepth serve`): HTTP and WebSocket API over
-//! sessions and calibrations, with durable SQLite storage. Everything async
-//! lives under this module; the vision code it calls is pure.
+//! The depth service (`semdepth serve`): the HTTP and WebSocket API of
+//! `../shared/docs/api.md` over sessions and calibrations, with durable
+//! SQLite storage. Everything async lives under this module; the vision
+//! code it calls is pure and runs on the blocking pool.
+//!
+//! - [`serve`]: runs the server on a given listener until a shutdown future
+//!   resolves (tests pass a port-0 listener).
+//! - [`state`]: configuration, sessions and calibrations in memory.
+//! - [`pipeline`]: decode and track one pair, in session order, bounded.
+//! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
+//! - [`storage`]: the SQLite writer thread (group commit) and migrations.
+//! - [`model`], [`error`]: JSON shapes and the one error type.
+//! - [`metrics`]: Prometheus counters and histograms.
 
+use std::future::Future;
+use std::sync::{Arc, OnceLock};
+use std::time::Duration;
+
+use axum::extract::{DefaultBodyLimit, Request};
+use axum::http::{header, HeaderName, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::Router;
+use subtle::ConstantTimeEq;
+use tokio::net::TcpListener;
+use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
+use tower_http::trace::TraceLayer;
+use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
+use utoipa::openapi::OpenApi as OpenApiDoc;
+use utoipa::{Modify, OpenApi};
+use utoipa_axum::router::OpenApiRouter;
+
+pub mod calibrations;
+pub mod error;
+pub mod metrics;
+pub mod model;
+pub mod ops;
+pub mod pipeline;
+pub mod sessions;
+pub mod state;
 pub mod storage;
+pub mod ws;
+
+use error::ApiError;
+use state::{AppState, Inner, ServiceConfig, Session, SessionCore};
+use storage::{Storage, StorageOptions};
+
+/// Why the server could not start or stop cleanly.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// A setting is out of range.
+    #[error("invalid configuration: {0}")]
+    Config(String),
+    /// The database could not be opened, migrated or read.
+    #[error("storage: {0}")]
+    Storage(#[from] storage::StorageError),
+    /// The listener failed.
+    #[error("server: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// Header carrying the request id (set when absent, echoed in the response).
+const REQUEST_ID: HeaderName = HeaderName::from_static("x-request-id");
+
+/// Runs the service on `listener` until `shutdown` resolves; then stops
+/// accepting, finishes requests and pairs in flight, closes WebSockets with
+/// a close frame, and flushes storage.
+pub async fn serve(
+    listener: TcpListener,
+    config: ServiceConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ServeError> {
+    config.validate().map_err(ServeError::Config)?;
+    let path = config.db_path.clone();
+    let storage = tokio::task::spawn_blocking(move || Storage::open(&path, StorageOptions::default()))
+        .await
+        .map_err(|e| ServeError::Io(std::io::Error::other(e)))??;
+    let state = load_state(config, storage).await?;
+    let app = app(state.clone());
+    let cancel = state.shutdown.clone();
+    tokio::spawn(async move {
+        shutdown.await;
+        cancel.cancel();
+    });
+    tracing::info!(address = %listener.local_addr()?, "semdepth listening");
+    let stop = state.shutdown.clone();
+    axum::serve(listener, app)
+        .with_graceful_shutdown(async move { stop.cancelled().await })
+        .await?;
+    // HTTP connections are drained; the WebSocket tasks finish their queued
+    // pairs and send close frames.
+    state.sockets.close();
+    state.sockets.wait().await;
+    state.storage.close().await?;
+    tracing::info!("semdepth stopped");
+    Ok(())
+}
+
+/// Restores calibrations and sessions from storage.
+async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState, ServeError> {
+    let calibrations = storage
+        .calibrations()
+        .await?
+        .into_iter()
+        .map(|c| (c.id.clone(), c))
+        .collect();
+    let metrics = metrics::Metrics::new();
+    let mut sessions = std::collections::HashMap::new();
+    for record in storage.sessions().await? {
+        let latest = match record.frames.checked_sub(1) {
+            Some(last) => storage
+                .results(&record.id, last, 1)
+                .await?
+                .first()
+                .and_then(|(_, json)| serde_json::from_str::<model::FrameResult>(json).ok())
+                .and_then(|r| r.result.disparity_px),
+            None => None,
+        };
+        let id = record.id.clone();
+        let core = SessionCore::restore(record, latest);
+        sessions.insert(
+            id.clone(),
+            Arc::new(Session {
+                id,
+                core: Arc::new(tokio::sync::Mutex::new(core)),
+            }),
+        );
+    }
+    metrics.active_sessions.set(sessions.len() as i64);
+    tracing::info!(
+        calibrations = %calibrations_len(&calibrations),
+        sessions = sessions.len(),
+        "restored from storage"
+    );
+    let workers = config.workers;
+    Ok(AppState(Arc::new(Inner {
+        config,
+        storage,
+        calibrations: std::sync::RwLock::new(calibrations),
+        sessions: std::sync::RwLock::new(sessions),
+        calibration_writes: tokio::sync::Mutex::new(()),
+        workers: Arc::new(tokio::sync::Semaphore::new(workers)),
+        metrics,
+        shutdown: tokio_util::sync::CancellationToken::new(),
+        sockets: tokio_util::task::TaskTracker::new(),
+    })))
+}
+
+fn calibrations_len(c: &std::collections::BTreeMap<String, storage::CalibrationRecord>) -> usize {
+    c.len()
+}
+
+/// The complete application: routes, auth, limits, request ids, tracing.
+pub fn app(state: AppState) -> Router {
+    let config = &state.config;
+    let (router, _) = routes(config.token.clone().map(Arc::from)).split_for_parts();
+    let timeout = config.request_timeout;
+    let max_body = config.max_body_bytes;
+    router
+        .fallback(route_not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(middleware::from_fn(move |req: Request, next: Next| {
+            request_timeout(timeout, req, next)
+        }))
+        .layer(DefaultBodyLimit::max(max_body))
+        .layer(middleware::from_fn(move |req: Request, next: Next| {
+            declared_length_limit(max_body, req, next)
+        }))
+        .layer(PropagateRequestIdLayer::new(REQUEST_ID))
+        .layer(TraceLayer::new_for_http().make_span_with(|req: &Request| {
+            let id = req
+                .headers()
+                .get(REQUEST_ID)
+                .and_then(|v| v.to_str().ok())
+                .unwrap_or("-");
+            tracing::info_span!("request", method = %req.method(), path = %req.uri().path(), request_id = %id)
+        }))
+        .layer(SetRequestIdLayer::new(REQUEST_ID, MakeRequestUuid))
+        .with_state(state)
+}
+
+/// All routes with their OpenAPI descriptions; `/v1` behind the token.
+fn routes(token: Option<Arc<str>>) -> OpenApiRouter<AppState> {
+    let v1 = OpenApiRouter::new()
+        .merge(calibrations::router())
+        .merge(sessions::router())
+        .merge(ws::router())
+        .layer(middleware::from_fn(move |req: Request, next: Next| {
+            require_token(token.clone(), req, next)
+        }));
+    OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .merge(v1)
+        .merge(ops::router())
+}
+
+/// The OpenAPI document generated from the routes.
+pub fn openapi() -> OpenApiDoc {
+    let (_, mut api) = routes(None).split_for_parts();
+    SecurityAddon.modify(&mut api);
+    api
+}
+
+/// The OpenAPI document as pretty JSON (what `/openapi.json` serves and
+/// `openapi/openapi.json` holds).
+pub fn openapi_json_text() -> &'static str {
+    static TEXT: OnceLock<String> = OnceLock::new();
+    TEXT.get_or_init(|| {
+        let mut text = openapi()
+            .to_pretty_json()
+            .unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"));
+        text.push('\n');
+        text
+    })
+}
+
+/// The OpenAPI document as YAML (`openapi/openapi.yaml`).
+pub fn openapi_yaml_text() -> String {
+    openapi().to_yaml().unwrap_or_else(|e| format!("error: {e}\n"))
+}
+
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "semdepth",
+        description = "Depth (z) of a tracked object from SEM stereo pairs: region-based active contours after Dahmen et al., ICINCO 2009. Contract: docs/api.md. Pixel coordinates: x right, y down, the centre of the top-left pixel is (0, 0). Every error is {\"error\": {\"code\", \"message\"}}.",
+        license(name = "MIT OR Apache-2.0")
+    ),
+    tags(
+        (name = "calibrations", description = "Disparity-to-z mappings (durable)"),
+        (name = "sessions", description = "Tracked objects: upload or stream pairs, read results"),
+        (name = "depth", description = "One-shot measurement without a session"),
+        (name = "operations", description = "Health, readiness, metrics, this document"),
+    ),
+    components(schemas(ws::PairHeader, ws::SkippedReply, ws::StreamErrorReply, ws::Encoding, ws::Policy))
+)]
+struct ApiDoc;
+
+/// Declares the optional bearer token on every `/v1` operation.
+struct SecurityAddon;
+
+impl Modify for SecurityAddon {
+    fn modify(&self, api: &mut OpenApiDoc) {
+        let components = api.components.get_or_insert_with(Default::default);
+        components.add_security_scheme(
+            "bearer",
+            SecurityScheme::Http(HttpBuilder::new().scheme(HttpAuthScheme::Bearer).build()),
+        );
+        for (path, item) in api.paths.paths.iter_mut() {
+            if !path.starts_with("/v1") {
+                continue;
+            }
+            for op in [
+                &mut item.get,
+                &mut item.post,
+                &mut item.put,
+                &mut item.patch,
+                &mut item.delete,
+            ]
+            .into_iter()
+            .flatten()
+            {
+                // Either the token (when the server has one) or nothing.
+                op.security = Some(vec![
+                    utoipa::openapi::security::SecurityRequirement::new("bearer", Vec::<String>::new()),
+                    utoipa::openapi::security::SecurityRequirement::default(),
+                ]);
+            }
+        }
+    }
+}
+
+async fn require_token(token: Option<Arc<str>>, req: Request, next: Next) -> Response {
+    if let Some(expected) = token {
+        let given = req
+            .headers()
+            .get(header::AUTHORIZATION)
+            .and_then(|v| v.to_str().ok())
+            .and_then(|v| v.strip_prefix("Bearer "));
+        let ok = given.is_some_and(|g| bool::from(g.as_bytes().ct_eq(expected.as_bytes())));
+        if !ok {
+            return ApiError::new(
+                StatusCode::UNAUTHORIZED,
+                "unauthorized",
+                "missing or wrong bearer token (expected Authorization: Bearer <token>)",
+            )
+            .into_response();
+        }
+    }
+    next.run(req).await
+}
+
+/// Refuses a body whose declared length is over the limit before reading
+/// any of it (the streaming limit alone would wait for the bytes).
+async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    match declared {
+        Some(n) if n > limit as u64 => ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "body_too_large",
+            format!("request body of {n} bytes exceeds the limit of {limit} bytes (raise --max-body-mib to allow more)"),
+        )
+        .into_response(),
+        _ => next.run(req).await,
+    }
+}
+
+async fn request_timeout(limit: Duration, req: Request, next: Next) -> Response {
+    match tokio::time::timeout(limit, next.run(req)).await {
+        Ok(response) => response,
+        Err(_) => ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "request_timeout",
+            format!(
+                "the request took longer than {} s (upload faster or raise --request-timeout)",
+                limit.as_secs_f64()
+            ),
+        )
+        .into_response(),
+    }
+}
+
+async fn route_not_found(req: Request) -> ApiError {
+    ApiError::new(
+        StatusCode::NOT_FOUND,
+        "route_not_found",
+        format!(
+            "no route {} {} (see /openapi.json)",
+            req.method(),
+            req.uri().path()
+        ),
+    )
+}
+
+async fn method_not_allowed(req: Request) -> ApiError {
+    ApiError::new(
+        StatusCode::METHOD_NOT_ALLOWED,
+        "method_not_allowed",
+        format!(
+            "method {} is not allowed on {} (see /openapi.json)",
+            req.method(),
+            req.uri().path()
+        ),
+    )
+}

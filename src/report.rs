@@ -1,0 +1,77 @@
+//! Tabular output of pair results (CSV), shared by `semdepth process` and
+//! the service's `GET /v1/sessions/{id}/results?format=csv`.
+
+use crate::tracker::PairResult;
+
+/// The CSV header of [`csv_record`].
+pub const CSV_HEADER: &str = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,\
+right_x,right_y,right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,\
+relative_disparity_axis_px,angle_diff_rad,z_um";
+
+/// One CSV row: `name` is the pair's name (file stem, or session id).
+pub fn csv_record(r: &PairResult, name: &str) -> String {
+    // Same number format as the JSON output (shortest round-trip form; a
+    // non-finite value, which JSON cannot hold either, is an empty cell).
+    let num = |v: Option<f64>| {
+        v.filter(|v| v.is_finite())
+            .and_then(|v| serde_json::to_string(&v).ok())
+            .unwrap_or_default()
+    };
+    let mut cells = vec![
+        r.frame.to_string(),
+        csv_text(name),
+        r.status.name().to_string(),
+        r.reason.as_deref().map(quote).unwrap_or_default(),
+    ];
+    for image in [&r.left, &r.right] {
+        cells.push(num(image.as_ref().map(|i| i.centroid[0])));
+        cells.push(num(image.as_ref().map(|i| i.centroid[1])));
+        cells.push(num(image.as_ref().map(|i| i.angle_rad)));
+        cells.push(num(image.as_ref().map(|i| i.contrast)));
+    }
+    cells.push(num(r.disparity_px.map(|d| d[0])));
+    cells.push(num(r.disparity_px.map(|d| d[1])));
+    cells.push(num(r.disparity_axis_px));
+    cells.push(num(r.relative_disparity_axis_px));
+    cells.push(num(r.angle_diff_rad));
+    cells.push(num(r.z_um));
+    cells.join(",")
+}
+
+/// A text cell, quoted when it needs to be.
+pub fn csv_text(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) {
+        quote(s)
+    } else {
+        s.to_string()
+    }
+}
+
+fn quote(s: &str) -> String {
+    format!("\"{}\"", s.replace('"', "\"\""))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn csv_quotes_reason_and_leaves_nulls_empty() {
+        // Built from JSON so that fields added to PairResult later (all
+        // optional) do not break the test.
+        let r: PairResult = serde_json::from_value(serde_json::json!({
+            "frame": 3,
+            "status": "lost",
+            "reason": "contrast \"collapsed\", left",
+        }))
+        .unwrap();
+        let line = csv_record(&r, "a,b");
+        let expected = format!(
+            "3,\"a,b\",lost,\"contrast \"\"collapsed\"\", left\"{}",
+            ",".repeat(14)
+        );
+        assert_eq!(line, expected);
+        // Two of the commas are inside quoted cells.
+        assert_eq!(line.matches(',').count() - 2, CSV_HEADER.matches(',').count());
+    }
+}

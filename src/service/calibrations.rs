@@ -1,0 +1,223 @@
+//! `/v1/calibrations`: create (geometric or fitted), list, get, delete,
+//! append a sample and refit. Calibrations are committed with
+//! `synchronous=FULL` before the response.
+
+use axum::extract::State;
+use axum::http::StatusCode;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use crate::calib::{build, Sample};
+
+use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
+use super::model::{CalibrationCreate, CalibrationList, CalibrationView, SampleCreate};
+use super::state::{new_id, now_rfc3339, AppState};
+use super::storage::CalibrationRecord;
+
+/// The calibration routes.
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(create_calibration, list_calibrations))
+        .routes(routes!(get_calibration, delete_calibration))
+        .routes(routes!(add_calibration_sample))
+}
+
+/// Create a calibration.
+#[utoipa::path(
+    post,
+    path = "/v1/calibrations",
+    operation_id = "create_calibration",
+    tag = "calibrations",
+    request_body = CalibrationCreate,
+    responses(
+        (status = 201, description = "Created", body = CalibrationView),
+        (status = 400, description = "Malformed JSON or unknown field", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid parameters, too few distinct samples or a degenerate fit", body = ErrorBody),
+    )
+)]
+pub async fn create_calibration(
+    State(state): State<AppState>,
+    ApiJson(body): ApiJson<CalibrationCreate>,
+) -> Result<(StatusCode, ApiJson<CalibrationView>), ApiError> {
+    let (name, spec) = body.into_parts();
+    check_name(name.as_deref())?;
+    let calibration = build(spec)?;
+    let now = now_rfc3339();
+    let record = CalibrationRecord {
+        id: new_id("c"),
+        name,
+        calibration,
+        created_at: now.clone(),
+        updated_at: now,
+    };
+    state.storage.insert_calibration(record.clone()).await?;
+    let view = CalibrationView::from(&record);
+    write_table(&state)?.insert(record.id.clone(), record);
+    Ok((StatusCode::CREATED, ApiJson(view)))
+}
+
+/// List calibrations, oldest first.
+#[utoipa::path(
+    get,
+    path = "/v1/calibrations",
+    operation_id = "list_calibrations",
+    tag = "calibrations",
+    responses(
+        (status = 200, description = "All calibrations", body = CalibrationList),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+    )
+)]
+pub async fn list_calibrations(State(state): State<AppState>) -> Result<ApiJson<CalibrationList>, ApiError> {
+    let table = state
+        .calibrations
+        .read()
+        .map_err(|_| ApiError::internal("calibration table lock poisoned"))?;
+    let mut calibrations: Vec<CalibrationView> = table.values().map(CalibrationView::from).collect();
+    // UUIDv7 ids sort in creation order.
+    calibrations.sort_by(|a, b| a.id.cmp(&b.id));
+    Ok(ApiJson(CalibrationList { calibrations }))
+}
+
+/// Get one calibration.
+#[utoipa::path(
+    get,
+    path = "/v1/calibrations/{id}",
+    operation_id = "get_calibration",
+    tag = "calibrations",
+    params(("id" = String, Path, description = "Calibration id")),
+    responses(
+        (status = 200, description = "The calibration", body = CalibrationView),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody),
+    )
+)]
+pub async fn get_calibration(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<ApiJson<CalibrationView>, ApiError> {
+    Ok(ApiJson(CalibrationView::from(&state.calibration(&id)?)))
+}
+
+/// Delete a calibration. Refused (409) while a session uses it.
+#[utoipa::path(
+    delete,
+    path = "/v1/calibrations/{id}",
+    operation_id = "delete_calibration",
+    tag = "calibrations",
+    params(("id" = String, Path, description = "Calibration id")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody),
+        (status = 409, description = "A session uses it; detach it first", body = ErrorBody),
+    )
+)]
+pub async fn delete_calibration(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<StatusCode, ApiError> {
+    state.calibration(&id)?;
+    let users = sessions_using(&state, &id).await;
+    if !users.is_empty() {
+        return Err(ApiError::conflict(
+            "calibration_in_use",
+            format!(
+                "calibration {id:?} is used by session(s) {} (detach it with PATCH /v1/sessions/{{id}} first)",
+                users.join(", ")
+            ),
+        ));
+    }
+    if !state.storage.delete_calibration(&id).await? {
+        return Err(ApiError::not_found("calibration", &id));
+    }
+    write_table(&state)?.remove(&id);
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Append a sample to a fitted calibration and refit it.
+#[utoipa::path(
+    post,
+    path = "/v1/calibrations/{id}/samples",
+    operation_id = "add_calibration_sample",
+    tag = "calibrations",
+    params(("id" = String, Path, description = "Calibration id")),
+    request_body = SampleCreate,
+    responses(
+        (status = 200, description = "The refitted calibration", body = CalibrationView),
+        (status = 400, description = "Malformed JSON or unknown field", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such calibration", body = ErrorBody),
+        (status = 409, description = "Not a fitted calibration", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid sample, or the refit is degenerate", body = ErrorBody),
+    )
+)]
+pub async fn add_calibration_sample(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJson(body): ApiJson<SampleCreate>,
+) -> Result<ApiJson<CalibrationView>, ApiError> {
+    let view = add_sample(&state, &id, Sample::new(body.disparity_px, body.z_um)).await?;
+    Ok(ApiJson(view))
+}
+
+/// Adds a sample to the fitted calibration `id`, refits and stores it.
+pub async fn add_sample(state: &AppState, id: &str, sample: Sample) -> Result<CalibrationView, ApiError> {
+    // Serialise refits of one calibration: two concurrent appends must not
+    // both start from the same sample list.
+    let _guard = state.calibration_writes.lock().await;
+    let mut record = state.calibration(id)?;
+    if !record.calibration.is_fit() {
+        return Err(ApiError::conflict(
+            "not_a_fit_calibration",
+            format!("calibration {id:?} is geometric (expected a \"fit\" calibration to add samples to)"),
+        ));
+    }
+    record.calibration.add_sample(sample)?;
+    record.updated_at = now_rfc3339();
+    if !state.storage.update_calibration(record.clone()).await? {
+        return Err(ApiError::not_found("calibration", id));
+    }
+    let view = CalibrationView::from(&record);
+    write_table(state)?.insert(record.id.clone(), record);
+    Ok(view)
+}
+
+fn write_table(
+    state: &AppState,
+) -> Result<std::sync::RwLockWriteGuard<'_, std::collections::BTreeMap<String, CalibrationRecord>>, ApiError>
+{
+    state
+        .calibrations
+        .write()
+        .map_err(|_| ApiError::internal("calibration table lock poisoned"))
+}
+
+/// Ids of the sessions whose calibration is `id`.
+async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
+    let sessions: Vec<_> = match state.sessions.read() {
+        Ok(table) => table.values().cloned().collect(),
+        Err(_) => return Vec::new(),
+    };
+    let mut users = Vec::new();
+    for s in sessions {
+        if s.core.lock().await.calibration_id.as_deref() == Some(id) {
+            users.push(s.id.clone());
+        }
+    }
+    users.sort();
+    users
+}
+
+/// Labels are free text but bounded.
+pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
+    match name {
+        Some(n) if n.chars().count() > 200 => Err(ApiError::bad_request(
+            "invalid_name",
+            format!("name of {} characters (expected at most 200)", n.chars().count()),
+        )),
+        _ => Ok(()),
+    }
+}

@@ -1,0 +1,377 @@
+//! The JSON shapes of the API (contract: `../shared/docs/api.md`): requests
+//! (all refusing unknown fields) and responses, with their OpenAPI schemas.
+
+use serde::{Deserialize, Deserializer, Serialize};
+use utoipa::ToSchema;
+
+use crate::calib::{
+    CalibrationSpec, FitSpec, GeometricSpec, Sample, DEFAULT_FIT_DEGREE, DEFAULT_TILT_AXIS_DEG,
+};
+use crate::init::InitParams;
+use crate::tracker::{PairResult, TrackerParams};
+
+use super::storage::{CalibrationRecord, SessionRecord};
+
+/// Body of `POST /v1/calibrations`: a geometric model or a least-squares
+/// fit through (disparity, z) samples.
+#[derive(Clone, Debug, Deserialize, ToSchema)]
+#[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
+pub enum CalibrationCreate {
+    /// Eucentric tilt geometry: z = (d - reference) * pixel_size / (2 sin(vergence / 2)).
+    #[schema(example = json!({"name": "5 kx, 6 deg", "model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0, "reference_disparity_px": 0.0, "tilt_axis_deg": 90.0}))]
+    Geometric {
+        /// Free-text label.
+        #[serde(default)]
+        name: Option<String>,
+        /// Length of one pixel at the specimen, micrometres (> 0).
+        pixel_size_um: f64,
+        /// Total vergence angle between the two views, degrees (0 < v <= 90).
+        vergence_deg: f64,
+        /// Disparity across the tilt axis at z = 0, pixels. Default 0.
+        #[serde(default)]
+        reference_disparity_px: f64,
+        /// Direction of the tilt axis in the image, degrees from +x towards +y. Default 90.
+        #[serde(default = "default_tilt_axis_deg")]
+        tilt_axis_deg: f64,
+    },
+    /// Least-squares polynomial z(d) of degree 1 or 2 through samples.
+    #[schema(example = json!({"name": "stage steps", "model": "fit", "degree": 1, "samples": [{"disparity_px": 1.2, "z_um": 0.0}, {"disparity_px": 3.4, "z_um": 10.0}]}))]
+    Fit {
+        /// Free-text label.
+        #[serde(default)]
+        name: Option<String>,
+        /// Polynomial degree, 1 or 2. Default 1.
+        #[serde(default = "default_fit_degree")]
+        degree: u8,
+        /// The measurements: disparity across the tilt axis (px) at a known height (um).
+        samples: Vec<Sample>,
+        /// Direction of the tilt axis in the image, degrees from +x towards +y. Default 90.
+        #[serde(default = "default_tilt_axis_deg")]
+        tilt_axis_deg: f64,
+    },
+}
+
+fn default_tilt_axis_deg() -> f64 {
+    DEFAULT_TILT_AXIS_DEG
+}
+
+fn default_fit_degree() -> u8 {
+    DEFAULT_FIT_DEGREE
+}
+
+impl CalibrationCreate {
+    /// The label and the model's parameters.
+    pub fn into_parts(self) -> (Option<String>, CalibrationSpec) {
+        match self {
+            Self::Geometric {
+                name,
+                pixel_size_um,
+                vergence_deg,
+                reference_disparity_px,
+                tilt_axis_deg,
+            } => (
+                name,
+                CalibrationSpec::Geometric(GeometricSpec {
+                    pixel_size_um,
+                    vergence_deg,
+                    reference_disparity_px,
+                    tilt_axis_deg,
+                }),
+            ),
+            Self::Fit {
+                name,
+                degree,
+                samples,
+                tilt_axis_deg,
+            } => (
+                name,
+                CalibrationSpec::Fit(FitSpec {
+                    degree,
+                    samples,
+                    tilt_axis_deg,
+                }),
+            ),
+        }
+    }
+}
+
+/// A stored calibration as the API returns it.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+#[schema(example = json!({"id": "c_3f2a", "name": "stage steps", "model": "fit", "tilt_axis_deg": 90.0, "coefficients": [-5.45, 4.54], "degree": 1, "samples": [{"disparity_px": 1.2, "z_um": 0.0}, {"disparity_px": 3.4, "z_um": 10.0}], "residual_rms_um": 0.0, "r_squared": 1.0, "created_at": "2026-11-21T10:00:00Z", "updated_at": "2026-11-21T10:00:00Z"}))]
+pub struct CalibrationView {
+    /// Opaque id.
+    pub id: String,
+    /// Free-text label.
+    pub name: Option<String>,
+    /// `geometric` or `fit`.
+    pub model: String,
+    /// Direction of the tilt axis, degrees from +x towards +y.
+    pub tilt_axis_deg: f64,
+    /// z_um = c0 + c1 d (+ c2 d^2), d the disparity across the tilt axis in pixels.
+    pub coefficients: Vec<f64>,
+    /// Geometric: micrometres per pixel.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pixel_size_um: Option<f64>,
+    /// Geometric: vergence angle, degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vergence_deg: Option<f64>,
+    /// Geometric: disparity at z = 0, pixels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference_disparity_px: Option<f64>,
+    /// Fit: polynomial degree.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub degree: Option<u8>,
+    /// Fit: the samples, in the order they were given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub samples: Option<Vec<Sample>>,
+    /// Fit: RMS of the residuals, micrometres.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub residual_rms_um: Option<f64>,
+    /// Fit: coefficient of determination, 0..=1.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub r_squared: Option<f64>,
+    /// RFC 3339 UTC.
+    pub created_at: String,
+    /// RFC 3339 UTC.
+    pub updated_at: String,
+}
+
+impl From<&CalibrationRecord> for CalibrationView {
+    fn from(r: &CalibrationRecord) -> Self {
+        let c = &r.calibration;
+        let mut view = Self {
+            id: r.id.clone(),
+            name: r.name.clone(),
+            model: c.model_name().to_string(),
+            tilt_axis_deg: c.tilt_axis_deg(),
+            coefficients: c.coefficients().to_vec(),
+            pixel_size_um: None,
+            vergence_deg: None,
+            reference_disparity_px: None,
+            degree: None,
+            samples: None,
+            residual_rms_um: c.residual_rms_um(),
+            r_squared: c.r_squared(),
+            created_at: r.created_at.clone(),
+            updated_at: r.updated_at.clone(),
+        };
+        match c.spec() {
+            CalibrationSpec::Geometric(g) => {
+                view.pixel_size_um = Some(g.pixel_size_um);
+                view.vergence_deg = Some(g.vergence_deg);
+                view.reference_disparity_px = Some(g.reference_disparity_px);
+            }
+            CalibrationSpec::Fit(f) => {
+                view.degree = Some(f.degree);
+                view.samples = Some(f.samples.clone());
+            }
+        }
+        view
+    }
+}
+
+/// Body of `POST /v1/sessions`; every field is optional.
+#[derive(Clone, Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"name": "gripper tip", "calibration_id": null, "tracker": {"tilt_axis_deg": 90.0, "max_disparity_px": 64.0}}))]
+pub struct SessionCreate {
+    /// Free-text label.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// Calibration turning disparity into z_um (null: z_um stays null).
+    #[serde(default)]
+    pub calibration_id: Option<String>,
+    /// Initialisation parameters (defaults documented in the schema).
+    #[serde(default)]
+    pub init: Option<InitParams>,
+    /// Tracker parameters (defaults documented in the schema). Its own
+    /// `init` member, if given, must not contradict the top-level `init`.
+    #[serde(default)]
+    pub tracker: Option<TrackerParams>,
+    /// Most per-pair results kept for this session (oldest dropped first);
+    /// null: the server's default.
+    #[serde(default)]
+    #[schema(minimum = 1)]
+    pub retention: Option<u64>,
+}
+
+/// Body of `PATCH /v1/sessions/{id}`: the fields to change.
+#[derive(Clone, Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"calibration_id": "c_3f2a"}))]
+pub struct SessionPatch {
+    /// New label (null clears it).
+    #[serde(default, deserialize_with = "present")]
+    #[schema(value_type = Option<String>)]
+    pub name: Option<Option<String>>,
+    /// Calibration to use from the next pair on (null detaches it).
+    #[serde(default, deserialize_with = "present")]
+    #[schema(value_type = Option<String>)]
+    pub calibration_id: Option<Option<String>>,
+    /// New initialisation parameters, used at the next initialisation.
+    #[serde(default)]
+    pub init: Option<InitParams>,
+    /// New tracker parameters, used from the next pair on.
+    #[serde(default)]
+    pub tracker: Option<TrackerParams>,
+    /// New result retention.
+    #[serde(default)]
+    #[schema(minimum = 1)]
+    pub retention: Option<u64>,
+}
+
+/// Distinguishes an absent field (None) from an explicit null (Some(None)).
+fn present<'de, D, T>(d: D) -> Result<Option<Option<T>>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    Option::<T>::deserialize(d).map(Some)
+}
+
+/// A session as the API returns it.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct SessionView {
+    /// Opaque id.
+    pub id: String,
+    /// Free-text label.
+    pub name: Option<String>,
+    /// `awaiting_first_pair`, `tracking` or `lost`.
+    #[schema(example = "awaiting_first_pair")]
+    pub state: String,
+    /// Calibration in use (null: z_um is null).
+    pub calibration_id: Option<String>,
+    /// Pairs processed so far (the next pair's frame index).
+    pub frames: u64,
+    /// Most results kept.
+    pub retention: u64,
+    /// Initialisation parameters.
+    pub init: InitParams,
+    /// Tracker parameters (its `init` equals the top-level one).
+    pub tracker: TrackerParams,
+    /// Disparity of the latest pair that was not lost, pixels.
+    #[schema(value_type = Option<Vec<f64>>)]
+    pub latest_disparity_px: Option<[f64; 2]>,
+    /// RFC 3339 UTC.
+    pub created_at: String,
+    /// RFC 3339 UTC.
+    pub updated_at: String,
+}
+
+impl SessionView {
+    /// The view of a stored session.
+    pub fn new(r: &SessionRecord, latest_disparity_px: Option<[f64; 2]>, default_retention: u64) -> Self {
+        Self {
+            id: r.id.clone(),
+            name: r.name.clone(),
+            state: r.state.clone(),
+            calibration_id: r.calibration_id.clone(),
+            frames: r.frames,
+            retention: r.retention.unwrap_or(default_retention),
+            init: r.params.init.clone(),
+            tracker: r.params.clone(),
+            latest_disparity_px,
+            created_at: r.created_at.clone(),
+            updated_at: r.updated_at.clone(),
+        }
+    }
+}
+
+/// Body of `POST /v1/calibrations/{id}/samples`.
+#[derive(Clone, Copy, Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"disparity_px": 5.1, "z_um": 20.0}))]
+pub struct SampleCreate {
+    /// Disparity across the tilt axis, pixels.
+    pub disparity_px: f64,
+    /// Known height, micrometres.
+    pub z_um: f64,
+}
+
+/// Body of `POST /v1/sessions/{id}/calibration-samples`.
+#[derive(Clone, Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"calibration_id": "c_3f2a", "z_um": 20.0}))]
+pub struct SessionSampleCreate {
+    /// The fitted calibration to extend.
+    pub calibration_id: String,
+    /// The height the stage was just moved to, micrometres.
+    pub z_um: f64,
+}
+
+/// Time spent on one pair, milliseconds.
+#[derive(Clone, Copy, Debug, Default, Serialize, Deserialize, ToSchema)]
+pub struct TimingMs {
+    /// Waiting for the session's earlier pairs and a free worker.
+    pub queue: f64,
+    /// Decoding both images.
+    pub decode: f64,
+    /// Tracking (both images, prefix sums included).
+    pub track: f64,
+    /// From receipt of the pair to its result.
+    pub total: f64,
+}
+
+/// The result of one pair (contract, "FrameResult").
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct FrameResult {
+    /// The session (null for the one-shot `/v1/depth`).
+    pub session_id: Option<String>,
+    /// The tracker's measurement.
+    #[serde(flatten)]
+    pub result: PairResult,
+    /// The calibration that gave `z_um` (null: none).
+    pub calibration_id: Option<String>,
+    /// Time spent, milliseconds.
+    pub timing_ms: TimingMs,
+    /// WebSocket only: the `seq` of the pair's header.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seq: Option<u64>,
+}
+
+/// A session's results (`GET /v1/sessions/{id}/results`, JSON).
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct ResultsPage {
+    /// The session.
+    pub session_id: String,
+    /// Results with frame >= `since`, oldest first.
+    pub results: Vec<FrameResult>,
+    /// `since` for the next page (one past the last frame returned), or null
+    /// when this page holds everything up to now.
+    pub next_since: Option<u64>,
+}
+
+/// List of calibrations.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct CalibrationList {
+    /// Oldest first.
+    pub calibrations: Vec<CalibrationView>,
+}
+
+/// List of sessions.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct SessionList {
+    /// Oldest first.
+    pub sessions: Vec<SessionView>,
+}
+
+/// `GET /healthz` and `GET /readyz`.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct Health {
+    /// `ok`, or `unavailable` (readyz when storage does not answer).
+    pub status: String,
+    /// Crate version.
+    pub version: String,
+}
+
+/// Multipart body of a pair upload (schema only).
+#[allow(dead_code)]
+#[derive(ToSchema)]
+pub struct PairUpload {
+    /// Left image: PNG, TIFF (8/16-bit), JPEG or BMP.
+    #[schema(value_type = String, format = Binary)]
+    pub left: Vec<u8>,
+    /// Right image, same size as the left one.
+    #[schema(value_type = String, format = Binary)]
+    pub right: Vec<u8>,
+}

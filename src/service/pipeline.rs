@@ -1,0 +1,299 @@
+//! Processing of one stereo pair for a session or for the one-shot
+//! endpoint: decode and track on the blocking pool (bounded by the worker
+//! semaphore), in session order, then queue the result and the tracker
+//! snapshot for storage and acknowledge only once they are committed.
+
+use std::time::Instant;
+
+use axum::body::Bytes;
+use axum::extract::multipart::{Multipart, MultipartError};
+use axum::extract::{FromRequest, Request};
+use axum::http::StatusCode;
+
+use crate::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
+use crate::tracker::{PairResult, StereoTracker, TrackerParams};
+
+use super::error::ApiError;
+use super::model::{FrameResult, TimingMs};
+use super::state::{now_rfc3339, AppState, Session};
+use super::storage::PairRecord;
+
+/// The two images of a pair as received.
+#[derive(Clone, Debug)]
+pub enum PairInput {
+    /// Encoded files (PNG, TIFF, JPEG, BMP; the format is detected).
+    Encoded {
+        /// Left image bytes.
+        left: Bytes,
+        /// Right image bytes.
+        right: Bytes,
+    },
+    /// Raw little-endian row-major samples.
+    Raw {
+        /// Left image samples.
+        left: Bytes,
+        /// Right image samples.
+        right: Bytes,
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+        /// 8 or 16.
+        bit_depth: u8,
+    },
+}
+
+impl PairInput {
+    /// Decodes both images (CPU-heavy: call on the blocking pool).
+    pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame), ApiError> {
+        let side = |which: &str, e: crate::imageio::ImageInputError| {
+            let mut err = ApiError::from(e);
+            err.message = format!("{which} image: {}", err.message);
+            err
+        };
+        match self {
+            Self::Encoded { left, right } => Ok((
+                decode(left, limits).map_err(|e| side("left", e))?,
+                decode(right, limits).map_err(|e| side("right", e))?,
+            )),
+            Self::Raw {
+                left,
+                right,
+                width,
+                height,
+                bit_depth,
+            } => Ok((
+                decode_raw(left, *width, *height, *bit_depth, limits).map_err(|e| side("left", e))?,
+                decode_raw(right, *width, *height, *bit_depth, limits).map_err(|e| side("right", e))?,
+            )),
+        }
+    }
+}
+
+/// Processes one pair of a session: strictly after the session's earlier
+/// pairs, with at most `workers` pairs in flight overall. Returns once the
+/// result is committed to storage.
+pub async fn process_session_pair(
+    state: &AppState,
+    session: &Session,
+    input: PairInput,
+    received: Instant,
+    seq: Option<u64>,
+) -> Result<FrameResult, ApiError> {
+    let outcome = run_session_pair(state, session, input, received, seq).await;
+    match &outcome {
+        Ok(r) => state
+            .metrics
+            .processed(r.result.status.name(), received.elapsed().as_secs_f64()),
+        Err(e) => state.metrics.failed(&e.code),
+    }
+    outcome
+}
+
+async fn run_session_pair(
+    state: &AppState,
+    session: &Session,
+    input: PairInput,
+    received: Instant,
+    seq: Option<u64>,
+) -> Result<FrameResult, ApiError> {
+    let mut core = session.core.clone().lock_owned().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &session.id));
+    }
+    let calibration_id = core.calibration_id.clone();
+    let calibration = state.calibration_model(calibration_id.as_deref());
+    let limits = state.config.decode_limits;
+    let permit = state.workers.clone().acquire_owned().await.map_err(|_| {
+        ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "shutting_down",
+            "the server is shutting down",
+        )
+    })?;
+    let queue = ms(received.elapsed());
+    let (returned_core, outcome) = tokio::task::spawn_blocking(move || {
+        let outcome = decode_and_track(&input, &limits, &mut core.tracker);
+        (core, outcome)
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
+    drop(permit);
+    let mut core = returned_core;
+    let (mut result, decode_ms, track_ms) = outcome?;
+    result.apply_calibration(calibration.as_ref());
+    let now = now_rfc3339();
+    core.state = if result.status == crate::tracker::Status::Lost {
+        "lost".into()
+    } else {
+        if let Some(d) = result.disparity_px {
+            core.latest_disparity_px = Some(d);
+        }
+        "tracking".into()
+    };
+    core.updated_at = now.clone();
+    let frame = FrameResult {
+        session_id: Some(session.id.clone()),
+        calibration_id: calibration.as_ref().and(calibration_id),
+        result,
+        timing_ms: TimingMs {
+            queue,
+            decode: decode_ms,
+            track: track_ms,
+            total: ms(received.elapsed()),
+        },
+        seq: None,
+    };
+    let result_json = serde_json::to_string(&frame)
+        .map_err(|e| ApiError::internal(format!("serialising a result: {e}")))?;
+    // Queued while the session is still locked, so records commit in frame order.
+    let commit = state.storage.record_pair(PairRecord {
+        session_id: session.id.clone(),
+        frame: frame.result.frame,
+        result_json,
+        frames: core.tracker.frames(),
+        state: core.state.clone(),
+        tracker_state: core.tracker.state().cloned(),
+        updated_at: now,
+    });
+    drop(core);
+    commit.await?;
+    state.metrics.stored_pairs.inc();
+    Ok(FrameResult { seq, ..frame })
+}
+
+/// The one-shot measurement: a fresh tracker on one pair, nothing stored.
+pub async fn process_one_shot(
+    state: &AppState,
+    params: TrackerParams,
+    calibration_id: Option<String>,
+    input: PairInput,
+    received: Instant,
+) -> Result<FrameResult, ApiError> {
+    let calibration = match &calibration_id {
+        Some(id) => Some(state.calibration(id)?.calibration),
+        None => None,
+    };
+    let limits = state.config.decode_limits;
+    let permit = state.workers.clone().acquire_owned().await.map_err(|_| {
+        ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "shutting_down",
+            "the server is shutting down",
+        )
+    })?;
+    let queue = ms(received.elapsed());
+    let outcome = tokio::task::spawn_blocking(move || {
+        let mut tracker = StereoTracker::new(params);
+        decode_and_track(&input, &limits, &mut tracker)
+    })
+    .await
+    .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
+    drop(permit);
+    let outcome = outcome.map(|(mut result, decode_ms, track_ms)| {
+        result.apply_calibration(calibration.as_ref());
+        FrameResult {
+            session_id: None,
+            calibration_id,
+            result,
+            timing_ms: TimingMs {
+                queue,
+                decode: decode_ms,
+                track: track_ms,
+                total: ms(received.elapsed()),
+            },
+            seq: None,
+        }
+    });
+    match &outcome {
+        Ok(r) => state
+            .metrics
+            .processed(r.result.status.name(), received.elapsed().as_secs_f64()),
+        Err(e) => state.metrics.failed(&e.code),
+    }
+    outcome
+}
+
+/// Decodes and tracks; returns the result and the decode and track times (ms).
+fn decode_and_track(
+    input: &PairInput,
+    limits: &DecodeLimits,
+    tracker: &mut StereoTracker,
+) -> Result<(PairResult, f64, f64), ApiError> {
+    let started = Instant::now();
+    let (left, right) = input.decode(limits)?;
+    let decoded = Instant::now();
+    let result = tracker.process(&left, &right)?;
+    Ok((result, ms(decoded - started), ms(decoded.elapsed())))
+}
+
+fn ms(d: std::time::Duration) -> f64 {
+    (d.as_secs_f64() * 1e6).round() / 1e3
+}
+
+/// Reads the `left` and `right` parts of a `multipart/form-data` upload.
+pub async fn read_pair_upload(request: Request) -> Result<PairInput, ApiError> {
+    let mut multipart = Multipart::from_request(request, &()).await.map_err(|e| {
+        ApiError::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            format!(
+                "{} (expected multipart/form-data with parts \"left\" and \"right\")",
+                e.body_text()
+            ),
+        )
+    })?;
+    let (mut left, mut right) = (None, None);
+    while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
+        let name = field.name().unwrap_or_default().to_string();
+        let slot = match name.as_str() {
+            "left" => &mut left,
+            "right" => &mut right,
+            other => {
+                return Err(ApiError::bad_request(
+                    "unexpected_part",
+                    format!("unexpected multipart part {other:?} (expected exactly \"left\" and \"right\")"),
+                ))
+            }
+        };
+        if slot.is_some() {
+            return Err(ApiError::bad_request(
+                "duplicate_part",
+                format!("multipart part {name:?} given twice (expected it once)"),
+            ));
+        }
+        *slot = Some(field.bytes().await.map_err(multipart_error)?);
+    }
+    match (left, right) {
+        (Some(left), Some(right)) => Ok(PairInput::Encoded { left, right }),
+        (l, r) => {
+            let missing: Vec<&str> = [("left", l.is_none()), ("right", r.is_none())]
+                .iter()
+                .filter(|(_, m)| *m)
+                .map(|(n, _)| *n)
+                .collect();
+            Err(ApiError::bad_request(
+                "missing_part",
+                format!(
+                    "multipart upload lacks the part(s) {} (expected \"left\" and \"right\" images)",
+                    missing.join(" and ")
+                ),
+            ))
+        }
+    }
+}
+
+fn multipart_error(e: MultipartError) -> ApiError {
+    let status = e.status();
+    let code = if status == StatusCode::PAYLOAD_TOO_LARGE {
+        "body_too_large"
+    } else {
+        "invalid_multipart"
+    };
+    let status = if status.is_client_error() {
+        status
+    } else {
+        StatusCode::BAD_REQUEST
+    };
+    ApiError::new(status, code, format!("multipart body: {}", e.body_text()))
+}

@@ -1,0 +1,532 @@
+//! `/v1/sessions` and `/v1/depth`: sessions (create, list, get, patch,
+//! delete, reset), pair uploads, results (JSON or CSV), calibration samples
+//! from the latest disparity, and the one-shot measurement.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use axum::extract::{Request, State};
+use axum::http::{header, StatusCode};
+use axum::response::{IntoResponse, Response};
+use serde::Deserialize;
+use tokio::sync::Mutex;
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use crate::calib::{axis_component, Sample};
+use crate::report::{csv_record, CSV_HEADER};
+use crate::tracker::TrackerParams;
+
+use super::calibrations::{add_sample, check_name};
+use super::error::{ApiError, ApiJson, ApiPath, ApiQuery, ErrorBody};
+use super::model::{
+    CalibrationView, FrameResult, PairUpload, ResultsPage, SessionCreate, SessionList, SessionPatch,
+    SessionSampleCreate, SessionView,
+};
+use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
+use super::state::{new_id, now_rfc3339, AppState, Session, SessionCore};
+
+/// Most results returned by one `GET .../results` request.
+pub const MAX_RESULTS_PAGE: usize = 10_000;
+
+/// The session and one-shot routes (the stream route lives in `ws`).
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new()
+        .routes(routes!(create_session, list_sessions))
+        .routes(routes!(get_session, patch_session, delete_session))
+        .routes(routes!(upload_pair))
+        .routes(routes!(reset_session))
+        .routes(routes!(session_results))
+        .routes(routes!(add_session_calibration_sample))
+        .routes(routes!(one_shot_depth))
+}
+
+/// Create a session.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions",
+    operation_id = "create_session",
+    tag = "sessions",
+    request_body = SessionCreate,
+    responses(
+        (status = 201, description = "Created; awaiting its first pair", body = SessionView),
+        (status = 400, description = "Malformed JSON, unknown field or invalid parameter", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "Unknown calibration", body = ErrorBody),
+        (status = 409, description = "Session limit reached", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+    )
+)]
+pub async fn create_session(
+    State(state): State<AppState>,
+    ApiJson(body): ApiJson<SessionCreate>,
+) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
+    check_name(body.name.as_deref())?;
+    if let Some(id) = &body.calibration_id {
+        state.calibration(id)?;
+    }
+    check_retention(body.retention)?;
+    let params = merge_params(TrackerParams::default(), body.init, body.tracker)?;
+    let id = new_id("s");
+    let core = SessionCore::new(
+        body.name,
+        body.calibration_id,
+        body.retention,
+        params,
+        now_rfc3339(),
+    );
+    let view = core.view(&id, state.config.default_retention);
+    {
+        let table = state
+            .sessions
+            .read()
+            .map_err(|_| ApiError::internal("session table lock poisoned"))?;
+        if table.len() >= state.config.max_sessions {
+            return Err(ApiError::conflict(
+                "session_limit_reached",
+                format!(
+                    "the server holds its maximum of {} sessions (delete one first)",
+                    state.config.max_sessions
+                ),
+            ));
+        }
+    }
+    state.storage.upsert_session(core.record(&id)).await?;
+    let session = Arc::new(Session {
+        id: id.clone(),
+        core: Arc::new(Mutex::new(core)),
+    });
+    state
+        .sessions
+        .write()
+        .map_err(|_| ApiError::internal("session table lock poisoned"))?
+        .insert(id, session);
+    state.metrics.active_sessions.inc();
+    Ok((StatusCode::CREATED, ApiJson(view)))
+}
+
+/// List sessions, oldest first.
+#[utoipa::path(
+    get,
+    path = "/v1/sessions",
+    operation_id = "list_sessions",
+    tag = "sessions",
+    responses(
+        (status = 200, description = "All sessions", body = SessionList),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+    )
+)]
+pub async fn list_sessions(State(state): State<AppState>) -> Result<ApiJson<SessionList>, ApiError> {
+    let all: Vec<Arc<Session>> = state
+        .sessions
+        .read()
+        .map_err(|_| ApiError::internal("session table lock poisoned"))?
+        .values()
+        .cloned()
+        .collect();
+    let mut sessions = Vec::with_capacity(all.len());
+    for s in all {
+        let core = s.core.lock().await;
+        if !core.deleted {
+            sessions.push(core.view(&s.id, state.config.default_retention));
+        }
+    }
+    // UUIDv7 ids sort in creation order.
+    sessions.sort_by(|a, b| a.id.cmp(&b.id));
+    Ok(ApiJson(SessionList { sessions }))
+}
+
+/// Get one session.
+#[utoipa::path(
+    get,
+    path = "/v1/sessions/{id}",
+    operation_id = "get_session",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    responses(
+        (status = 200, description = "The session", body = SessionView),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+    )
+)]
+pub async fn get_session(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<ApiJson<SessionView>, ApiError> {
+    let session = state.session(&id)?;
+    let core = session.core.lock().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &id));
+    }
+    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
+/// Change a session: label, calibration, parameters, retention.
+#[utoipa::path(
+    patch,
+    path = "/v1/sessions/{id}",
+    operation_id = "patch_session",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    request_body = SessionPatch,
+    responses(
+        (status = 200, description = "The changed session", body = SessionView),
+        (status = 400, description = "Malformed JSON, unknown field or invalid parameter", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session or calibration", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+    )
+)]
+pub async fn patch_session(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJson(body): ApiJson<SessionPatch>,
+) -> Result<ApiJson<SessionView>, ApiError> {
+    let session = state.session(&id)?;
+    if let Some(Some(name)) = &body.name {
+        check_name(Some(name))?;
+    }
+    if let Some(Some(cal)) = &body.calibration_id {
+        state.calibration(cal)?;
+    }
+    check_retention(body.retention)?;
+    let mut core = session.core.lock().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &id));
+    }
+    if body.init.is_some() || body.tracker.is_some() {
+        let params = merge_params(core.tracker.params().clone(), body.init, body.tracker)?;
+        core.tracker.set_params(params);
+    }
+    if let Some(name) = body.name {
+        core.name = name;
+    }
+    if let Some(cal) = body.calibration_id {
+        core.calibration_id = cal;
+    }
+    if let Some(r) = body.retention {
+        core.retention = Some(r);
+    }
+    core.updated_at = now_rfc3339();
+    state.storage.upsert_session(core.record(&id)).await?;
+    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
+/// Delete a session and its results.
+#[utoipa::path(
+    delete,
+    path = "/v1/sessions/{id}",
+    operation_id = "delete_session",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+    )
+)]
+pub async fn delete_session(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<StatusCode, ApiError> {
+    let session = state.session(&id)?;
+    // Waits for a pair in flight; streams holding the session see `deleted`.
+    let mut core = session.core.lock().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &id));
+    }
+    state.storage.delete_session(&id).await?;
+    core.deleted = true;
+    drop(core);
+    state
+        .sessions
+        .write()
+        .map_err(|_| ApiError::internal("session table lock poisoned"))?
+        .remove(&id);
+    state.metrics.active_sessions.dec();
+    Ok(StatusCode::NO_CONTENT)
+}
+
+/// Upload one stereo pair; the first pair initialises the tracker.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/frames",
+    operation_id = "upload_pair",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    request_body(content = PairUpload, content_type = "multipart/form-data", description = "Parts `left` and `right`: PNG, TIFF (8/16-bit), JPEG or BMP of equal size"),
+    responses(
+        (status = 200, description = "The pair's result (status initialised, tracked or lost)", body = FrameResult),
+        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+        (status = 408, description = "The upload took too long", body = ErrorBody),
+        (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
+        (status = 415, description = "Not multipart/form-data", body = ErrorBody),
+    )
+)]
+pub async fn upload_pair(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    request: Request,
+) -> Result<ApiJson<FrameResult>, ApiError> {
+    let received = Instant::now();
+    let session = state.session(&id)?;
+    let input = read_pair_upload(request).await?;
+    let result = process_session_pair(&state, &session, input, received, None).await?;
+    Ok(ApiJson(result))
+}
+
+/// Forget the object: the next pair initialises again.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/reset",
+    operation_id = "reset_session",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    responses(
+        (status = 200, description = "The session, awaiting its next first pair", body = SessionView),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+    )
+)]
+pub async fn reset_session(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+) -> Result<ApiJson<SessionView>, ApiError> {
+    let session = state.session(&id)?;
+    let mut core = session.core.lock().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &id));
+    }
+    core.tracker.reset();
+    core.state = "awaiting_first_pair".into();
+    core.updated_at = now_rfc3339();
+    state.storage.upsert_session(core.record(&id)).await?;
+    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
+/// Output format of the results.
+#[derive(Clone, Copy, Debug, Default, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ResultsFormat {
+    /// A JSON page of FrameResults.
+    #[default]
+    Json,
+    /// CSV with a header line (contours left out).
+    Csv,
+}
+
+/// Query of `GET /v1/sessions/{id}/results`.
+#[derive(Clone, Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct ResultsQuery {
+    /// First frame to return. Default 0.
+    #[serde(default)]
+    pub since: u64,
+    /// `json` (default) or `csv`.
+    #[serde(default)]
+    pub format: ResultsFormat,
+    /// Most results returned (default and maximum 10000).
+    #[param(minimum = 1, maximum = 10000)]
+    pub limit: Option<usize>,
+}
+
+/// The session's results, oldest first.
+#[utoipa::path(
+    get,
+    path = "/v1/sessions/{id}/results",
+    operation_id = "session_results",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id"), ResultsQuery),
+    responses(
+        (status = 200, description = "Results with frame >= since", content(
+            (ResultsPage = "application/json"),
+            (String = "text/csv", example = "frame,name,status,...")
+        )),
+        (status = 400, description = "Invalid query", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+    )
+)]
+pub async fn session_results(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(query): ApiQuery<ResultsQuery>,
+) -> Result<Response, ApiError> {
+    state.session(&id)?;
+    let limit = query.limit.unwrap_or(MAX_RESULTS_PAGE);
+    if !(1..=MAX_RESULTS_PAGE).contains(&limit) {
+        return Err(ApiError::bad_request(
+            "invalid_query",
+            format!("invalid limit {limit} (expected 1..={MAX_RESULTS_PAGE})"),
+        ));
+    }
+    let rows = state.storage.results(&id, query.since, limit + 1).await?;
+    let more = rows.len() > limit;
+    let mut results = Vec::with_capacity(rows.len().min(limit));
+    for (frame, json) in rows.into_iter().take(limit) {
+        let r: FrameResult = serde_json::from_str(&json).map_err(|e| {
+            ApiError::internal(format!(
+                "stored result {frame} of session {id} is unreadable: {e}"
+            ))
+        })?;
+        results.push(r);
+    }
+    let next_since = if more {
+        results.last().map(|r| r.result.frame + 1)
+    } else {
+        None
+    };
+    match query.format {
+        ResultsFormat::Json => Ok(ApiJson(ResultsPage {
+            session_id: id,
+            results,
+            next_since,
+        })
+        .into_response()),
+        ResultsFormat::Csv => {
+            let mut text = String::from(CSV_HEADER);
+            text.push('\n');
+            for r in &results {
+                text.push_str(&csv_record(&r.result, &id));
+                text.push('\n');
+            }
+            Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], text).into_response())
+        }
+    }
+}
+
+/// Pair the session's latest disparity with a known height and add it to a
+/// fitted calibration.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/calibration-samples",
+    operation_id = "add_session_calibration_sample",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    request_body = SessionSampleCreate,
+    responses(
+        (status = 200, description = "The refitted calibration", body = CalibrationView),
+        (status = 400, description = "Malformed JSON or unknown field", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session or calibration", body = ErrorBody),
+        (status = 409, description = "No disparity measured yet, or not a fitted calibration", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid height, or the refit is degenerate", body = ErrorBody),
+    )
+)]
+pub async fn add_session_calibration_sample(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJson(body): ApiJson<SessionSampleCreate>,
+) -> Result<ApiJson<CalibrationView>, ApiError> {
+    let session = state.session(&id)?;
+    let calibration = state.calibration(&body.calibration_id)?;
+    let disparity = {
+        let core = session.core.lock().await;
+        if core.deleted {
+            return Err(ApiError::not_found("session", &id));
+        }
+        core.latest_disparity_px
+    }
+    .ok_or_else(|| {
+        ApiError::conflict(
+            "no_disparity_yet",
+            format!("session {id:?} has no measured disparity yet (upload a pair that is tracked first)"),
+        )
+    })?;
+    let d_axis = axis_component(calibration.calibration.tilt_axis_deg(), disparity);
+    let view = add_sample(&state, &body.calibration_id, Sample::new(d_axis, body.z_um)).await?;
+    Ok(ApiJson(view))
+}
+
+/// Query of `POST /v1/depth`.
+#[derive(Clone, Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct DepthQuery {
+    /// Calibration for z_um (omitted: z_um is null).
+    pub calibration_id: Option<String>,
+    /// Direction of the tilt axis, degrees from +x towards +y (default: the
+    /// calibration's, else 90).
+    pub tilt_axis_deg: Option<f64>,
+}
+
+/// Initialise and measure one pair without a session.
+#[utoipa::path(
+    post,
+    path = "/v1/depth",
+    operation_id = "one_shot_depth",
+    tag = "depth",
+    params(DepthQuery),
+    request_body(content = PairUpload, content_type = "multipart/form-data", description = "Parts `left` and `right`"),
+    responses(
+        (status = 200, description = "The pair's result (status initialised or lost)", body = FrameResult),
+        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes, invalid query", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "Unknown calibration", body = ErrorBody),
+        (status = 408, description = "The upload took too long", body = ErrorBody),
+        (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
+        (status = 415, description = "Not multipart/form-data", body = ErrorBody),
+    )
+)]
+pub async fn one_shot_depth(
+    State(state): State<AppState>,
+    ApiQuery(query): ApiQuery<DepthQuery>,
+    request: Request,
+) -> Result<ApiJson<FrameResult>, ApiError> {
+    let received = Instant::now();
+    let mut params = TrackerParams::default();
+    if let Some(id) = &query.calibration_id {
+        params.tilt_axis_deg = state.calibration(id)?.calibration.tilt_axis_deg();
+    }
+    if let Some(axis) = query.tilt_axis_deg {
+        params.tilt_axis_deg = axis;
+    }
+    params
+        .validate()
+        .map_err(|e| ApiError::bad_request("invalid_parameter", e))?;
+    let input = read_pair_upload(request).await?;
+    let result = process_one_shot(&state, params, query.calibration_id, input, received).await?;
+    Ok(ApiJson(result))
+}
+
+/// Parameters from a base, a top-level `init` and a `tracker` object.
+fn merge_params(
+    base: TrackerParams,
+    init: Option<crate::init::InitParams>,
+    tracker: Option<TrackerParams>,
+) -> Result<TrackerParams, ApiError> {
+    let mut params = match tracker {
+        Some(t) => {
+            if init.is_some() && t.init != base.init && t.init != crate::init::InitParams::default() {
+                return Err(ApiError::bad_request(
+                    "conflicting_parameters",
+                    "both \"init\" and \"tracker.init\" are given (expected the initialisation parameters once, as \"init\")",
+                ));
+            }
+            t
+        }
+        None => base,
+    };
+    if let Some(init) = init {
+        params.init = init;
+    }
+    params
+        .validate()
+        .map_err(|e| ApiError::bad_request("invalid_parameter", e))?;
+    Ok(params)
+}
+
+fn check_retention(retention: Option<u64>) -> Result<(), ApiError> {
+    match retention {
+        Some(0) => Err(ApiError::bad_request(
+            "invalid_parameter",
+            "invalid retention 0 (expected at least 1 result kept)",
+        )),
+        _ => Ok(()),
+    }
+}

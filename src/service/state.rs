@@ -1,0 +1,274 @@
+//! Shared state of a running service: configuration, storage, the
+//! calibrations and sessions held in memory (write-through to storage), the
+//! bounded worker pool and the shutdown signal.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+
+use tokio::sync::{Mutex, Semaphore};
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+use crate::calib::Calibration;
+use crate::imageio::DecodeLimits;
+use crate::tracker::{StereoTracker, TrackerParams};
+
+use super::error::ApiError;
+use super::metrics::Metrics;
+use super::model::SessionView;
+use super::storage::{CalibrationRecord, SessionRecord, Storage};
+
+/// Everything `semdepth serve` can be configured with (flags and
+/// environment variables map onto it in `cli::serve_cmd`).
+#[derive(Clone, Debug)]
+pub struct ServiceConfig {
+    /// SQLite database path, or `:memory:`.
+    pub db_path: String,
+    /// Bearer token required on `/v1` when set.
+    pub token: Option<String>,
+    /// Largest request body in bytes (a 4096x3072 16-bit pair as PNG must fit).
+    pub max_body_bytes: usize,
+    /// Largest WebSocket message (one pair) in bytes.
+    pub max_ws_message_bytes: usize,
+    /// Limits applied when decoding each image.
+    pub decode_limits: DecodeLimits,
+    /// Most sessions held at once.
+    pub max_sessions: usize,
+    /// Pairs processed at once across all sessions (worker threads busy).
+    pub workers: usize,
+    /// Results kept per session unless the session says otherwise.
+    pub default_retention: u64,
+    /// Longest time one HTTP request (upload and processing) may take.
+    pub request_timeout: Duration,
+    /// Pairs that may wait per WebSocket before the policy applies.
+    pub ws_queue: usize,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            db_path: "data/semdepth.sqlite3".into(),
+            token: None,
+            // Two 4096x3072 16-bit images are 50 MB raw; PNG of noisy data
+            // can be slightly larger than raw, multipart adds little.
+            max_body_bytes: 128 * 1024 * 1024,
+            max_ws_message_bytes: 128 * 1024 * 1024,
+            decode_limits: DecodeLimits::default(),
+            max_sessions: 256,
+            workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            default_retention: 100_000,
+            request_timeout: Duration::from_secs(60),
+            ws_queue: 4,
+        }
+    }
+}
+
+impl ServiceConfig {
+    /// Checks ranges; the message names the setting and what was expected.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.max_body_bytes < 1024 {
+            return Err(format!(
+                "invalid max body {} bytes (expected at least 1024)",
+                self.max_body_bytes
+            ));
+        }
+        if self.max_ws_message_bytes < 1024 {
+            return Err(format!(
+                "invalid max WebSocket message {} bytes (expected at least 1024)",
+                self.max_ws_message_bytes
+            ));
+        }
+        if !(1..=1024).contains(&self.workers) {
+            return Err(format!("invalid workers {} (expected 1..=1024)", self.workers));
+        }
+        if self.max_sessions == 0 {
+            return Err("invalid max sessions 0 (expected at least 1)".into());
+        }
+        if self.default_retention == 0 {
+            return Err("invalid retention 0 (expected at least 1)".into());
+        }
+        if !(1..=64).contains(&self.ws_queue) {
+            return Err(format!(
+                "invalid WebSocket queue {} (expected 1..=64)",
+                self.ws_queue
+            ));
+        }
+        if let Some(t) = &self.token {
+            if t.is_empty() {
+                return Err("empty token (expected a non-empty string, or no token)".into());
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Handle to the service's state; cheap to clone.
+#[derive(Clone)]
+pub struct AppState(pub Arc<Inner>);
+
+impl std::ops::Deref for AppState {
+    type Target = Inner;
+
+    fn deref(&self) -> &Inner {
+        &self.0
+    }
+}
+
+/// The service's state.
+pub struct Inner {
+    /// Configuration at start-up.
+    pub config: ServiceConfig,
+    /// Durable storage (its own threads).
+    pub storage: Storage,
+    /// All calibrations, by id (write-through to storage).
+    pub calibrations: RwLock<BTreeMap<String, CalibrationRecord>>,
+    /// All sessions, by id.
+    pub sessions: RwLock<HashMap<String, Arc<Session>>>,
+    /// Serialises read-modify-write of calibrations (appending samples).
+    pub calibration_writes: Mutex<()>,
+    /// Bounds the pairs processed at once (`config.workers` permits).
+    pub workers: Arc<Semaphore>,
+    /// Prometheus metrics.
+    pub metrics: Metrics,
+    /// Cancelled when the server starts shutting down.
+    pub shutdown: CancellationToken,
+    /// WebSocket tasks, awaited on shutdown.
+    pub sockets: TaskTracker,
+}
+
+/// One tracked object: its metadata and tracker behind one async lock, so
+/// that its pairs are processed strictly in order.
+pub struct Session {
+    /// Opaque id.
+    pub id: String,
+    /// Everything mutable; held for the whole processing of a pair.
+    pub core: Arc<Mutex<SessionCore>>,
+}
+
+/// The mutable part of a session.
+pub struct SessionCore {
+    /// Label.
+    pub name: Option<String>,
+    /// Calibration in use.
+    pub calibration_id: Option<String>,
+    /// Most results kept (None: server default).
+    pub retention: Option<u64>,
+    /// `awaiting_first_pair`, `tracking` or `lost`.
+    pub state: String,
+    /// RFC 3339 UTC.
+    pub created_at: String,
+    /// RFC 3339 UTC.
+    pub updated_at: String,
+    /// The tracker (parameters, contour and pose, frame count).
+    pub tracker: StereoTracker,
+    /// Disparity of the latest pair that was not lost.
+    pub latest_disparity_px: Option<[f64; 2]>,
+    /// Set when the session is deleted, so that streams still holding it stop.
+    pub deleted: bool,
+}
+
+impl SessionCore {
+    /// A new session.
+    pub fn new(
+        name: Option<String>,
+        calibration_id: Option<String>,
+        retention: Option<u64>,
+        params: TrackerParams,
+        now: String,
+    ) -> Self {
+        Self {
+            name,
+            calibration_id,
+            retention,
+            state: "awaiting_first_pair".into(),
+            created_at: now.clone(),
+            updated_at: now,
+            tracker: StereoTracker::new(params),
+            latest_disparity_px: None,
+            deleted: false,
+        }
+    }
+
+    /// A session restored from storage.
+    pub fn restore(r: SessionRecord, latest_disparity_px: Option<[f64; 2]>) -> Self {
+        Self {
+            name: r.name,
+            calibration_id: r.calibration_id,
+            retention: r.retention,
+            state: r.state,
+            created_at: r.created_at,
+            updated_at: r.updated_at,
+            tracker: StereoTracker::from_state(r.params, r.tracker_state, r.frames),
+            latest_disparity_px,
+            deleted: false,
+        }
+    }
+
+    /// The durable form.
+    pub fn record(&self, id: &str) -> SessionRecord {
+        SessionRecord {
+            id: id.to_string(),
+            name: self.name.clone(),
+            calibration_id: self.calibration_id.clone(),
+            params: self.tracker.params().clone(),
+            retention: self.retention,
+            frames: self.tracker.frames(),
+            state: self.state.clone(),
+            tracker_state: self.tracker.state().cloned(),
+            created_at: self.created_at.clone(),
+            updated_at: self.updated_at.clone(),
+        }
+    }
+
+    /// The API form.
+    pub fn view(&self, id: &str, default_retention: u64) -> SessionView {
+        SessionView::new(&self.record(id), self.latest_disparity_px, default_retention)
+    }
+}
+
+impl Inner {
+    /// The session with this id, or 404.
+    pub fn session(&self, id: &str) -> Result<Arc<Session>, ApiError> {
+        self.sessions
+            .read()
+            .map_err(|_| ApiError::internal("session table lock poisoned"))?
+            .get(id)
+            .cloned()
+            .ok_or_else(|| ApiError::not_found("session", id))
+    }
+
+    /// The calibration with this id, or 404.
+    pub fn calibration(&self, id: &str) -> Result<CalibrationRecord, ApiError> {
+        self.calibrations
+            .read()
+            .map_err(|_| ApiError::internal("calibration table lock poisoned"))?
+            .get(id)
+            .cloned()
+            .ok_or_else(|| ApiError::not_found("calibration", id))
+    }
+
+    /// The calibration for computing z, if the id names one.
+    pub fn calibration_model(&self, id: Option<&str>) -> Option<Calibration> {
+        let id = id?;
+        let table = self.calibrations.read().ok()?;
+        table.get(id).map(|r| r.calibration.clone())
+    }
+}
+
+/// Current time, RFC 3339 UTC with microsecond precision.
+pub fn now_rfc3339() -> String {
+    let now = time::OffsetDateTime::now_utc();
+    let now = now
+        .replace_nanosecond(now.nanosecond() / 1_000 * 1_000)
+        .unwrap_or(now);
+    now.format(&time::format_description::well_known::Rfc3339)
+        .unwrap_or_else(|_| "1970-01-01T00:00:00Z".into())
+}
+
+/// A new opaque id with a one-letter kind prefix (`s_…`, `c_…`). UUIDv7:
+/// ids sort in creation order, which lists use to break ties of equal
+/// timestamps.
+pub fn new_id(prefix: &str) -> String {
+    format!("{prefix}_{}", uuid::Uuid::now_v7().simple())
+}

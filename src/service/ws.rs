@@ -1,0 +1,538 @@
+//! `GET /v1/sessions/{id}/stream`: WebSocket streaming of stereo pairs.
+//!
+//! Each binary message is one pair: `b"SDP1"`, a u32 little-endian header
+//! length, a UTF-8 JSON header, the left bytes, the right bytes. Each pair is
+//! answered by one text message, the FrameResult plus `seq`, or
+//! `{"seq": n|null, "error": {...}}` for a malformed message (the socket stays
+//! open).
+//!
+//! Three tasks per socket: the reader (never waits on processing, so
+//! ping/pong stays prompt; tungstenite answers pings while reading), the
+//! processor (one pair at a time, in order) and the writer. Between reader
+//! and processor sits a bounded queue: with `policy=latest` at most one pair
+//! waits and a newer one replaces it (the replaced one is answered
+//! `{"seq": n, "status": "skipped"}`); with `policy=all` up to
+//! `ws_queue` pairs wait and then the reader stops reading, which slows the
+//! sender down through TCP (pongs then wait for at most one pair's
+//! processing).
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use axum::body::Bytes;
+use axum::extract::ws::{close_code, CloseFrame, Message, WebSocket, WebSocketUpgrade};
+use axum::extract::State;
+use axum::response::Response;
+use futures_util::{SinkExt, StreamExt};
+use serde::{Deserialize, Serialize};
+use tokio::sync::{mpsc, Notify};
+use utoipa::{IntoParams, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
+use super::pipeline::{process_session_pair, PairInput};
+use super::state::{AppState, Session};
+
+/// Magic bytes opening every pair message.
+pub const MAGIC: &[u8; 4] = b"SDP1";
+
+/// Largest JSON header accepted, bytes.
+pub const MAX_HEADER_BYTES: usize = 64 * 1024;
+
+/// The stream route.
+pub fn router() -> OpenApiRouter<AppState> {
+    OpenApiRouter::new().routes(routes!(stream_session))
+}
+
+/// Queue policy of a stream.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Policy {
+    /// Skip the oldest waiting pairs when pairs arrive faster than they are processed.
+    #[default]
+    Latest,
+    /// Process every pair; the sender is slowed down through the socket.
+    All,
+}
+
+/// Query of the stream route.
+#[derive(Clone, Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct StreamQuery {
+    /// `latest` (default) or `all`.
+    #[serde(default)]
+    pub policy: Policy,
+}
+
+/// Encoding of the images in a pair message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Encoding {
+    /// Little-endian row-major samples; width, height and bit_depth required.
+    Raw,
+    /// PNG files.
+    Png,
+    /// TIFF files.
+    Tiff,
+    /// JPEG files (accepted like any encoded format).
+    Jpeg,
+    /// BMP files.
+    Bmp,
+}
+
+/// The JSON header of a pair message.
+#[derive(Clone, Debug, Deserialize, Serialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct PairHeader {
+    /// The client's sequence number, echoed in the reply.
+    pub seq: u64,
+    /// How the images are encoded.
+    pub encoding: Encoding,
+    /// Raw only: width in pixels.
+    #[serde(default)]
+    pub width: Option<u32>,
+    /// Raw only: height in pixels.
+    #[serde(default)]
+    pub height: Option<u32>,
+    /// Raw only: 8 or 16.
+    #[serde(default)]
+    pub bit_depth: Option<u8>,
+    /// Length of the left image in bytes.
+    pub left_len: u64,
+    /// Length of the right image in bytes.
+    pub right_len: u64,
+}
+
+/// Reply for a pair that was skipped under `policy=latest`.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct SkippedReply {
+    /// The skipped pair's seq.
+    pub seq: u64,
+    /// Always `skipped`.
+    pub status: String,
+}
+
+/// Reply for a malformed message or a pair that could not be processed.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct StreamErrorReply {
+    /// The pair's seq when the header could be read.
+    pub seq: Option<u64>,
+    /// What was wrong.
+    pub error: super::error::ErrorDetail,
+}
+
+/// Stream stereo pairs over a WebSocket.
+#[utoipa::path(
+    get,
+    path = "/v1/sessions/{id}/stream",
+    operation_id = "stream_session",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id"), StreamQuery),
+    responses(
+        (status = 101, description = "Switching to the WebSocket protocol: binary SDP1 pair messages in, one JSON text reply per pair out"),
+        (status = 400, description = "Not a WebSocket upgrade, or invalid query", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+    )
+)]
+pub async fn stream_session(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiQuery(query): ApiQuery<StreamQuery>,
+    upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
+) -> Result<Response, ApiError> {
+    let session = state.session(&id)?;
+    let upgrade = upgrade.map_err(|e| {
+        let status = if e.status().is_client_error() {
+            e.status()
+        } else {
+            axum::http::StatusCode::BAD_REQUEST
+        };
+        ApiError::new(
+            status,
+            "websocket_upgrade_required",
+            format!("{} (expected a WebSocket upgrade request)", e.body_text()),
+        )
+    })?;
+    let limit = state.config.max_ws_message_bytes;
+    let tracker = state.sockets.clone();
+    Ok(upgrade
+        .max_message_size(limit)
+        .max_frame_size(limit)
+        .on_upgrade(move |socket| tracker.track_future(run_stream(state, session, query.policy, socket))))
+}
+
+/// One parsed pair message.
+#[derive(Debug)]
+pub struct PairMessage {
+    /// Client sequence number.
+    pub seq: u64,
+    /// The images.
+    pub input: PairInput,
+}
+
+/// Parses a pair message; on failure returns the seq if the header was
+/// readable, and the error.
+pub fn parse_pair_message(bytes: &Bytes) -> Result<PairMessage, (Option<u64>, ApiError)> {
+    let bad = |seq, code: &str, message: String| (seq, ApiError::bad_request(code, message));
+    if bytes.len() < 8 || &bytes[..4] != MAGIC {
+        return Err(bad(
+            None,
+            "bad_magic",
+            "message does not start with b\"SDP1\" and a header length (expected SDP1 + u32 LE length + JSON header + left + right)".into(),
+        ));
+    }
+    let header_len = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]) as usize;
+    if header_len > MAX_HEADER_BYTES || 8 + header_len > bytes.len() {
+        return Err(bad(
+            None,
+            "bad_header_length",
+            format!(
+                "header length {header_len} does not fit the {}-byte message (expected at most {MAX_HEADER_BYTES} and within the message)",
+                bytes.len()
+            ),
+        ));
+    }
+    let header: PairHeader = serde_json::from_slice(&bytes[8..8 + header_len]).map_err(|e| {
+        // Recover the seq for the reply if the JSON has one.
+        let seq = serde_json::from_slice::<serde_json::Value>(&bytes[8..8 + header_len])
+            .ok()
+            .and_then(|v| v.get("seq").and_then(|s| s.as_u64()));
+        bad(seq, "invalid_header", format!("pair header: {e}"))
+    })?;
+    let seq = Some(header.seq);
+    let body = bytes.slice(8 + header_len..);
+    let declared = header.left_len.checked_add(header.right_len);
+    if declared != Some(body.len() as u64) {
+        return Err(bad(
+            seq,
+            "length_mismatch",
+            format!(
+                "header declares left_len {} + right_len {} bytes but {} follow the header (expected them equal)",
+                header.left_len,
+                header.right_len,
+                body.len()
+            ),
+        ));
+    }
+    let split = header.left_len as usize;
+    let (left, right) = (body.slice(..split), body.slice(split..));
+    let input = match header.encoding {
+        Encoding::Raw => {
+            let (Some(width), Some(height), Some(bit_depth)) =
+                (header.width, header.height, header.bit_depth)
+            else {
+                return Err(bad(
+                    seq,
+                    "invalid_header",
+                    "raw encoding needs width, height and bit_depth in the header".into(),
+                ));
+            };
+            PairInput::Raw {
+                left,
+                right,
+                width,
+                height,
+                bit_depth,
+            }
+        }
+        _ => PairInput::Encoded { left, right },
+    };
+    Ok(PairMessage {
+        seq: header.seq,
+        input,
+    })
+}
+
+/// A pair waiting for the processor.
+struct Job {
+    message: PairMessage,
+    received: Instant,
+}
+
+/// The `latest` queue: at most one waiting pair; a newer one replaces it.
+struct LatestSlot {
+    slot: Mutex<VecDeque<Job>>,
+    ready: Notify,
+}
+
+/// The reader's end of the queue.
+enum QueueIn {
+    /// See [`LatestSlot`].
+    Latest(Arc<LatestSlot>),
+    /// Bounded channel: the reader waits when it is full.
+    All(mpsc::Sender<Job>),
+}
+
+/// The processor's end of the queue.
+enum QueueOut {
+    /// See [`LatestSlot`].
+    Latest(Arc<LatestSlot>),
+    /// Ends when the reader drops its sender.
+    All(mpsc::Receiver<Job>),
+}
+
+async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, socket: WebSocket) {
+    state.metrics.active_websockets.inc();
+    let (mut sink, mut stream) = socket.split();
+    let (reply_tx, mut reply_rx) = mpsc::channel::<Message>(64);
+    let done = tokio_util::sync::CancellationToken::new();
+
+    // Writer: sends replies, then a close frame once every sender is gone.
+    let writer_state = state.clone();
+    let writer = tokio::spawn(async move {
+        while let Some(message) = reply_rx.recv().await {
+            if sink.send(message).await.is_err() {
+                return;
+            }
+        }
+        let (code, reason) = if writer_state.shutdown.is_cancelled() {
+            (close_code::AWAY, "server shutting down")
+        } else {
+            (close_code::NORMAL, "")
+        };
+        let _ = sink
+            .send(Message::Close(Some(CloseFrame {
+                code,
+                reason: reason.into(),
+            })))
+            .await;
+        let _ = sink.close().await;
+    });
+
+    // Processor: one pair at a time, in order.
+    let (queue_in, mut queue_out) = match policy {
+        Policy::Latest => {
+            let slot = Arc::new(LatestSlot {
+                slot: Mutex::new(VecDeque::new()),
+                ready: Notify::new(),
+            });
+            (QueueIn::Latest(slot.clone()), QueueOut::Latest(slot))
+        }
+        Policy::All => {
+            let (tx, rx) = mpsc::channel(state.config.ws_queue);
+            (QueueIn::All(tx), QueueOut::All(rx))
+        }
+    };
+    let processor = {
+        let (state, session, reply_tx, done) =
+            (state.clone(), session.clone(), reply_tx.clone(), done.clone());
+        tokio::spawn(async move {
+            loop {
+                let job = match &mut queue_out {
+                    QueueOut::All(rx) => match rx.recv().await {
+                        Some(job) => job,
+                        None => break,
+                    },
+                    QueueOut::Latest(latest) => {
+                        let next = latest.slot.lock().ok().and_then(|mut s| s.pop_front());
+                        match next {
+                            Some(job) => job,
+                            None if done.is_cancelled() => break,
+                            None => {
+                                tokio::select! {
+                                    _ = latest.ready.notified() => continue,
+                                    _ = done.cancelled() => continue,
+                                }
+                            }
+                        }
+                    }
+                };
+                let seq = job.message.seq;
+                let reply =
+                    match process_session_pair(&state, &session, job.message.input, job.received, Some(seq))
+                        .await
+                    {
+                        Ok(result) => serde_json::to_string(&result),
+                        Err(e) => {
+                            if e.code == "session_not_found" {
+                                done.cancel();
+                            }
+                            serde_json::to_string(&StreamErrorReply {
+                                seq: Some(seq),
+                                error: e.body().error,
+                            })
+                        }
+                    };
+                match reply {
+                    Ok(text) => {
+                        if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                            break;
+                        }
+                    }
+                    Err(e) => tracing::error!(error = %e, "serialising a stream reply"),
+                }
+            }
+        })
+    };
+
+    // Reader (this task).
+    loop {
+        let message = tokio::select! {
+            _ = state.shutdown.cancelled() => break,
+            _ = done.cancelled() => break,
+            m = stream.next() => m,
+        };
+        let message = match message {
+            Some(Ok(m)) => m,
+            // Closed by the peer or a protocol error (e.g. a message over the size limit).
+            Some(Err(e)) => {
+                tracing::info!(session = %session.id, error = %e, "stream ended with an error");
+                break;
+            }
+            None => break,
+        };
+        let received = Instant::now();
+        match message {
+            Message::Binary(bytes) => match parse_pair_message(&bytes) {
+                Ok(message) => match &queue_in {
+                    QueueIn::Latest(latest) => {
+                        let replaced = latest.slot.lock().ok().and_then(|mut s| {
+                            let old = s.pop_front();
+                            s.push_back(Job { message, received });
+                            old
+                        });
+                        latest.ready.notify_one();
+                        if let Some(old) = replaced {
+                            state.metrics.pairs_skipped.inc();
+                            let reply = SkippedReply {
+                                seq: old.message.seq,
+                                status: "skipped".into(),
+                            };
+                            if let Ok(text) = serde_json::to_string(&reply) {
+                                if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                                    break;
+                                }
+                            }
+                        }
+                    }
+                    QueueIn::All(tx) => {
+                        let sent = tokio::select! {
+                            r = tx.send(Job { message, received }) => r.is_ok(),
+                            _ = state.shutdown.cancelled() => false,
+                        };
+                        if !sent {
+                            break;
+                        }
+                    }
+                },
+                Err((seq, e)) => {
+                    state.metrics.failed(&e.code);
+                    let reply = StreamErrorReply {
+                        seq,
+                        error: e.body().error,
+                    };
+                    if let Ok(text) = serde_json::to_string(&reply) {
+                        if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                            break;
+                        }
+                    }
+                }
+            },
+            Message::Text(_) => {
+                let e = ApiError::bad_request(
+                    "expected_binary",
+                    "text message received (expected one binary SDP1 message per pair)",
+                );
+                let reply = StreamErrorReply {
+                    seq: None,
+                    error: e.body().error,
+                };
+                if let Ok(text) = serde_json::to_string(&reply) {
+                    if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                        break;
+                    }
+                }
+            }
+            Message::Close(_) => break,
+            // Pongs to pings are queued by the protocol layer and flushed
+            // by the next read or write.
+            Message::Ping(_) | Message::Pong(_) => {}
+        }
+    }
+    // Let the processor finish what was already queued, then close.
+    drop(queue_in);
+    done.cancel();
+    let _ = processor.await;
+    drop(reply_tx);
+    let _ = writer.await;
+    state.metrics.active_websockets.dec();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn message(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Bytes {
+        let h = serde_json::to_vec(header).unwrap();
+        let mut m = MAGIC.to_vec();
+        m.extend_from_slice(&(h.len() as u32).to_le_bytes());
+        m.extend_from_slice(&h);
+        m.extend_from_slice(left);
+        m.extend_from_slice(right);
+        Bytes::from(m)
+    }
+
+    #[test]
+    fn parses_raw_pair_and_splits_images() {
+        let m = message(
+            &serde_json::json!({"seq": 7, "encoding": "raw", "width": 2, "height": 1, "bit_depth": 8, "left_len": 2, "right_len": 2}),
+            &[1, 2],
+            &[3, 4],
+        );
+        let p = parse_pair_message(&m).unwrap();
+        assert_eq!(p.seq, 7);
+        match p.input {
+            PairInput::Raw {
+                left,
+                right,
+                width,
+                height,
+                bit_depth,
+            } => {
+                assert_eq!((&left[..], &right[..]), (&[1u8, 2][..], &[3u8, 4][..]));
+                assert_eq!((width, height, bit_depth), (2, 1, 8));
+            }
+            other => panic!("expected raw, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn malformed_messages_name_the_problem_and_keep_the_seq() {
+        let e = parse_pair_message(&Bytes::from_static(b"nope")).unwrap_err();
+        assert_eq!((e.0, e.1.code.as_str()), (None, "bad_magic"));
+
+        let m = message(
+            &serde_json::json!({"seq": 3, "encoding": "png", "left_len": 5, "right_len": 5}),
+            &[0; 5],
+            &[0; 4],
+        );
+        let e = parse_pair_message(&m).unwrap_err();
+        assert_eq!((e.0, e.1.code.as_str()), (Some(3), "length_mismatch"));
+
+        let m = message(
+            &serde_json::json!({"seq": 4, "encoding": "raw", "left_len": 1, "right_len": 1}),
+            &[0],
+            &[0],
+        );
+        let e = parse_pair_message(&m).unwrap_err();
+        assert_eq!((e.0, e.1.code.as_str()), (Some(4), "invalid_header"));
+
+        let m = message(
+            &serde_json::json!({"seq": 5, "encoding": "png", "left_len": 1, "right_len": 1, "colour": true}),
+            &[0],
+            &[0],
+        );
+        let e = parse_pair_message(&m).unwrap_err();
+        assert_eq!((e.0, e.1.code.as_str()), (Some(5), "invalid_header"));
+        assert!(e.1.message.contains("colour"), "{}", e.1.message);
+
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&u32::MAX.to_le_bytes());
+        let e = parse_pair_message(&Bytes::from(bytes)).unwrap_err();
+        assert_eq!(e.1.code, "bad_header_length");
+    }
+}
