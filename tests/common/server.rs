@@ -1,0 +1,164 @@
+//! A real server for integration tests: `semdepth::service::serve` on
+//! 127.0.0.1 port 0 with a SQLite file in a temporary folder, plus helpers
+//! to build uploads from the synthetic generator.
+#![allow(dead_code)]
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use semdepth::imageio::GrayFrame;
+use semdepth::service::state::ServiceConfig;
+use semdepth::synth::{frames, Preset, Shape, SynthConfig, SynthPair};
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+
+/// A server running in this process.
+pub struct TestServer {
+    /// `http://127.0.0.1:PORT`.
+    pub base: String,
+    /// The bound address.
+    pub addr: SocketAddr,
+    /// The database file.
+    pub db: PathBuf,
+    stop: Option<oneshot::Sender<()>>,
+    task: Option<JoinHandle<Result<(), semdepth::service::ServeError>>>,
+}
+
+/// A configuration for tests: the given database, two workers.
+pub fn test_config(db: &Path) -> ServiceConfig {
+    ServiceConfig {
+        db_path: db.display().to_string(),
+        workers: 2,
+        ..ServiceConfig::default()
+    }
+}
+
+impl TestServer {
+    /// Starts a server with `config` on 127.0.0.1 port 0.
+    pub async fn start(config: ServiceConfig) -> Self {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let (stop, stopped) = oneshot::channel::<()>();
+        let db = PathBuf::from(&config.db_path);
+        let task = tokio::spawn(semdepth::service::serve(listener, config, async move {
+            let _ = stopped.await;
+        }));
+        let server = Self {
+            base: format!("http://{addr}"),
+            addr,
+            db,
+            stop: Some(stop),
+            task: Some(task),
+        };
+        server.wait_ready().await;
+        server
+    }
+
+    /// Polls `/readyz` until it answers 200 (at most 30 s).
+    pub async fn wait_ready(&self) {
+        let client = reqwest::Client::new();
+        for _ in 0..300 {
+            if let Ok(r) = client.get(format!("{}/readyz", self.base)).send().await {
+                if r.status() == 200 {
+                    return;
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("server at {} never became ready", self.base);
+    }
+
+    /// Graceful stop; returns what `serve` returned.
+    pub async fn stop(mut self) -> Result<(), semdepth::service::ServeError> {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+        self.task.take().unwrap().await.unwrap()
+    }
+
+    /// `ws://127.0.0.1:PORT/v1/sessions/{id}/stream?policy=...`.
+    pub fn stream_url(&self, session: &str, policy: &str) -> String {
+        format!("ws://{}/v1/sessions/{session}/stream?policy={policy}", self.addr)
+    }
+}
+
+impl Drop for TestServer {
+    fn drop(&mut self) {
+        if let Some(stop) = self.stop.take() {
+            let _ = stop.send(());
+        }
+    }
+}
+
+/// `count` pairs of a synthetic sequence.
+pub fn synth_pairs(preset: Preset, shape: Shape, seed: u64, count: usize) -> Vec<SynthPair> {
+    let config = SynthConfig {
+        frames: count,
+        ..SynthConfig::preset(preset, shape, seed)
+    };
+    frames(&config).unwrap().collect()
+}
+
+/// A frame as PNG (8- or 16-bit as the frame is).
+pub fn png(frame: &GrayFrame) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    if frame.bit_depth <= 8 {
+        frame
+            .to_gray8()
+            .write_to(&mut out, image::ImageFormat::Png)
+            .unwrap();
+    } else {
+        let img: image::ImageBuffer<image::Luma<u16>, Vec<u16>> =
+            image::ImageBuffer::from_raw(frame.width, frame.height, frame.data.clone()).unwrap();
+        img.write_to(&mut out, image::ImageFormat::Png).unwrap();
+    }
+    out.into_inner()
+}
+
+/// Raw 8-bit bytes of a frame (samples scaled to 0..=255).
+pub fn raw8(frame: &GrayFrame) -> Vec<u8> {
+    frame.to_gray8().into_raw()
+}
+
+/// A multipart form with `left` and `right` PNG parts.
+pub fn pair_form(pair: &SynthPair) -> reqwest::multipart::Form {
+    reqwest::multipart::Form::new()
+        .part(
+            "left",
+            reqwest::multipart::Part::bytes(png(&pair.left)).file_name("left.png"),
+        )
+        .part(
+            "right",
+            reqwest::multipart::Part::bytes(png(&pair.right)).file_name("right.png"),
+        )
+}
+
+/// A binary stream message: `SDP1`, header length, JSON header, left, right.
+pub fn sdp1(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Vec<u8> {
+    let h = serde_json::to_vec(header).unwrap();
+    let mut m = b"SDP1".to_vec();
+    m.extend_from_slice(&(h.len() as u32).to_le_bytes());
+    m.extend_from_slice(&h);
+    m.extend_from_slice(left);
+    m.extend_from_slice(right);
+    m
+}
+
+/// A raw 8-bit stream message for a synthetic pair.
+pub fn sdp1_raw(seq: u64, pair: &SynthPair) -> Vec<u8> {
+    let (l, r) = (raw8(&pair.left), raw8(&pair.right));
+    sdp1(
+        &serde_json::json!({"seq": seq, "encoding": "raw", "width": pair.left.width,
+            "height": pair.left.height, "bit_depth": 8, "left_len": l.len(), "right_len": r.len()}),
+        &l,
+        &r,
+    )
+}
+
+/// RMS of `measured - truth` after removing the mean (the constant offset a
+/// calibration's reference absorbs).
+pub fn offset_free_rms(errors: &[f64]) -> f64 {
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errors.len() as f64).sqrt()
+}

@@ -1,0 +1,436 @@
+//! Every bad input gets a 4xx with a JSON body naming the problem (issue #4,
+//! "Security and limits"), and the server keeps working afterwards.
+
+#[path = "common/server.rs"]
+mod server;
+
+use reqwest::multipart::{Form, Part};
+use semdepth::synth::{Preset, Shape};
+use serde_json::{json, Value};
+use server::{pair_form, png, synth_pairs, test_config, TestServer};
+
+/// Checks status and error code, and that the message is not empty.
+async fn expect_error(r: reqwest::Response, status: u16, code: &str) -> String {
+    let got = r.status().as_u16();
+    let text = r.text().await.unwrap();
+    let body: Value =
+        serde_json::from_str(&text).unwrap_or_else(|e| panic!("error body is not JSON ({e}): {text:?}"));
+    assert_eq!(
+        (got, body["error"]["code"].as_str()),
+        (status, Some(code)),
+        "{body}"
+    );
+    let message = body["error"]["message"].as_str().unwrap().to_string();
+    assert!(!message.is_empty());
+    message
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_inputs_get_clear_4xx_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.max_sessions = 3;
+    config.max_body_bytes = 8 * 1024 * 1024;
+    let server = TestServer::start(config).await;
+    let http = reqwest::Client::new();
+    let base = &server.base;
+    let sid = http
+        .post(format!("{base}/v1/sessions"))
+        .json(&json!({}))
+        .send()
+        .await
+        .unwrap()
+        .json::<Value>()
+        .await
+        .unwrap()["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let frames = format!("{base}/v1/sessions/{sid}/frames");
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 1, 1);
+    let left = png(&pairs[0].left);
+
+    // Unknown ids and routes.
+    expect_error(
+        http.get(format!("{base}/v1/sessions/s_missing"))
+            .send()
+            .await
+            .unwrap(),
+        404,
+        "session_not_found",
+    )
+    .await;
+    expect_error(
+        http.post(format!("{base}/v1/sessions/s_missing/frames"))
+            .multipart(pair_form(&pairs[0]))
+            .send()
+            .await
+            .unwrap(),
+        404,
+        "session_not_found",
+    )
+    .await;
+    expect_error(
+        http.get(format!("{base}/v1/calibrations/c_missing"))
+            .send()
+            .await
+            .unwrap(),
+        404,
+        "calibration_not_found",
+    )
+    .await;
+    expect_error(
+        http.get(format!("{base}/v2/nothing")).send().await.unwrap(),
+        404,
+        "route_not_found",
+    )
+    .await;
+    expect_error(
+        http.put(format!("{base}/v1/sessions")).send().await.unwrap(),
+        405,
+        "method_not_allowed",
+    )
+    .await;
+
+    // JSON: malformed, unknown field (named), wrong content type, bad values.
+    expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .header("content-type", "application/json")
+            .body("{\"name\": ")
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_json",
+    )
+    .await;
+    let m = expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"nmae": "typo"}))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_json",
+    )
+    .await;
+    assert!(m.contains("nmae"), "{m}");
+    let m = expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"tracker": {"max_disparity": 3}}))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_json",
+    )
+    .await;
+    assert!(m.contains("max_disparity"), "{m}");
+    expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .body("{}")
+            .send()
+            .await
+            .unwrap(),
+        415,
+        "unsupported_media_type",
+    )
+    .await;
+    let m = expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"tracker": {"max_disparity_px": -5.0}}))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_parameter",
+    )
+    .await;
+    assert!(m.contains("max_disparity_px"), "{m}");
+    expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"calibration_id": "c_missing"}))
+            .send()
+            .await
+            .unwrap(),
+        404,
+        "calibration_not_found",
+    )
+    .await;
+    expect_error(
+        http.post(format!("{base}/v1/calibrations"))
+            .json(&json!({"model": "magic"}))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_json",
+    )
+    .await;
+    expect_error(
+        http.post(format!("{base}/v1/calibrations"))
+            .json(&json!({"model": "geometric", "pixel_size_um": -1.0, "vergence_deg": 6.0}))
+            .send()
+            .await
+            .unwrap(),
+        422,
+        "invalid_calibration",
+    )
+    .await;
+
+    // Fits with too few distinct samples are refused.
+    let r = http
+        .post(format!("{base}/v1/calibrations"))
+        .json(&json!({"model": "fit", "degree": 1, "samples": [{"disparity_px": 1.0, "z_um": 0.0}, {"disparity_px": 1.0, "z_um": 5.0}]}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 422);
+    let body: Value = r.json().await.unwrap();
+    assert!(
+        body["error"]["message"].as_str().unwrap().contains("distinct"),
+        "{body}"
+    );
+
+    // Multipart: wrong content type, missing part, extra part, undecodable
+    // image, mismatched sizes.
+    expect_error(
+        http.post(&frames).json(&json!({})).send().await.unwrap(),
+        415,
+        "unsupported_media_type",
+    )
+    .await;
+    let m = expect_error(
+        http.post(&frames)
+            .multipart(Form::new().part("left", Part::bytes(left.clone())))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "missing_part",
+    )
+    .await;
+    assert!(m.contains("right"), "{m}");
+    expect_error(
+        http.post(&frames)
+            .multipart(pair_form(&pairs[0]).part("middle", Part::bytes(vec![1, 2, 3])))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "unexpected_part",
+    )
+    .await;
+    let m = expect_error(
+        http.post(&frames)
+            .multipart(
+                Form::new()
+                    .part("left", Part::bytes(left.clone()))
+                    .part("right", Part::bytes(b"not an image".to_vec())),
+            )
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "unknown_image_format",
+    )
+    .await;
+    assert!(m.starts_with("right image"), "{m}");
+    let small = png(&semdepth::imageio::GrayFrame::filled(64, 48, 8, 100));
+    expect_error(
+        http.post(&frames)
+            .multipart(
+                Form::new()
+                    .part("left", Part::bytes(left.clone()))
+                    .part("right", Part::bytes(small)),
+            )
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "pair_size_mismatch",
+    )
+    .await;
+    // None of that counted as a pair.
+    let s: Value = http
+        .get(format!("{base}/v1/sessions/{sid}"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(s["frames"], 0);
+
+    // A body over the limit (8 MiB here) is refused with 413, whether its
+    // length is declared or it arrives chunked.
+    let path = format!("/v1/sessions/{sid}/frames");
+    let reply = raw_upload(server.addr, &path, Some(9 << 20), &[]).await;
+    assert!(
+        reply.starts_with("HTTP/1.1 413") && reply.contains("body_too_large"),
+        "{reply}"
+    );
+    let reply = raw_upload(server.addr, &path, None, &vec![0u8; 9 << 20]).await;
+    assert!(
+        reply.starts_with("HTTP/1.1 413") && reply.contains("body_too_large"),
+        "{reply}"
+    );
+
+    // Samples from a session without a disparity yet.
+    let cal: Value = http
+        .post(format!("{base}/v1/calibrations"))
+        .json(&json!({"model": "fit", "samples": [{"disparity_px": 0.0, "z_um": 0.0}, {"disparity_px": 1.0, "z_um": 1.0}]}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    expect_error(
+        http.post(format!("{base}/v1/sessions/{sid}/calibration-samples"))
+            .json(&json!({"calibration_id": cal["id"], "z_um": 3.0}))
+            .send()
+            .await
+            .unwrap(),
+        409,
+        "no_disparity_yet",
+    )
+    .await;
+
+    // Bad queries.
+    expect_error(
+        http.get(format!("{base}/v1/sessions/{sid}/results?format=xml"))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        http.get(format!("{base}/v1/sessions/{sid}/results?since=-1"))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_query",
+    )
+    .await;
+    expect_error(
+        http.get(format!("{base}/v1/sessions/{sid}/results?limit=0"))
+            .send()
+            .await
+            .unwrap(),
+        400,
+        "invalid_query",
+    )
+    .await;
+
+    // The session limit (3 here).
+    for _ in 0..2 {
+        assert_eq!(
+            http.post(format!("{base}/v1/sessions"))
+                .json(&json!({}))
+                .send()
+                .await
+                .unwrap()
+                .status(),
+            201
+        );
+    }
+    expect_error(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({}))
+            .send()
+            .await
+            .unwrap(),
+        409,
+        "session_limit_reached",
+    )
+    .await;
+
+    // After all that the session still works.
+    let r: Value = http
+        .post(&frames)
+        .multipart(pair_form(&pairs[0]))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(r["status"], "initialised", "{r}");
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gigabyte_body_is_refused_without_reading_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let sid: Value = reqwest::Client::new()
+        .post(format!("{}/v1/sessions", server.base))
+        .json(&json!({}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    // Declare 1 GiB: the server must answer 413 from the declared length
+    // without waiting for (or buffering) the body.
+    let path = format!("/v1/sessions/{}/frames", sid["id"].as_str().unwrap());
+    let reply = raw_upload(server.addr, &path, Some(1 << 30), &[0u8; 4096]).await;
+    assert!(reply.starts_with("HTTP/1.1 413"), "{reply}");
+    assert!(reply.contains("body_too_large"), "{reply}");
+    server.stop().await.unwrap();
+}
+
+/// Sends a multipart upload by hand: with `declared` a Content-Length
+/// header (and only `body` of it), else chunked transfer of `body`. Write
+/// errors are ignored (the server may answer and close early); returns what
+/// the server answered.
+async fn raw_upload(addr: std::net::SocketAddr, path: &str, declared: Option<u64>, body: &[u8]) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut stream = tokio::net::TcpStream::connect(addr).await.unwrap();
+    let length = match declared {
+        Some(n) => format!("Content-Length: {n}"),
+        None => "Transfer-Encoding: chunked".to_string(),
+    };
+    let head = format!("POST {path} HTTP/1.1\r\nHost: x\r\nContent-Type: multipart/form-data; boundary=XX\r\n{length}\r\n\r\n");
+    let _ = stream.write_all(head.as_bytes()).await;
+    let prefix = b"--XX\r\nContent-Disposition: form-data; name=\"left\"\r\n\r\n";
+    match declared {
+        Some(_) => {
+            let _ = stream.write_all(prefix).await;
+            let _ = stream.write_all(body).await;
+        }
+        None => {
+            let mut chunks = vec![prefix.to_vec()];
+            chunks.extend(body.chunks(1 << 16).map(|c| c.to_vec()));
+            for c in chunks {
+                let framed = [format!("{:x}\r\n", c.len()).into_bytes(), c, b"\r\n".to_vec()].concat();
+                if stream.write_all(&framed).await.is_err() {
+                    break;
+                }
+            }
+        }
+    }
+    let mut reply = Vec::new();
+    let mut buf = vec![0u8; 8192];
+    loop {
+        match tokio::time::timeout(std::time::Duration::from_secs(20), stream.read(&mut buf)).await {
+            Ok(Ok(0)) | Ok(Err(_)) => break,
+            Ok(Ok(n)) => {
+                reply.extend_from_slice(&buf[..n]);
+                if String::from_utf8_lossy(&reply).contains("}}") {
+                    break;
+                }
+            }
+            Err(_) => panic!(
+                "no answer within 20 s; got so far: {}",
+                String::from_utf8_lossy(&reply)
+            ),
+        }
+    }
+    String::from_utf8_lossy(&reply).into_owned()
+}

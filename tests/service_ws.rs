@@ -1,0 +1,305 @@
+//! WebSocket streaming (issue #4): raw and PNG pairs over a real socket,
+//! replies carrying `seq`, the `latest` policy skipping under overload, the
+//! `all` policy answering every pair in order, malformed messages answered
+//! without closing, ping answered while pairs are processed.
+
+#[path = "common/server.rs"]
+mod server;
+
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use semdepth::synth::{Preset, Shape};
+use serde_json::{json, Value};
+use server::{offset_free_rms, png, sdp1, sdp1_raw, synth_pairs, test_config, TestServer};
+use tokio_tungstenite::tungstenite::Message;
+
+/// Disparity RMS limit (px, offset removed); see tests/service_api.rs.
+const MAX_DISPARITY_RMS_PX: f64 = 0.15;
+
+async fn new_session(server: &TestServer) -> String {
+    let r: Value = reqwest::Client::new()
+        .post(format!("{}/v1/sessions", server.base))
+        .json(&json!({}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    r["id"].as_str().unwrap().to_string()
+}
+
+type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// The next text reply (pongs and other control frames skipped).
+async fn next_reply(ws: &mut Socket) -> Value {
+    loop {
+        let m = tokio::time::timeout(Duration::from_secs(60), ws.next())
+            .await
+            .expect("no reply within 60 s")
+            .expect("socket closed")
+            .unwrap();
+        match m {
+            Message::Text(t) => return serde_json::from_str(&t).unwrap(),
+            Message::Close(c) => panic!("socket closed: {c:?}"),
+            _ => continue,
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn all_policy_answers_every_pair_in_order_with_true_disparities() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let sid = new_session(&server).await;
+    let (ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let pairs = synth_pairs(Preset::Noisy, Shape::Sphere, 21, 10);
+    // Send everything at once: the server must slow us down, not drop.
+    let sender = {
+        let messages: Vec<Vec<u8>> = pairs
+            .iter()
+            .enumerate()
+            .map(|(i, p)| sdp1_raw(100 + i as u64, p))
+            .collect();
+        let (mut sink, stream) = ws.split();
+        let task = tokio::spawn(async move {
+            for m in messages {
+                sink.send(Message::Binary(m.into())).await.unwrap();
+            }
+            sink
+        });
+        (task, stream)
+    };
+    let (task, mut stream) = sender;
+    let mut errors = Vec::new();
+    for (i, pair) in pairs.iter().enumerate() {
+        let r = loop {
+            match stream.next().await.unwrap().unwrap() {
+                Message::Text(t) => break serde_json::from_str::<Value>(&t).unwrap(),
+                _ => continue,
+            }
+        };
+        assert_eq!(r["seq"], 100 + i as u64, "{r}");
+        assert_eq!(r["frame"], i as u64, "{r}");
+        assert_ne!(r["status"], "lost", "{r}");
+        errors.push(r["disparity_px"][0].as_f64().unwrap() - pair.truth.disparity_px[0]);
+    }
+    let rms = offset_free_rms(&errors);
+    eprintln!("WebSocket noisy sphere disparity RMS {rms:.4} px");
+    assert!(rms <= MAX_DISPARITY_RMS_PX, "disparity RMS {rms} px");
+    let sink = task.await.unwrap();
+    let mut ws = sink.reunite(stream).unwrap();
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn latest_policy_skips_under_overload_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.workers = 1;
+    let server = TestServer::start(config).await;
+    let sid = new_session(&server).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "latest"))
+        .await
+        .unwrap();
+    // PNG pairs take a few ms each to decode and track; 40 sent back to back
+    // arrive far faster than that.
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 5, 4);
+    let encoded: Vec<(Vec<u8>, Vec<u8>)> = pairs.iter().map(|p| (png(&p.left), png(&p.right))).collect();
+    let total = 40u64;
+    for seq in 0..total {
+        let (l, r) = &encoded[seq as usize % encoded.len()];
+        let m = sdp1(
+            &json!({"seq": seq, "encoding": "png", "left_len": l.len(), "right_len": r.len()}),
+            l,
+            r,
+        );
+        ws.send(Message::Binary(m.into())).await.unwrap();
+    }
+    let mut answered = std::collections::BTreeMap::new();
+    while answered.len() < total as usize {
+        let r = next_reply(&mut ws).await;
+        let seq = r["seq"].as_u64().unwrap();
+        let kind = if r["status"] == "skipped" {
+            "skipped"
+        } else {
+            "result"
+        };
+        assert!(answered.insert(seq, kind).is_none(), "seq {seq} answered twice");
+        if kind == "result" {
+            assert!(r["frame"].is_u64(), "{r}");
+        }
+    }
+    let skipped = answered.values().filter(|k| **k == "skipped").count();
+    let processed = total as usize - skipped;
+    eprintln!("latest policy: {processed} processed, {skipped} skipped of {total}");
+    assert!(skipped > 0, "nothing skipped under overload");
+    // The newest pair is never skipped: it is the one a lab script waits for.
+    assert_eq!(answered[&(total - 1)], "result");
+    let metrics = reqwest::get(format!("{}/metrics", server.base))
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    assert!(
+        metrics.contains(&format!("semdepth_pairs_skipped_total {skipped}")),
+        "{metrics}"
+    );
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_messages_get_errors_and_the_socket_stays_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let sid = new_session(&server).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let pair = &synth_pairs(Preset::Clean, Shape::Tip, 3, 1)[0];
+    let truncated = png(&pair.left)[..200].to_vec();
+    let cases: Vec<(Message, Option<u64>, &str)> = vec![
+        (Message::Binary(b"hello".to_vec().into()), None, "bad_magic"),
+        (Message::Text("{\"seq\": 1}".into()), None, "expected_binary"),
+        (
+            Message::Binary(sdp1(&json!({"seq": 2, "encoding": "raw", "left_len": 4, "right_len": 4}), &[0; 4], &[0; 4]).into()),
+            Some(2),
+            "invalid_header",
+        ),
+        (
+            Message::Binary(sdp1(&json!({"seq": 3, "encoding": "png", "left_len": 9, "right_len": 4}), &[0; 4], &[0; 4]).into()),
+            Some(3),
+            "length_mismatch",
+        ),
+        (
+            Message::Binary(sdp1(&json!({"seq": 4, "encoding": "png", "left_len": 200, "right_len": 200}), &truncated, &truncated).into()),
+            Some(4),
+            "corrupt_image",
+        ),
+        (
+            Message::Binary(sdp1(&json!({"seq": 7, "encoding": "png", "left_len": 4, "right_len": 4}), b"abcd", b"abcd").into()),
+            Some(7),
+            "unknown_image_format",
+        ),
+        (
+            Message::Binary(
+                sdp1(
+                    &json!({"seq": 5, "encoding": "raw", "width": 64, "height": 64, "bit_depth": 8, "left_len": 4096, "right_len": 1024}),
+                    &[0; 4096],
+                    &[0; 1024],
+                )
+                .into(),
+            ),
+            Some(5),
+            "raw_length_mismatch",
+        ),
+    ];
+    for (message, seq, code) in cases {
+        ws.send(message).await.unwrap();
+        let r = next_reply(&mut ws).await;
+        assert_eq!(r["seq"].as_u64(), seq, "{r}");
+        assert_eq!(r["error"]["code"], code, "{r}");
+        assert!(!r["error"]["message"].as_str().unwrap().is_empty());
+    }
+    // Still open and working: a good pair after all that.
+    ws.send(Message::Binary(sdp1_raw(6, pair).into())).await.unwrap();
+    let r = next_reply(&mut ws).await;
+    assert_eq!(
+        (r["seq"].as_u64(), r["status"].as_str()),
+        (Some(6), Some("initialised")),
+        "{r}"
+    );
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn ping_is_answered_while_pairs_are_processed() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.workers = 1;
+    let server = TestServer::start(config).await;
+    let sid = new_session(&server).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "latest"))
+        .await
+        .unwrap();
+    let pairs = synth_pairs(Preset::Noisy, Shape::Rod, 9, 3);
+    for (i, p) in pairs.iter().enumerate() {
+        ws.send(Message::Binary(sdp1_raw(i as u64, p).into()))
+            .await
+            .unwrap();
+    }
+    let sent = Instant::now();
+    ws.send(Message::Ping(b"are you there".to_vec().into()))
+        .await
+        .unwrap();
+    let mut pong_after = None;
+    let mut replies_before_pong = 0;
+    let mut last_seq_answered = false;
+    while !last_seq_answered {
+        match tokio::time::timeout(Duration::from_secs(30), ws.next())
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap()
+        {
+            Message::Pong(p) => {
+                assert_eq!(&p[..], b"are you there");
+                pong_after = Some(sent.elapsed());
+            }
+            Message::Text(t) => {
+                let r: Value = serde_json::from_str(&t).unwrap();
+                if pong_after.is_none() {
+                    replies_before_pong += 1;
+                }
+                last_seq_answered = r["seq"] == 2 && r["status"] != "skipped";
+            }
+            _ => {}
+        }
+    }
+    let pong_after = pong_after.expect("no pong before the last pair's result");
+    eprintln!("pong after {pong_after:?}; {replies_before_pong} replies came before it");
+    // The reader never waits on processing: the pong overtakes the queued
+    // pairs (the first one alone, an initialisation, takes tens of ms).
+    assert!(
+        replies_before_pong <= 1,
+        "{replies_before_pong} replies before the pong"
+    );
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stream_of_unknown_session_is_404_and_plain_get_is_400() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let err = tokio_tungstenite::connect_async(server.stream_url("s_nope", "all"))
+        .await
+        .unwrap_err();
+    match err {
+        tokio_tungstenite::tungstenite::Error::Http(r) => assert_eq!(r.status(), 404),
+        other => panic!("expected an HTTP 404, got {other:?}"),
+    }
+    let sid = new_session(&server).await;
+    let r = reqwest::get(format!("{}/v1/sessions/{sid}/stream", server.base))
+        .await
+        .unwrap();
+    let status = r.status().as_u16();
+    let body: Value = r.json().await.unwrap();
+    assert!((400..500).contains(&status), "{status} {body}");
+    assert_eq!(body["error"]["code"], "websocket_upgrade_required");
+    let r = reqwest::get(format!(
+        "{}/v1/sessions/{sid}/stream?policy=sometimes",
+        server.base
+    ))
+    .await
+    .unwrap();
+    assert_eq!(r.status(), 400);
+    server.stop().await.unwrap();
+}
