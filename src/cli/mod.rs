@@ -3,6 +3,7 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod demo_cmd;
 pub mod init_cmd;
 pub mod process_cmd;
 pub mod serve_cmd;
@@ -30,6 +31,8 @@ pub enum Command {
     Init(init_cmd::InitArgs),
     /// Track a folder of stereo pairs and print one record per pair.
     Process(process_cmd::ProcessArgs),
+    /// Stream a synthetic sequence through the service and print true and measured z.
+    Demo(demo_cmd::DemoArgs),
     /// Run the HTTP/WebSocket depth service.
     Serve(serve_cmd::ServeArgs),
     /// Print the service's OpenAPI document.
@@ -84,6 +87,7 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Init(args) => init_cmd::run(args),
         Command::Process(args) => process_cmd::run(args),
         Command::Serve(args) => serve_cmd::run(args),
+        Command::Demo(args) => demo_cmd::run(args),
         Command::Openapi(args) => serve_cmd::run_openapi(args),
         Command::Healthcheck(args) => serve_cmd::run_healthcheck(args),
     }
