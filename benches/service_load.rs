@@ -1,0 +1,1220 @@
+//! Load benchmark of the HTTP/WebSocket service: throughput and latency of
+//! raw 8-bit 1024x768 pairs over WebSockets (one client as fast as possible,
+//! one client paced at 100 pairs/s, eight concurrent clients), of REST
+//! uploads of PNG pairs (one and four clients), and the server's memory per
+//! idle session.
+//!
+//! The server is the release binary (`CARGO_BIN_EXE_semdepth`) started as a
+//! child process (`semdepth serve --listen 127.0.0.1:0 --db <temp>`); the
+//! clients run in this process on the same machine. Every scenario uses
+//! fresh sessions. Messages and PNG files are prepared before timing.
+//! Latency is client-side: from the start of sending a pair to the arrival of
+//! its reply. The server's `timing_ms` (queue, decode, track, total) is
+//! reported as medians, and the CPU time of server and client per pair is
+//! read from `/proc`.
+//!
+//! References measured in the same run: one pass summing every byte of both
+//! images, the in-process `StereoTracker::process` step on the same pairs,
+//! the round trip of `GET /healthz`, and the WebSocket round trip of a
+//! message of the same size that the server rejects at once (bad magic).
+//!
+//! Targets (service issue): >= 300 pairs/s over one WebSocket, p99 latency
+//! under 20 ms at 100 pairs/s, under 5 MB of server memory per idle session.
+//!
+//! `cargo bench --bench service_load [-- --quick] [-- SCENARIO...]`
+//! (scenario names: ws_one, ws_paced, ws_eight, rest_one, rest_four,
+//! idle_memory; a name filters by substring; unknown flags are ignored).
+//! Prints a table and writes the figures as JSON to
+//! `target/service_load.json`.
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use futures_util::{SinkExt, StreamExt};
+use semdepth::imageio::GrayFrame;
+use semdepth::synth::{Preset, Shape, SynthConfig};
+use semdepth::tracker::{StereoTracker, TrackerParams};
+use serde_json::{json, Value};
+use tokio::sync::Barrier;
+use tokio_tungstenite::tungstenite::{Bytes, Message};
+
+const WIDTH: u32 = 1024;
+const HEIGHT: u32 = 768;
+/// Pacing of the `ws_paced` scenario.
+const PACED_RATE: f64 = 100.0;
+const TARGET_WS_PAIRS_PER_S: f64 = 300.0;
+const TARGET_PACED_P99_MS: f64 = 20.0;
+const TARGET_IDLE_SESSION_MB: f64 = 5.0;
+
+/// How much work each part does.
+#[derive(Clone, Copy, Debug)]
+struct Sizes {
+    /// Distinct rendered pairs (played forwards and backwards).
+    pool: usize,
+    ws_warmup: usize,
+    ws_pairs: usize,
+    paced_pairs: usize,
+    multi_clients: usize,
+    multi_warmup: usize,
+    multi_pairs_each: usize,
+    rest_warmup: usize,
+    rest_pairs: usize,
+    rest_clients: usize,
+    rest_pairs_each: usize,
+    idle_sessions: usize,
+    reference_reps: usize,
+}
+
+impl Sizes {
+    fn new(quick: bool) -> Self {
+        if quick {
+            Self {
+                pool: 20,
+                ws_warmup: 10,
+                ws_pairs: 150,
+                paced_pairs: 100,
+                multi_clients: 8,
+                multi_warmup: 5,
+                multi_pairs_each: 30,
+                rest_warmup: 3,
+                rest_pairs: 30,
+                rest_clients: 4,
+                rest_pairs_each: 10,
+                idle_sessions: 50,
+                reference_reps: 50,
+            }
+        } else {
+            Self {
+                pool: 60,
+                ws_warmup: 20,
+                ws_pairs: 500,
+                paced_pairs: 300,
+                multi_clients: 8,
+                multi_warmup: 10,
+                multi_pairs_each: 100,
+                rest_warmup: 5,
+                rest_pairs: 100,
+                rest_clients: 4,
+                rest_pairs_each: 40,
+                idle_sessions: 200,
+                reference_reps: 200,
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------- statistics
+
+/// Nearest-rank percentile (`p` in 0..=1) of unsorted values.
+fn percentile(values: &[f64], p: f64) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    let rank = ((p * v.len() as f64).ceil() as usize).clamp(1, v.len());
+    v[rank - 1]
+}
+
+fn median(values: &[f64]) -> f64 {
+    percentile(values, 0.5)
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// Rounds for the JSON output (3 significant decimals are plenty).
+fn r3(x: f64) -> f64 {
+    (x * 1e3).round() / 1e3
+}
+
+// -------------------------------------------------------------------- /proc
+
+/// A `VmRSS:`-style field of /proc/<pid>/status, KiB.
+fn proc_status_kib(pid: u32, field: &str) -> u64 {
+    let text = std::fs::read_to_string(format!("/proc/{pid}/status")).expect("read /proc/<pid>/status");
+    text.lines()
+        .find_map(|l| l.strip_prefix(field))
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{field} missing in /proc/{pid}/status"))
+}
+
+/// Clock ticks per second of /proc/<pid>/stat times.
+fn clock_ticks() -> f64 {
+    Command::new("getconf")
+        .arg("CLK_TCK")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or(100.0)
+}
+
+/// User + system CPU seconds of a process (all threads).
+fn cpu_seconds(pid: u32, ticks: f64) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).expect("read /proc/<pid>/stat");
+    // Fields after the parenthesised command name; utime and stime are 14 and 15.
+    let after = &stat[stat.rfind(')').expect("stat format") + 2..];
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    let utime: f64 = fields[11].parse().expect("utime");
+    let stime: f64 = fields[12].parse().expect("stime");
+    (utime + stime) / ticks
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
+        .unwrap_or_default()
+}
+
+// ------------------------------------------------------------------- server
+
+/// The server under test, a child process on a temporary database.
+struct Server {
+    child: Child,
+    addr: SocketAddr,
+    log: Arc<Mutex<String>>,
+    _dir: tempfile::TempDir,
+}
+
+/// Removes ANSI escape sequences (`ESC [ ... letter`).
+fn strip_ansi(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    let mut chars = s.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            if chars.next() == Some('[') {
+                for c in chars.by_ref() {
+                    if ('@'..='~').contains(&c) {
+                        break;
+                    }
+                }
+            }
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
+
+impl Server {
+    fn start() -> Server {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_semdepth"));
+        for (key, _) in std::env::vars_os() {
+            if key.to_string_lossy().starts_with("SEMDEPTH_") {
+                cmd.env_remove(key);
+            }
+        }
+        cmd.arg("serve")
+            .args(["--listen", "127.0.0.1:0", "--db"])
+            .arg(dir.path().join("bench.sqlite3"))
+            .args(["--max-sessions", "1024"])
+            // Only warnings, and the line announcing the address.
+            .env("SEMDEPTH_LOG", "warn,semdepth=info")
+            .env("NO_COLOR", "1")
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped());
+        let mut child = cmd.spawn().expect("start semdepth serve");
+        let stderr = child.stderr.take().expect("piped stderr");
+        let log = Arc::new(Mutex::new(String::new()));
+        let (addr_tx, addr_rx) = mpsc::channel();
+        {
+            let log = log.clone();
+            // Drains stderr for the whole life of the server (a full pipe
+            // would block its logging).
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines() {
+                    let Ok(line) = line else { break };
+                    let line = strip_ansi(&line);
+                    if line.contains("semdepth listening") {
+                        let addr = line
+                            .split_whitespace()
+                            .find_map(|w| w.strip_prefix("address="))
+                            .and_then(|a| a.parse::<SocketAddr>().ok());
+                        let _ = addr_tx.send(addr);
+                    }
+                    if let Ok(mut log) = log.lock() {
+                        log.push_str(&line);
+                        log.push('\n');
+                    }
+                }
+            });
+        }
+        let addr = match addr_rx.recv_timeout(Duration::from_secs(60)) {
+            Ok(Some(addr)) => addr,
+            other => {
+                let _ = child.kill();
+                let _ = child.wait();
+                std::thread::sleep(Duration::from_millis(100));
+                panic!(
+                    "semdepth serve did not announce its address ({other:?}); its log:\n{}",
+                    log.lock().map(|l| l.clone()).unwrap_or_default()
+                );
+            }
+        };
+        Server {
+            child,
+            addr,
+            log,
+            _dir: dir,
+        }
+    }
+
+    fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.addr)
+    }
+
+    fn rss_kib(&self) -> u64 {
+        proc_status_kib(self.pid(), "VmRSS:")
+    }
+
+    fn peak_rss_kib(&self) -> u64 {
+        proc_status_kib(self.pid(), "VmHWM:")
+    }
+
+    /// Warnings the server logged (they would skew the figures).
+    fn warnings(&self) -> Vec<String> {
+        self.log
+            .lock()
+            .map(|l| {
+                l.lines()
+                    .filter(|l| l.contains("WARN") || l.contains("ERROR"))
+                    .map(str::to_string)
+                    .collect()
+            })
+            .unwrap_or_default()
+    }
+
+    /// SIGTERM, then up to 10 s for a clean shutdown, then SIGKILL.
+    fn stop(mut self) {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.pid().to_string()])
+            .status();
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        eprintln!("server did not stop within 10 s of SIGTERM; killing it");
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            let _ = self.child.kill();
+        }
+        let _ = self.child.wait();
+    }
+}
+
+// --------------------------------------------------------------------- data
+
+/// The pool of distinct rendered pairs, as frames and as raw 8-bit bytes.
+struct Data {
+    frames: Vec<(GrayFrame, GrayFrame)>,
+    raw: Vec<(Vec<u8>, Vec<u8>)>,
+    png: Vec<(Vec<u8>, Vec<u8>)>,
+}
+
+/// Pool index of the `k`-th pair sent: the pool played forwards, then
+/// backwards, and so on, so that the object moves continuously.
+fn pool_index(k: usize, pool: usize) -> usize {
+    if pool < 2 {
+        return 0;
+    }
+    let period = 2 * (pool - 1);
+    let m = k % period;
+    if m < pool {
+        m
+    } else {
+        period - m
+    }
+}
+
+fn png(frame: &GrayFrame) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    frame
+        .to_gray8()
+        .write_to(&mut out, image::ImageFormat::Png)
+        .expect("PNG encoding");
+    out.into_inner()
+}
+
+fn render(pool: usize) -> Data {
+    let config = SynthConfig {
+        frames: pool,
+        ..SynthConfig::preset(Preset::Clean, Shape::Blob, 1).with_size(WIDTH, HEIGHT)
+    };
+    let frames: Vec<(GrayFrame, GrayFrame)> = semdepth::synth::frames(&config)
+        .expect("valid synthetic configuration")
+        .map(|p| (p.left, p.right))
+        .collect();
+    let raw = frames
+        .iter()
+        .map(|(l, r)| (l.to_gray8().into_raw(), r.to_gray8().into_raw()))
+        .collect();
+    let png = frames.iter().map(|(l, r)| (png(l), png(r))).collect();
+    Data { frames, raw, png }
+}
+
+/// One `SDP1` message: magic, header length, JSON header, left, right.
+fn sdp1(seq: usize, left: &[u8], right: &[u8]) -> Bytes {
+    let header = serde_json::to_vec(&json!({
+        "seq": seq, "encoding": "raw", "width": WIDTH, "height": HEIGHT, "bit_depth": 8,
+        "left_len": left.len(), "right_len": right.len(),
+    }))
+    .expect("header JSON");
+    let mut m = Vec::with_capacity(8 + header.len() + left.len() + right.len());
+    m.extend_from_slice(b"SDP1");
+    m.extend_from_slice(&(header.len() as u32).to_le_bytes());
+    m.extend_from_slice(&header);
+    m.extend_from_slice(left);
+    m.extend_from_slice(right);
+    Bytes::from(m)
+}
+
+/// Messages with seq 0..n over the pool.
+fn messages(data: &Data, n: usize) -> Arc<Vec<Bytes>> {
+    Arc::new(
+        (0..n)
+            .map(|k| {
+                let (l, r) = &data.raw[pool_index(k, data.raw.len())];
+                sdp1(k, l, r)
+            })
+            .collect(),
+    )
+}
+
+// ------------------------------------------------------------------ clients
+
+/// What the client saw of one pair.
+#[derive(Clone, Debug)]
+struct Reply {
+    latency_ms: f64,
+    queue_ms: f64,
+    decode_ms: f64,
+    track_ms: f64,
+    total_ms: f64,
+    status: String,
+}
+
+impl Reply {
+    fn from_json(v: &Value, latency_ms: f64) -> Reply {
+        if let Some(e) = v.get("error") {
+            panic!("the server answered an error: {e}");
+        }
+        let t = |k: &str| v["timing_ms"][k].as_f64().unwrap_or(f64::NAN);
+        Reply {
+            latency_ms,
+            queue_ms: t("queue"),
+            decode_ms: t("decode"),
+            track_ms: t("track"),
+            total_ms: t("total"),
+            status: v["status"].as_str().unwrap_or("?").to_string(),
+        }
+    }
+}
+
+/// The timed part of one client.
+struct Run {
+    replies: Vec<Reply>,
+    first_send: Instant,
+    last_reply: Instant,
+}
+
+async fn create_session(http: &reqwest::Client, server: &Server) -> String {
+    let response = http
+        .post(server.url("/v1/sessions"))
+        .json(&json!({}))
+        .send()
+        .await
+        .expect("POST /v1/sessions");
+    assert_eq!(response.status().as_u16(), 201, "creating a session");
+    let body: Value = response.json().await.expect("session JSON");
+    body["id"].as_str().expect("session id").to_string()
+}
+
+type Ws = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+async fn connect(server: &Server, session: &str) -> Ws {
+    let url = format!("ws://{}/v1/sessions/{session}/stream?policy=all", server.addr);
+    tokio_tungstenite::connect_async(url)
+        .await
+        .expect("WebSocket connect")
+        .0
+}
+
+/// The next text message as JSON (pings and pongs skipped).
+async fn next_json<S>(stream: &mut S) -> Value
+where
+    S: futures_util::Stream<Item = Result<Message, tokio_tungstenite::tungstenite::Error>> + Unpin,
+{
+    loop {
+        match stream.next().await {
+            Some(Ok(Message::Text(text))) => return serde_json::from_str(&text).expect("reply JSON"),
+            Some(Ok(Message::Ping(_) | Message::Pong(_))) => continue,
+            other => panic!("expected a text reply, got {other:?}"),
+        }
+    }
+}
+
+/// Sends `messages[..warmup]` one at a time (each waits for its reply), waits
+/// at the barrier, then sends `messages[warmup..]` pipelined (or paced every
+/// `pace`) while the replies are read.
+async fn ws_client(
+    ws: Ws,
+    messages: Arc<Vec<Bytes>>,
+    warmup: usize,
+    pace: Option<Duration>,
+    barrier: Arc<Barrier>,
+) -> Run {
+    let (mut sink, mut stream) = ws.split();
+    for m in &messages[..warmup] {
+        sink.send(Message::Binary(m.clone())).await.expect("send");
+        Reply::from_json(&next_json(&mut stream).await, 0.0);
+    }
+    let n = messages.len() - warmup;
+    barrier.wait().await;
+    let t0 = Instant::now();
+    let sent: Arc<Vec<AtomicU64>> = Arc::new((0..n).map(|_| AtomicU64::new(u64::MAX)).collect());
+    let sender = {
+        let (sent, messages) = (sent.clone(), messages.clone());
+        tokio::spawn(async move {
+            for k in 0..n {
+                if let Some(pace) = pace {
+                    tokio::time::sleep_until(tokio::time::Instant::from_std(t0 + pace * k as u32)).await;
+                }
+                sent[k].store(t0.elapsed().as_nanos() as u64, Ordering::Release);
+                sink.send(Message::Binary(messages[warmup + k].clone()))
+                    .await
+                    .expect("send");
+            }
+            sink
+        })
+    };
+    let mut replies = Vec::with_capacity(n);
+    let mut last_reply = t0;
+    for k in 0..n {
+        let v = next_json(&mut stream).await;
+        last_reply = Instant::now();
+        let seq = v["seq"].as_u64().expect("reply seq") as usize;
+        assert_eq!(seq, warmup + k, "replies arrive in order under policy=all");
+        let sent_ns = sent[k].load(Ordering::Acquire);
+        assert_ne!(sent_ns, u64::MAX, "reply before its pair was sent");
+        let latency = ms(last_reply - t0) - sent_ns as f64 / 1e6;
+        replies.push(Reply::from_json(&v, latency));
+    }
+    let mut sink = sender.await.expect("sender task");
+    let _ = sink.send(Message::Close(None)).await;
+    Run {
+        replies,
+        first_send: t0,
+        last_reply,
+    }
+}
+
+fn multipart(pair: &(Vec<u8>, Vec<u8>)) -> reqwest::multipart::Form {
+    let part = |bytes: &Vec<u8>, name: &str| {
+        reqwest::multipart::Part::bytes(bytes.clone())
+            .file_name(format!("{name}.png"))
+            .mime_str("image/png")
+            .expect("mime")
+    };
+    reqwest::multipart::Form::new()
+        .part("left", part(&pair.0, "left"))
+        .part("right", part(&pair.1, "right"))
+}
+
+async fn upload(http: &reqwest::Client, url: &str, form: reqwest::multipart::Form) -> Value {
+    let response = http.post(url).multipart(form).send().await.expect("upload");
+    let status = response.status();
+    let body: Value = response.json().await.expect("upload reply JSON");
+    assert!(status.is_success(), "upload failed: {status} {body}");
+    body
+}
+
+/// Uploads `warmup` pairs, waits at the barrier, then `n` more, one at a time.
+async fn rest_client(
+    http: reqwest::Client,
+    url: String,
+    pngs: Arc<Vec<(Vec<u8>, Vec<u8>)>>,
+    warmup: usize,
+    n: usize,
+    barrier: Arc<Barrier>,
+) -> Run {
+    let pair = |k: usize| &pngs[pool_index(k, pngs.len())];
+    for k in 0..warmup {
+        Reply::from_json(&upload(&http, &url, multipart(pair(k))).await, 0.0);
+    }
+    barrier.wait().await;
+    let first_send = Instant::now();
+    let mut replies = Vec::with_capacity(n);
+    let mut last_reply = first_send;
+    for k in warmup..warmup + n {
+        let form = multipart(pair(k));
+        let t = Instant::now();
+        let v = upload(&http, &url, form).await;
+        last_reply = Instant::now();
+        replies.push(Reply::from_json(&v, ms(last_reply - t)));
+    }
+    Run {
+        replies,
+        first_send,
+        last_reply,
+    }
+}
+
+// ---------------------------------------------------------------- summaries
+
+/// Figures of one scenario.
+#[derive(Debug)]
+struct Summary {
+    name: &'static str,
+    what: String,
+    clients: usize,
+    pairs: usize,
+    pairs_per_s: f64,
+    latency_median_ms: f64,
+    latency_p99_ms: f64,
+    queue_ms: f64,
+    decode_ms: f64,
+    track_ms: f64,
+    total_ms: f64,
+    processing_ms: f64,
+    server_cpu_ms_per_pair: f64,
+    client_cpu_ms_per_pair: f64,
+    not_tracked: usize,
+}
+
+impl Summary {
+    fn new(name: &'static str, what: String, runs: &[Run], cpu: (f64, f64)) -> Summary {
+        let replies: Vec<&Reply> = runs.iter().flat_map(|r| &r.replies).collect();
+        let first = runs.iter().map(|r| r.first_send).min().expect("runs");
+        let last = runs.iter().map(|r| r.last_reply).max().expect("runs");
+        let pairs = replies.len();
+        let col = |f: fn(&Reply) -> f64| median(&replies.iter().map(|r| f(r)).collect::<Vec<_>>());
+        let latencies: Vec<f64> = replies.iter().map(|r| r.latency_ms).collect();
+        Summary {
+            name,
+            what,
+            clients: runs.len(),
+            pairs,
+            pairs_per_s: pairs as f64 / (last - first).as_secs_f64(),
+            latency_median_ms: median(&latencies),
+            latency_p99_ms: percentile(&latencies, 0.99),
+            queue_ms: col(|r| r.queue_ms),
+            decode_ms: col(|r| r.decode_ms),
+            track_ms: col(|r| r.track_ms),
+            total_ms: col(|r| r.total_ms),
+            processing_ms: col(|r| r.total_ms - r.queue_ms),
+            server_cpu_ms_per_pair: cpu.0 * 1e3 / pairs as f64,
+            client_cpu_ms_per_pair: cpu.1 * 1e3 / pairs as f64,
+            not_tracked: replies.iter().filter(|r| r.status != "tracked").count(),
+        }
+    }
+
+    fn json(&self) -> Value {
+        json!({
+            "what": self.what,
+            "clients": self.clients,
+            "pairs": self.pairs,
+            "pairs_per_s": r3(self.pairs_per_s),
+            "latency_median_ms": r3(self.latency_median_ms),
+            "latency_p99_ms": r3(self.latency_p99_ms),
+            "server_timing_median_ms": {
+                "queue": r3(self.queue_ms), "decode": r3(self.decode_ms),
+                "track": r3(self.track_ms), "total": r3(self.total_ms),
+            },
+            "server_processing_median_ms": r3(self.processing_ms),
+            "server_cpu_ms_per_pair": r3(self.server_cpu_ms_per_pair),
+            "client_cpu_ms_per_pair": r3(self.client_cpu_ms_per_pair),
+            "not_tracked": self.not_tracked,
+        })
+    }
+}
+
+/// CPU seconds of the server and of this process spent while `f` runs.
+struct CpuMeter {
+    server_pid: u32,
+    ticks: f64,
+    start: (f64, f64),
+}
+
+impl CpuMeter {
+    fn start(server: &Server, ticks: f64) -> CpuMeter {
+        let pid = server.pid();
+        CpuMeter {
+            server_pid: pid,
+            ticks,
+            start: (cpu_seconds(pid, ticks), cpu_seconds(std::process::id(), ticks)),
+        }
+    }
+
+    fn stop(&self) -> (f64, f64) {
+        (
+            cpu_seconds(self.server_pid, self.ticks) - self.start.0,
+            cpu_seconds(std::process::id(), self.ticks) - self.start.1,
+        )
+    }
+}
+
+// --------------------------------------------------------------- scenarios
+
+async fn ws_scenario(
+    server: &Server,
+    http: &reqwest::Client,
+    ticks: f64,
+    messages: &Arc<Vec<Bytes>>,
+    clients: usize,
+    warmup: usize,
+    pace: Option<Duration>,
+) -> (Vec<Run>, (f64, f64)) {
+    let barrier = Arc::new(Barrier::new(clients + 1));
+    let mut tasks = Vec::new();
+    for _ in 0..clients {
+        let session = create_session(http, server).await;
+        let ws = connect(server, &session).await;
+        tasks.push(tokio::spawn(ws_client(
+            ws,
+            messages.clone(),
+            warmup,
+            pace,
+            barrier.clone(),
+        )));
+    }
+    // Every client has finished its warm-up: start measuring.
+    barrier.wait().await;
+    let cpu = CpuMeter::start(server, ticks);
+    let mut runs = Vec::new();
+    for t in tasks {
+        runs.push(t.await.expect("client task"));
+    }
+    (runs, cpu.stop())
+}
+
+#[allow(clippy::too_many_arguments)]
+async fn rest_scenario(
+    server: &Server,
+    http: &reqwest::Client,
+    ticks: f64,
+    pngs: &Arc<Vec<(Vec<u8>, Vec<u8>)>>,
+    clients: usize,
+    warmup: usize,
+    n: usize,
+) -> (Vec<Run>, (f64, f64)) {
+    let barrier = Arc::new(Barrier::new(clients + 1));
+    let mut tasks = Vec::new();
+    for _ in 0..clients {
+        let session = create_session(http, server).await;
+        let url = server.url(&format!("/v1/sessions/{session}/frames"));
+        tasks.push(tokio::spawn(rest_client(
+            http.clone(),
+            url,
+            pngs.clone(),
+            warmup,
+            n,
+            barrier.clone(),
+        )));
+    }
+    barrier.wait().await;
+    let cpu = CpuMeter::start(server, ticks);
+    let mut runs = Vec::new();
+    for t in tasks {
+        runs.push(t.await.expect("client task"));
+    }
+    (runs, cpu.stop())
+}
+
+/// Server memory per idle session, on a fresh server: RSS after a warm-up
+/// session, then after `count` more sessions that each processed one pair.
+async fn idle_memory(http: &reqwest::Client, pngs: &Arc<Vec<(Vec<u8>, Vec<u8>)>>, count: usize) -> Value {
+    let server = Server::start();
+    let started_kib = server.rss_kib();
+    // Warm-up: the allocator's working set for decoding and tracking.
+    let warm = create_session(http, &server).await;
+    let url = server.url(&format!("/v1/sessions/{warm}/frames"));
+    for k in 0..3 {
+        upload(http, &url, multipart(&pngs[pool_index(k, pngs.len())])).await;
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let before_kib = server.rss_kib();
+    let t = Instant::now();
+    let init_latencies = Arc::new(Mutex::new(Vec::new()));
+    // Two clients at a time: the first pair of a session is an initialisation.
+    let next = Arc::new(AtomicU64::new(0));
+    let mut tasks = Vec::new();
+    for _ in 0..2 {
+        let (http, pngs, next, lat) = (http.clone(), pngs.clone(), next.clone(), init_latencies.clone());
+        let base = server.url("");
+        let server_sessions = base.clone();
+        tasks.push(tokio::spawn(async move {
+            loop {
+                let k = next.fetch_add(1, Ordering::Relaxed) as usize;
+                if k >= count {
+                    break;
+                }
+                let response = http
+                    .post(format!("{server_sessions}/v1/sessions"))
+                    .json(&json!({}))
+                    .send()
+                    .await
+                    .expect("POST /v1/sessions");
+                let body: Value = response.json().await.expect("session JSON");
+                let id = body["id"].as_str().expect("session id").to_string();
+                let form = multipart(&pngs[pool_index(k, pngs.len())]);
+                let t = Instant::now();
+                let v = upload(&http, &format!("{base}/v1/sessions/{id}/frames"), form).await;
+                let status = v["status"].as_str().unwrap_or("?").to_string();
+                lat.lock().expect("lock").push((ms(t.elapsed()), status));
+            }
+        }));
+    }
+    for t in tasks {
+        t.await.expect("client task");
+    }
+    let fill_s = t.elapsed().as_secs_f64();
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let after_kib = server.rss_kib();
+    let peak_kib = server.peak_rss_kib();
+    let lat = init_latencies.lock().expect("lock").clone();
+    let init_ms: Vec<f64> = lat.iter().map(|(l, _)| *l).collect();
+    let initialised = lat.iter().filter(|(_, s)| s == "initialised").count();
+    let warnings = server.warnings();
+    server.stop();
+    let per_session_mb = (after_kib as f64 - before_kib as f64) * 1024.0 / count as f64 / 1e6;
+    json!({
+        "sessions": count,
+        "rss_at_start_mb": r3(started_kib as f64 * 1024.0 / 1e6),
+        "rss_before_mb": r3(before_kib as f64 * 1024.0 / 1e6),
+        "rss_after_mb": r3(after_kib as f64 * 1024.0 / 1e6),
+        "peak_rss_mb": r3(peak_kib as f64 * 1024.0 / 1e6),
+        "per_session_mb": r3(per_session_mb),
+        "first_pair_rest_png_median_ms": r3(median(&init_ms)),
+        "first_pairs_initialised": initialised,
+        "fill_s": r3(fill_s),
+        "server_warnings": warnings,
+    })
+}
+
+// --------------------------------------------------------------- references
+
+fn reference_sum_ms(data: &Data, reps: usize) -> f64 {
+    let (l, r) = &data.raw[0];
+    let sum = |b: &[u8]| b.iter().map(|&v| v as u64).sum::<u64>();
+    let mut times = Vec::with_capacity(reps);
+    for _ in 0..reps.max(20) {
+        let t = Instant::now();
+        std::hint::black_box(sum(std::hint::black_box(l)) + sum(std::hint::black_box(r)));
+        times.push(ms(t.elapsed()));
+    }
+    median(&times)
+}
+
+/// In-process tracking step (no service) on the pool pairs, played like the
+/// WebSocket scenarios play them.
+fn reference_track_ms(data: &Data, reps: usize) -> f64 {
+    let pool = data.frames.len();
+    let mut tracker = StereoTracker::new(TrackerParams::default());
+    let (l, r) = &data.frames[0];
+    tracker.process(l, r).expect("first pair");
+    let mut times = Vec::with_capacity(reps);
+    for k in 1..=reps.clamp(20, 200) {
+        let (l, r) = &data.frames[pool_index(k, pool)];
+        let t = Instant::now();
+        std::hint::black_box(tracker.process(l, r).expect("pair"));
+        times.push(ms(t.elapsed()));
+    }
+    median(&times)
+}
+
+async fn reference_healthz(http: &reqwest::Client, server: &Server, reps: usize) -> (f64, f64) {
+    let url = server.url("/healthz");
+    let mut times = Vec::with_capacity(reps);
+    for k in 0..reps + 20 {
+        let t = Instant::now();
+        let response = http.get(&url).send().await.expect("GET /healthz");
+        assert!(response.status().is_success());
+        response.bytes().await.expect("healthz body");
+        if k >= 20 {
+            times.push(ms(t.elapsed()));
+        }
+    }
+    (median(&times), percentile(&times, 0.99))
+}
+
+/// Round trip of a pair-sized message the server rejects at once (bad
+/// magic): transport, framing and unmasking without decoding or tracking.
+async fn reference_ws_transport(
+    http: &reqwest::Client,
+    server: &Server,
+    size: usize,
+    reps: usize,
+) -> (f64, f64) {
+    let session = create_session(http, server).await;
+    let (mut sink, mut stream) = connect(server, &session).await.split();
+    let mut bytes = vec![0u8; size];
+    bytes[..8].copy_from_slice(b"SDP0\0\0\0\0");
+    let message = Bytes::from(bytes);
+    let mut times = Vec::new();
+    for k in 0..reps.min(100) + 5 {
+        let t = Instant::now();
+        sink.send(Message::Binary(message.clone())).await.expect("send");
+        let v = next_json(&mut stream).await;
+        assert_eq!(v["error"]["code"], "bad_magic", "{v}");
+        if k >= 5 {
+            times.push(ms(t.elapsed()));
+        }
+    }
+    let _ = sink.send(Message::Close(None)).await;
+    (median(&times), percentile(&times, 0.99))
+}
+
+// --------------------------------------------------------------------- main
+
+fn main() {
+    let mut quick = false;
+    let mut filters = Vec::new();
+    for arg in std::env::args().skip(1) {
+        match arg.as_str() {
+            "--quick" => quick = true,
+            a if a.starts_with('-') => {} // --bench and other harness flags
+            a => filters.push(a.to_string()),
+        }
+    }
+    let wanted = |name: &str| filters.is_empty() || filters.iter().any(|f| name.contains(f.as_str()));
+    let sizes = Sizes::new(quick);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .expect("tokio runtime");
+    runtime.block_on(run(sizes, quick, &wanted));
+}
+
+async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
+    let wall = Instant::now();
+    let load_start = load_average();
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let ticks = clock_ticks();
+    eprintln!(
+        "service_load: {} mode, {cores} cores, load average {load_start}; rendering {} pairs of {WIDTH}x{HEIGHT}",
+        if quick { "quick" } else { "full" },
+        sizes.pool
+    );
+    let data = render(sizes.pool);
+    let pair_bytes = data.raw[0].0.len() + data.raw[0].1.len();
+    let png_bytes = median(
+        &data
+            .png
+            .iter()
+            .map(|(l, r)| (l.len() + r.len()) as f64)
+            .collect::<Vec<_>>(),
+    );
+    let http = reqwest::Client::new();
+
+    eprintln!("service_load: references");
+    let sum_ms = reference_sum_ms(&data, sizes.reference_reps * 5);
+    let track_ms = reference_track_ms(&data, sizes.reference_reps);
+    let server = Server::start();
+    let rss_start_kib = server.rss_kib();
+    let (healthz_ms, healthz_p99_ms) = reference_healthz(&http, &server, sizes.reference_reps).await;
+    let (transport_ms, transport_p99_ms) =
+        reference_ws_transport(&http, &server, pair_bytes + 150, sizes.reference_reps).await;
+
+    let mut summaries = Vec::new();
+    let largest = sizes.ws_warmup + sizes.ws_pairs.max(sizes.paced_pairs);
+    let ws_messages = if wanted("ws_one") || wanted("ws_paced") {
+        messages(&data, largest)
+    } else {
+        Arc::new(Vec::new())
+    };
+    if wanted("ws_one") {
+        eprintln!("service_load: ws_one");
+        let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
+        let (runs, cpu) = ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None).await;
+        summaries.push(Summary::new(
+            "ws_one",
+            "1 WebSocket, raw 8-bit, pipelined, policy=all".into(),
+            &runs,
+            cpu,
+        ));
+    }
+    if wanted("ws_paced") {
+        eprintln!("service_load: ws_paced");
+        let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.paced_pairs].to_vec());
+        let pace = Duration::from_secs_f64(1.0 / PACED_RATE);
+        let (runs, cpu) = ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, Some(pace)).await;
+        summaries.push(Summary::new(
+            "ws_paced",
+            format!("1 WebSocket, raw 8-bit, paced at {PACED_RATE} pairs/s"),
+            &runs,
+            cpu,
+        ));
+    }
+    drop(ws_messages);
+    if wanted("ws_eight") {
+        eprintln!("service_load: ws_eight");
+        let msgs = messages(&data, sizes.multi_warmup + sizes.multi_pairs_each);
+        let (runs, cpu) = ws_scenario(
+            &server,
+            &http,
+            ticks,
+            &msgs,
+            sizes.multi_clients,
+            sizes.multi_warmup,
+            None,
+        )
+        .await;
+        summaries.push(Summary::new(
+            "ws_eight",
+            format!(
+                "{} WebSockets (one session each), raw 8-bit, pipelined",
+                sizes.multi_clients
+            ),
+            &runs,
+            cpu,
+        ));
+    }
+    let pngs = Arc::new(data.png.clone());
+    if wanted("rest_one") {
+        eprintln!("service_load: rest_one");
+        let (runs, cpu) = rest_scenario(
+            &server,
+            &http,
+            ticks,
+            &pngs,
+            1,
+            sizes.rest_warmup,
+            sizes.rest_pairs,
+        )
+        .await;
+        summaries.push(Summary::new(
+            "rest_one",
+            "REST multipart PNG, 1 client, sequential".into(),
+            &runs,
+            cpu,
+        ));
+    }
+    if wanted("rest_four") {
+        eprintln!("service_load: rest_four");
+        let (runs, cpu) = rest_scenario(
+            &server,
+            &http,
+            ticks,
+            &pngs,
+            sizes.rest_clients,
+            sizes.rest_warmup,
+            sizes.rest_pairs_each,
+        )
+        .await;
+        summaries.push(Summary::new(
+            "rest_four",
+            format!(
+                "REST multipart PNG, {} clients (one session each)",
+                sizes.rest_clients
+            ),
+            &runs,
+            cpu,
+        ));
+    }
+    let rss_end_kib = server.rss_kib();
+    let peak_kib = server.peak_rss_kib();
+    let warnings = server.warnings();
+    server.stop();
+    let memory = if wanted("idle_memory") {
+        eprintln!("service_load: idle_memory ({} sessions)", sizes.idle_sessions);
+        Some(idle_memory(&http, &pngs, sizes.idle_sessions).await)
+    } else {
+        None
+    };
+    let wall_s = wall.elapsed().as_secs_f64();
+    let load_end = load_average();
+
+    // ------------------------------------------------------------ report
+    let mb = |kib: u64| kib as f64 * 1024.0 / 1e6;
+    println!();
+    println!(
+        "service_load ({} mode): {WIDTH}x{HEIGHT} 8-bit pairs ({:.2} MB raw, {:.2} MB PNG), {cores} cores, load average {load_start} -> {load_end}",
+        if quick { "quick" } else { "full" },
+        pair_bytes as f64 / 1e6,
+        png_bytes / 1e6
+    );
+    println!(
+        "references: sum of both images {sum_ms:.3} ms; in-process track step {track_ms:.3} ms; \
+         GET /healthz round trip {healthz_ms:.3} ms (p99 {healthz_p99_ms:.3}); \
+         WebSocket round trip of a rejected pair-sized message {transport_ms:.3} ms (p99 {transport_p99_ms:.3})"
+    );
+    println!();
+    println!(
+        "{:<10} {:>3} {:>5} {:>8} {:>8} {:>8} | {:>6} {:>6} {:>6} {:>6} | {:>7} {:>7} | {:>5}",
+        "scenario",
+        "cl",
+        "pairs",
+        "pairs/s",
+        "lat med",
+        "lat p99",
+        "queue",
+        "decode",
+        "track",
+        "total",
+        "srv cpu",
+        "cli cpu",
+        "!trk"
+    );
+    println!(
+        "{:<10} {:>3} {:>5} {:>8} {:>8} {:>8} | {:>27} | {:>15} |",
+        "", "", "", "", "ms", "ms", "server timing_ms medians", "ms per pair"
+    );
+    for s in &summaries {
+        println!(
+            "{:<10} {:>3} {:>5} {:>8.1} {:>8.2} {:>8.2} | {:>6.2} {:>6.2} {:>6.2} {:>6.2} | {:>7.2} {:>7.2} | {:>5}",
+            s.name,
+            s.clients,
+            s.pairs,
+            s.pairs_per_s,
+            s.latency_median_ms,
+            s.latency_p99_ms,
+            s.queue_ms,
+            s.decode_ms,
+            s.track_ms,
+            s.total_ms,
+            s.server_cpu_ms_per_pair,
+            s.client_cpu_ms_per_pair,
+            s.not_tracked
+        );
+    }
+    println!();
+    let find = |name: &str| summaries.iter().find(|s| s.name == name);
+    let mut ratios = serde_json::Map::new();
+    for s in &summaries {
+        let interval = 1e3 / s.pairs_per_s;
+        println!(
+            "{:<10} {interval:6.2} ms per pair = {:5.1} x sum, {:4.2} x in-process track \
+             (in server {:5.2}: decode+track {:5.2}); latency median = {:6.1} x /healthz, {:6.2} x WebSocket transport",
+            s.name,
+            interval / sum_ms,
+            interval / track_ms,
+            s.processing_ms,
+            s.decode_ms + s.track_ms,
+            s.latency_median_ms / healthz_ms,
+            s.latency_median_ms / transport_ms,
+        );
+        ratios.insert(
+            s.name.to_string(),
+            json!({
+                "ms_per_pair": r3(interval),
+                "ms_per_pair_over_sum": r3(interval / sum_ms),
+                "ms_per_pair_over_track": r3(interval / track_ms),
+                "latency_median_over_healthz": r3(s.latency_median_ms / healthz_ms),
+                "latency_median_over_ws_transport": r3(s.latency_median_ms / transport_ms),
+            }),
+        );
+    }
+    println!(
+        "server RSS: {:.1} MB at start, {:.1} MB after the scenarios, peak {:.1} MB",
+        mb(rss_start_kib),
+        mb(rss_end_kib),
+        mb(peak_kib)
+    );
+    if let Some(m) = &memory {
+        println!(
+            "idle sessions (fresh server): {} sessions, RSS {} -> {} MB: {} MB per session; first pair (initialisation, REST PNG) median {} ms",
+            m["sessions"], m["rss_before_mb"], m["rss_after_mb"], m["per_session_mb"], m["first_pair_rest_png_median_ms"]
+        );
+    }
+    for w in &warnings {
+        println!("server warning: {w}");
+    }
+
+    let mut targets = serde_json::Map::new();
+    let mut verdict = |key: &str, label: String, value: f64, limit: f64, higher_is_better: bool| {
+        let met = if higher_is_better {
+            value >= limit
+        } else {
+            value < limit
+        };
+        println!(
+            "target {label}: {} ({value:.2})",
+            if met { "met" } else { "NOT met" }
+        );
+        targets.insert(
+            key.to_string(),
+            json!({"value": r3(value), "limit": limit, "met": met}),
+        );
+    };
+    if let Some(s) = find("ws_one") {
+        verdict(
+            "ws_one_pairs_per_s",
+            format!(">= {TARGET_WS_PAIRS_PER_S} pairs/s over one WebSocket"),
+            s.pairs_per_s,
+            TARGET_WS_PAIRS_PER_S,
+            true,
+        );
+    }
+    if let Some(s) = find("ws_paced") {
+        verdict(
+            "ws_paced_p99_ms",
+            format!("p99 < {TARGET_PACED_P99_MS} ms at {PACED_RATE} pairs/s"),
+            s.latency_p99_ms,
+            TARGET_PACED_P99_MS,
+            false,
+        );
+    }
+    if let Some(m) = &memory {
+        verdict(
+            "idle_session_mb",
+            format!("< {TARGET_IDLE_SESSION_MB} MB per idle session"),
+            m["per_session_mb"].as_f64().unwrap_or(f64::NAN),
+            TARGET_IDLE_SESSION_MB,
+            false,
+        );
+    }
+    println!("wall time {wall_s:.1} s");
+
+    let report = json!({
+        "mode": if quick { "quick" } else { "full" },
+        "machine": {"cores": cores, "load_average_start": load_start, "load_average_end": load_end},
+        "pair": {"width": WIDTH, "height": HEIGHT, "raw_bytes": pair_bytes, "png_bytes_median": png_bytes},
+        "sizes": format!("{sizes:?}"),
+        "reference": {
+            "sum_pair_ms": r3(sum_ms),
+            "track_inprocess_ms": r3(track_ms),
+            "healthz_rtt_median_ms": r3(healthz_ms),
+            "healthz_rtt_p99_ms": r3(healthz_p99_ms),
+            "ws_transport_rtt_median_ms": r3(transport_ms),
+            "ws_transport_rtt_p99_ms": r3(transport_p99_ms),
+        },
+        "scenarios": summaries.iter().map(|s| (s.name.to_string(), s.json())).collect::<serde_json::Map<_, _>>(),
+        "ratios": ratios,
+        "server_rss_mb": {"start": r3(mb(rss_start_kib)), "end": r3(mb(rss_end_kib)), "peak": r3(mb(peak_kib))},
+        "idle_memory": memory,
+        "targets": targets,
+        "server_warnings": warnings,
+        "wall_s": r3(wall_s),
+    });
+    let target_dir = std::env::var_os("CARGO_TARGET_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target"));
+    let path = target_dir.join("service_load.json");
+    match std::fs::create_dir_all(&target_dir)
+        .and_then(|_| std::fs::write(&path, serde_json::to_string_pretty(&report).expect("JSON")))
+    {
+        Ok(()) => println!("figures written to {}", path.display()),
+        Err(e) => eprintln!("cannot write {}: {e}", path.display()),
+    }
+}
