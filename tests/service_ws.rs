@@ -303,3 +303,68 @@ async fn stream_of_unknown_session_is_404_and_plain_get_is_400() {
     assert_eq!(r.status(), 400);
     server.stop().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_4096x3072_16_bit_pair_fits_over_rest_and_websocket() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let config = semdepth::synth::SynthConfig {
+        frames: 1,
+        bit_depth: 16,
+        ..semdepth::synth::SynthConfig::preset(Preset::Clean, Shape::Blob, 41).with_size(4096, 3072)
+    };
+    let pair = semdepth::synth::frames(&config).unwrap().next().unwrap();
+    assert_eq!(
+        (pair.left.width, pair.left.height, pair.left.bit_depth),
+        (4096, 3072, 16)
+    );
+
+    // REST: 16-bit PNGs in a multipart body on the default limits.
+    let sid = new_session(&server).await;
+    let form = reqwest::multipart::Form::new()
+        .part("left", reqwest::multipart::Part::bytes(png(&pair.left)))
+        .part("right", reqwest::multipart::Part::bytes(png(&pair.right)));
+    let r: Value = reqwest::Client::new()
+        .post(format!("{}/v1/sessions/{sid}/frames", server.base))
+        .multipart(form)
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(r["status"], "initialised", "{r}");
+    let d = r["disparity_px"][0].as_f64().unwrap();
+    assert!(
+        (d - pair.truth.disparity_px[0]).abs() < 1.0,
+        "disparity {d} vs truth {}",
+        pair.truth.disparity_px[0]
+    );
+
+    // WebSocket: raw 16-bit little-endian, 2 x 25 MB in one message.
+    let raw16 =
+        |f: &semdepth::imageio::GrayFrame| f.data.iter().flat_map(|v| v.to_le_bytes()).collect::<Vec<u8>>();
+    let (l, r16) = (raw16(&pair.left), raw16(&pair.right));
+    let message = sdp1(
+        &json!({"seq": 1, "encoding": "raw", "width": 4096, "height": 3072, "bit_depth": 16,
+            "left_len": l.len(), "right_len": r16.len()}),
+        &l,
+        &r16,
+    );
+    assert!(message.len() > 50_000_000);
+    let sid = new_session(&server).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    ws.send(Message::Binary(message.into())).await.unwrap();
+    let reply = next_reply(&mut ws).await;
+    assert_eq!(
+        (reply["seq"].as_u64(), reply["status"].as_str()),
+        (Some(1), Some("initialised")),
+        "{reply}"
+    );
+    let d = reply["disparity_px"][0].as_f64().unwrap();
+    assert!((d - pair.truth.disparity_px[0]).abs() < 1.0);
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
