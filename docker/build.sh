@@ -14,6 +14,7 @@ triple=x86_64-unknown-linux-gnu
 target_dir="${CARGO_TARGET_DIR:-target}"
 
 echo "== static binary ($triple, +crt-static)"
+# .ci/run builds the same binary with the same settings first (one build).
 RUSTFLAGS="-C target-feature=+crt-static" CARGO_PROFILE_RELEASE_STRIP=symbols \
     cargo build --release --locked --bin semdepth --target "$triple"
 binary="$target_dir/$triple/release/semdepth"

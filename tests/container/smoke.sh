@@ -8,8 +8,8 @@
 # containers, volume and image.
 #
 # Needs docker (installed from Debian and started here when missing), curl
-# and python3; the host binary `target/release/semdepth` (built if missing)
-# makes the synthetic pair.
+# and python3; the host binary $SEMDEPTH_BIN (default target/release/semdepth,
+# built if missing) makes the synthetic pair.
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 
@@ -88,8 +88,9 @@ session=$(api POST /v1/sessions -H 'Content-Type: application/json' \
     -d "{\"name\": \"smoke\", \"calibration_id\": \"$cal\"}" | field "['id']")
 echo "calibration $cal, session $session"
 
-[ -x target/release/semdepth ] || cargo build --release --locked --bin semdepth
-target/release/semdepth synth "$work/seq" --preset clean --shape blob --seed 3 --frames 2 >/dev/null
+bin="${SEMDEPTH_BIN:-target/release/semdepth}"
+[ -x "$bin" ] || { cargo build --release --locked --bin semdepth; bin=target/release/semdepth; }
+"$bin" synth "$work/seq" --preset clean --shape blob --seed 3 --frames 2 >/dev/null
 result=$(api POST "/v1/sessions/$session/frames" -F "left=@$work/seq/0000_left.png" -F "right=@$work/seq/0000_right.png")
 status=$(echo "$result" | field "['status']")
 z=$(echo "$result" | field "['z_um']")
