@@ -104,13 +104,7 @@ async fn run_session_pair(
     let calibration_id = core.calibration_id.clone();
     let calibration = state.calibration_model(calibration_id.as_deref());
     let limits = state.config.decode_limits;
-    let permit = state.workers.clone().acquire_owned().await.map_err(|_| {
-        ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "shutting_down",
-            "the server is shutting down",
-        )
-    })?;
+    let permit = worker_permit(state).await?;
     let queue = ms(received.elapsed());
     let (returned_core, outcome) = tokio::task::spawn_blocking(move || {
         let outcome = decode_and_track(&input, &limits, &mut core.tracker);
@@ -175,13 +169,7 @@ pub async fn process_one_shot(
         None => None,
     };
     let limits = state.config.decode_limits;
-    let permit = state.workers.clone().acquire_owned().await.map_err(|_| {
-        ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "shutting_down",
-            "the server is shutting down",
-        )
-    })?;
+    let permit = worker_permit(state).await?;
     let queue = ms(received.elapsed());
     let outcome = tokio::task::spawn_blocking(move || {
         let mut tracker = StereoTracker::new(params);
@@ -212,6 +200,17 @@ pub async fn process_one_shot(
         Err(e) => state.metrics.failed(&e.code),
     }
     outcome
+}
+
+/// One of the `workers` slots for a pair.
+async fn worker_permit(state: &AppState) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+    state.workers.clone().acquire_owned().await.map_err(|_| {
+        ApiError::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "shutting_down",
+            "the server is shutting down",
+        )
+    })
 }
 
 /// Decodes and tracks; returns the result and the decode and track times (ms).
