@@ -3,6 +3,7 @@
 //! semaphore), in session order, then queue the result and the tracker
 //! snapshot for storage and acknowledge only once they are committed.
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use axum::body::Bytes;
@@ -73,14 +74,23 @@ impl PairInput {
 /// Processes one pair of a session: strictly after the session's earlier
 /// pairs, with at most `workers` pairs in flight overall. Returns once the
 /// result is committed to storage.
+///
+/// The work runs in its own task: a client that disconnects mid-request
+/// does not cancel a pair halfway (which would advance the tracker without
+/// storing the result).
 pub async fn process_session_pair(
     state: &AppState,
-    session: &Session,
+    session: &Arc<Session>,
     input: PairInput,
     received: Instant,
     seq: Option<u64>,
 ) -> Result<FrameResult, ApiError> {
-    let outcome = run_session_pair(state, session, input, received, seq).await;
+    let (task_state, task_session) = (state.clone(), session.clone());
+    let outcome = tokio::spawn(async move {
+        run_session_pair(&task_state, &task_session, input, received, seq).await
+    })
+    .await
+    .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
     match &outcome {
         Ok(r) => state
             .metrics
