@@ -124,8 +124,10 @@ impl CalibError {
 #[serde(deny_unknown_fields)]
 pub struct Sample {
     /// Disparity component across the tilt axis, pixels (see [`axis_component`]).
+    #[schema(minimum = -1e6, maximum = 1e6)]
     pub disparity_px: f64,
     /// Known height, micrometres.
+    #[schema(minimum = -1e6, maximum = 1e6)]
     pub z_um: f64,
 }
 

@@ -35,32 +35,62 @@ pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 pub struct InitParams {
     /// Longest side of the working copy in pixels (the image is box-averaged
     /// by an integer factor to fit). Default 640; range 64..=8192.
+    #[schema(minimum = 64, maximum = 8192)]
     pub working_max_side: u32,
     /// Gaussian standard deviation in working pixels; `None`: 1.0 for clean
     /// images, rising with the estimated noise level up to 3.0.
+    #[schema(minimum = 0.3, maximum = 20.0)]
     pub sigma: Option<f32>,
     /// Canny thresholds on the gradient magnitude (grey levels per pixel, on
     /// the 0..=1 scale of the working image). `None`: from the image's
     /// gradient statistics (see [`auto_thresholds`]).
+    #[schema(exclusive_minimum = 0.0, maximum = 1.0)]
     pub low_threshold: Option<f32>,
     /// See `low_threshold`; must be >= it.
+    #[schema(exclusive_minimum = 0.0, maximum = 1.0)]
     pub high_threshold: Option<f32>,
     /// Radius of the disk used to dilate edges, in working pixels. `None`:
     /// about 1/150 of the working image's shorter side (2..=6), doubled once
     /// if nothing plausible is found.
+    #[schema(minimum = 1, maximum = 32)]
     pub dilation_radius: Option<u8>,
     /// Smallest accepted object area in full-resolution pixels. `None`:
     /// 0.2% of the searched area.
+    #[schema(minimum = 0.0)]
     pub min_area_px: Option<f64>,
     /// Largest accepted object area in full-resolution pixels. `None`: 90%
     /// of the searched area.
+    #[schema(minimum = 0.0)]
     pub max_area_px: Option<f64>,
     /// Region of interest `[x, y, width, height]` in pixels: only objects
     /// entirely inside it are considered.
+    #[schema(schema_with = roi_schema)]
     pub roi: Option<[u32; 4]>,
     /// Vertex spacing of the returned contour in full-resolution pixels
     /// (default 2.0; range 0.5..=50).
+    #[schema(minimum = 0.5, maximum = 50.0)]
     pub contour_spacing_px: f64,
+}
+
+/// OpenAPI schema of [`InitParams::roi`]: null or four integers in
+/// 0..=u32::MAX (the derived one would say int32).
+fn roi_schema() -> utoipa::openapi::schema::Array {
+    use utoipa::openapi::schema::{ArrayBuilder, KnownFormat, ObjectBuilder, SchemaFormat, SchemaType, Type};
+    ArrayBuilder::new()
+        .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
+        .items(
+            ObjectBuilder::new()
+                .schema_type(Type::Integer)
+                .format(Some(SchemaFormat::KnownFormat(KnownFormat::Int64)))
+                .minimum(Some(0))
+                .maximum(Some(u32::MAX)),
+        )
+        .min_items(Some(4))
+        .max_items(Some(4))
+        .description(Some(
+            "Region of interest `[x, y, width, height]` in pixels: only objects entirely inside it are considered.",
+        ))
+        .build()
 }
 
 impl Default for InitParams {

@@ -42,14 +42,18 @@ pub struct TrackerParams {
     pub occlusion: OcclusionParams,
     /// Direction of the beam's tilt axis in the image, degrees from +x
     /// towards +y. Default 90 (the image y axis): disparity is then along x.
+    #[schema(minimum = -360.0, maximum = 360.0)]
     pub tilt_axis_deg: f64,
     /// On the first pair, how far (pixels, along the disparity axis) the
     /// right view is searched from the left position. Default 64.
+    #[schema(minimum = 0.0, maximum = 4096.0)]
     pub max_disparity_px: f64,
     /// Vertex spacing of the rigid template, pixels. Default 2.
+    #[schema(minimum = 0.5, maximum = 20.0)]
     pub template_spacing_px: f64,
     /// The pair is lost when the contrast in either image falls below this
     /// fraction of the contrast at initialisation. Default 0.3.
+    #[schema(minimum = 0.0, maximum = 1.0)]
     pub min_contrast_ratio: f64,
     /// Let the right contour rotate independently of the left one (the paper
     /// does; `angle_diff_rad` is then measured). Default false: a tilt about
@@ -146,10 +150,10 @@ impl Status {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ImageResult {
     /// Contour vertices, pixels.
-    #[schema(value_type = Vec<Vec<f64>>)]
+    #[schema(schema_with = contour_schema)]
     pub contour: Vec<Point>,
     /// Area centroid of the contour, pixels.
-    #[schema(value_type = Vec<f64>)]
+    #[schema(value_type = Vec<f64>, min_items = 2, max_items = 2)]
     pub centroid: Point,
     /// Orientation of the contour's principal axis, radians in (-pi/2, pi/2].
     pub angle_rad: f64,
@@ -160,6 +164,23 @@ pub struct ImageResult {
     pub contrast: f64,
     /// Fraction of the outline found occluded (0 when fully visible).
     pub occluded_fraction: f64,
+}
+
+/// OpenAPI schema of [`ImageResult::contour`]: `[x, y]` pairs.
+fn contour_schema() -> utoipa::openapi::schema::Array {
+    use utoipa::openapi::schema::{ArrayBuilder, KnownFormat, ObjectBuilder, SchemaFormat, Type};
+    let number = ObjectBuilder::new()
+        .schema_type(Type::Number)
+        .format(Some(SchemaFormat::KnownFormat(KnownFormat::Double)));
+    ArrayBuilder::new()
+        .items(
+            ArrayBuilder::new()
+                .items(number)
+                .min_items(Some(2))
+                .max_items(Some(2)),
+        )
+        .description(Some("Contour vertices `[x, y]`, pixels."))
+        .build()
 }
 
 /// The measurement of one stereo pair.
@@ -176,7 +197,7 @@ pub struct PairResult {
     /// The right contour.
     pub right: Option<ImageResult>,
     /// Right minus left centroid, pixels.
-    #[schema(value_type = Option<Vec<f64>>)]
+    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub disparity_px: Option<Point>,
     /// Component of the disparity across the tilt axis, pixels.
     pub disparity_axis_px: Option<f64>,

@@ -7,7 +7,7 @@ use axum::http::StatusCode;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use crate::calib::{build, Sample};
+use crate::calib::{build, Calibration, Sample};
 
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
 use super::model::{CalibrationCreate, CalibrationList, CalibrationView, SampleCreate};
@@ -33,8 +33,11 @@ pub fn router() -> OpenApiRouter<AppState> {
         (status = 201, description = "Created", body = CalibrationView),
         (status = 400, description = "Malformed JSON or unknown field", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
         (status = 422, description = "Invalid parameters, too few distinct samples or a degenerate fit", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn create_calibration(
@@ -44,6 +47,7 @@ pub async fn create_calibration(
     let (name, spec) = body.into_parts();
     check_name(name.as_deref())?;
     let calibration = build(spec)?;
+    check_finite(&calibration)?;
     let now = now_rfc3339();
     let record = CalibrationRecord {
         id: new_id("c"),
@@ -89,6 +93,7 @@ pub async fn list_calibrations(State(state): State<AppState>) -> Result<ApiJson<
     params(("id" = String, Path, description = "Calibration id")),
     responses(
         (status = 200, description = "The calibration", body = CalibrationView),
+        (status = 400, description = "Invalid path: the id is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such calibration", body = ErrorBody),
     )
@@ -109,9 +114,11 @@ pub async fn get_calibration(
     params(("id" = String, Path, description = "Calibration id")),
     responses(
         (status = 204, description = "Deleted"),
+        (status = 400, description = "Invalid path: the id is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such calibration", body = ErrorBody),
         (status = 409, description = "A session uses it; detach it first", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn delete_calibration(
@@ -146,12 +153,15 @@ pub async fn delete_calibration(
     request_body = SampleCreate,
     responses(
         (status = 200, description = "The refitted calibration", body = CalibrationView),
-        (status = 400, description = "Malformed JSON or unknown field", body = ErrorBody),
+        (status = 400, description = "Malformed JSON, unknown field, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such calibration", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
         (status = 409, description = "Not a fitted calibration", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
         (status = 422, description = "Invalid sample, or the refit is degenerate", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn add_calibration_sample(
@@ -175,7 +185,10 @@ pub async fn add_sample(state: &AppState, id: &str, sample: Sample) -> Result<Ca
             format!("calibration {id:?} is geometric (expected a \"fit\" calibration to add samples to)"),
         ));
     }
-    record.calibration.add_sample(sample)?;
+    let mut calibration = record.calibration.clone();
+    calibration.add_sample(sample)?;
+    check_finite(&calibration)?;
+    record.calibration = calibration;
     record.updated_at = now_rfc3339();
     if !state.storage.update_calibration(record.clone()).await? {
         return Err(ApiError::not_found("calibration", id));
@@ -211,6 +224,31 @@ async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
     users
 }
 
+/// Refuses a calibration whose coefficients or fit statistics overflowed
+/// (e.g. a vergence so small that 1 / sin(vergence / 2) is infinite): JSON
+/// has no infinity, so it could be neither returned nor stored.
+fn check_finite(calibration: &Calibration) -> Result<(), ApiError> {
+    let numbers = calibration
+        .coefficients()
+        .iter()
+        .copied()
+        .chain(calibration.residual_rms_um())
+        .chain(calibration.r_squared());
+    for x in numbers {
+        if !x.is_finite() {
+            return Err(ApiError::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "invalid_calibration",
+                format!(
+                    "the calibration's coefficients or fit statistics are not finite ({x}); \
+                     expected parameters giving a finite z per pixel of disparity"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Labels are free text but bounded.
 pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
     match name {
@@ -219,5 +257,30 @@ pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
             format!("name of {} characters (expected at most 200)", n.chars().count()),
         )),
         _ => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::{CalibrationSpec, GeometricSpec};
+
+    #[test]
+    fn a_vergence_too_small_for_a_finite_scale_is_refused() {
+        let spec = |vergence_deg| {
+            CalibrationSpec::Geometric(GeometricSpec {
+                pixel_size_um: 0.5,
+                vergence_deg,
+                reference_disparity_px: 0.0,
+                tilt_axis_deg: 90.0,
+            })
+        };
+        assert!(check_finite(&build(spec(6.0)).unwrap()).is_ok());
+        // Valid for `build` (0 < v <= 90) but 1 / sin(v / 2) is infinite.
+        let e = check_finite(&build(spec(5e-324)).unwrap()).unwrap_err();
+        assert_eq!(
+            (e.status, e.code.as_str()),
+            (StatusCode::UNPROCESSABLE_ENTITY, "invalid_calibration")
+        );
     }
 }

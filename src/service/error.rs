@@ -3,6 +3,7 @@
 //! "Conventions"), plus extractors that turn axum's own rejections (bad JSON,
 //! wrong content type, bad query) into it.
 
+use axum::body::Bytes;
 use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
 use axum::extract::{FromRequest, FromRequestParts, Request};
 use axum::http::request::Parts;
@@ -154,22 +155,10 @@ impl From<StorageError> for ApiError {
 impl From<JsonRejection> for ApiError {
     fn from(rejection: JsonRejection) -> Self {
         match rejection {
-            JsonRejection::MissingJsonContentType(_) => Self::new(
-                StatusCode::UNSUPPORTED_MEDIA_TYPE,
-                "unsupported_media_type",
-                "expected a JSON body with Content-Type: application/json",
-            ),
+            JsonRejection::MissingJsonContentType(_) => unsupported_json_media_type(),
             JsonRejection::JsonSyntaxError(e) => Self::bad_request("invalid_json", e.body_text()),
             JsonRejection::JsonDataError(e) => Self::bad_request("invalid_json", e.body_text()),
-            JsonRejection::BytesRejection(e) => {
-                let status = e.status();
-                let code = if status == StatusCode::PAYLOAD_TOO_LARGE {
-                    "body_too_large"
-                } else {
-                    "body_unreadable"
-                };
-                Self::new(status, code, e.body_text())
-            }
+            JsonRejection::BytesRejection(e) => body_rejection(e.status(), e.body_text()),
             other => Self::bad_request("invalid_json", other.body_text()),
         }
     }
@@ -177,6 +166,10 @@ impl From<JsonRejection> for ApiError {
 
 /// `Json<T>` whose rejections are [`ApiError`]s (400 with the serde message,
 /// naming an unknown field; 415 without a JSON content type).
+///
+/// Every request body of this API is a JSON object, so anything else (an
+/// array, a string, a number) is refused with 400 `invalid_json`; serde alone
+/// would accept an array for a struct whose fields all have defaults.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct ApiJson<T>(pub T);
 
@@ -188,8 +181,58 @@ where
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        let axum::Json(value) = axum::Json::<T>::from_request(req, state).await?;
+        if !has_json_content_type(req.headers()) {
+            return Err(unsupported_json_media_type());
+        }
+        let bytes = Bytes::from_request(req, state)
+            .await
+            .map_err(|e| body_rejection(e.status(), e.body_text()))?;
+        match bytes.iter().find(|b| !b.is_ascii_whitespace()) {
+            Some(b'{') | None => {}
+            Some(_) => {
+                return Err(Self::Rejection::bad_request(
+                    "invalid_json",
+                    "expected a JSON object ({...}) as the request body",
+                ))
+            }
+        }
+        let axum::Json(value) = axum::Json::<T>::from_bytes(&bytes)?;
         Ok(Self(value))
+    }
+}
+
+/// `application/json` or `application/*+json`, parameters ignored (what
+/// axum's `Json` accepts).
+fn has_json_content_type(headers: &axum::http::HeaderMap) -> bool {
+    let Some(value) = headers.get(header::CONTENT_TYPE).and_then(|v| v.to_str().ok()) else {
+        return false;
+    };
+    let essence = value
+        .split(';')
+        .next()
+        .unwrap_or_default()
+        .trim()
+        .to_ascii_lowercase();
+    match essence.split_once('/') {
+        Some((kind, subtype)) => kind == "application" && (subtype == "json" || subtype.ends_with("+json")),
+        None => false,
+    }
+}
+
+fn unsupported_json_media_type() -> ApiError {
+    ApiError::new(
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+        "unsupported_media_type",
+        "expected a JSON body with Content-Type: application/json",
+    )
+}
+
+/// A body that could not be read: 413 past the limit, else 400.
+fn body_rejection(status: StatusCode, text: String) -> ApiError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::new(status, "body_too_large", text)
+    } else {
+        ApiError::bad_request("body_unreadable", text)
     }
 }
 
@@ -234,5 +277,51 @@ where
             .await
             .map(|p| Self(p.0))
             .map_err(|e: PathRejection| ApiError::bad_request("invalid_path", e.body_text()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::service::model::SessionCreate;
+
+    async fn extract(content_type: Option<&str>, body: &'static str) -> Result<SessionCreate, ApiError> {
+        let mut builder = Request::builder().method("POST").uri("/v1/sessions");
+        if let Some(ct) = content_type {
+            builder = builder.header(header::CONTENT_TYPE, ct);
+        }
+        let request = builder.body(axum::body::Body::from(body)).unwrap();
+        ApiJson::<SessionCreate>::from_request(request, &())
+            .await
+            .map(|j| j.0)
+    }
+
+    #[tokio::test]
+    async fn json_bodies_must_be_objects_with_a_json_content_type() {
+        assert!(extract(Some("application/json"), " {\"name\": \"a\"}")
+            .await
+            .is_ok());
+        assert!(extract(Some("Application/JSON; charset=utf-8"), "{}")
+            .await
+            .is_ok());
+        assert!(extract(Some("application/merge-patch+json"), "{}").await.is_ok());
+        // serde alone would take an array for a struct whose fields have defaults.
+        for body in ["[null, null]", "[]", "\"x\"", "1", "null"] {
+            let e = extract(Some("application/json"), body).await.unwrap_err();
+            assert_eq!(
+                (e.status, e.code.as_str()),
+                (StatusCode::BAD_REQUEST, "invalid_json"),
+                "{body}"
+            );
+        }
+        let e = extract(Some("application/json"), "").await.unwrap_err();
+        assert_eq!(
+            (e.status, e.code.as_str()),
+            (StatusCode::BAD_REQUEST, "invalid_json")
+        );
+        for ct in [None, Some("text/plain"), Some("application/jsonx"), Some("json")] {
+            let e = extract(ct, "{}").await.unwrap_err();
+            assert_eq!(e.status, StatusCode::UNSUPPORTED_MEDIA_TYPE, "{ct:?}");
+        }
     }
 }

@@ -24,14 +24,18 @@ pub enum CalibrationCreate {
         #[serde(default)]
         name: Option<String>,
         /// Length of one pixel at the specimen, micrometres (> 0).
+        #[schema(exclusive_minimum = 0.0)]
         pixel_size_um: f64,
         /// Total vergence angle between the two views, degrees (0 < v <= 90).
+        #[schema(exclusive_minimum = 0.0, maximum = 90.0)]
         vergence_deg: f64,
         /// Disparity across the tilt axis at z = 0, pixels. Default 0.
         #[serde(default)]
+        #[schema(minimum = -1e6, maximum = 1e6)]
         reference_disparity_px: f64,
         /// Direction of the tilt axis in the image, degrees from +x towards +y. Default 90.
         #[serde(default = "default_tilt_axis_deg")]
+        #[schema(minimum = -360.0, maximum = 360.0)]
         tilt_axis_deg: f64,
     },
     /// Least-squares polynomial z(d) of degree 1 or 2 through samples.
@@ -42,11 +46,15 @@ pub enum CalibrationCreate {
         name: Option<String>,
         /// Polynomial degree, 1 or 2. Default 1.
         #[serde(default = "default_fit_degree")]
+        #[schema(minimum = 1, maximum = 2)]
         degree: u8,
-        /// The measurements: disparity across the tilt axis (px) at a known height (um).
+        /// The measurements: disparity across the tilt axis (px) at a known
+        /// height (um); at least degree + 1 distinct disparities.
+        #[schema(min_items = 2, max_items = 10000)]
         samples: Vec<Sample>,
         /// Direction of the tilt axis in the image, degrees from +x towards +y. Default 90.
         #[serde(default = "default_tilt_axis_deg")]
+        #[schema(minimum = -360.0, maximum = 360.0)]
         tilt_axis_deg: f64,
     },
 }
@@ -250,7 +258,7 @@ pub struct SessionView {
     /// Tracker parameters (its `init` equals the top-level one).
     pub tracker: TrackerParams,
     /// Disparity of the latest pair that was not lost, pixels.
-    #[schema(value_type = Option<Vec<f64>>)]
+    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub latest_disparity_px: Option<[f64; 2]>,
     /// RFC 3339 UTC.
     pub created_at: String,
@@ -283,8 +291,10 @@ impl SessionView {
 #[schema(example = json!({"disparity_px": 5.1, "z_um": 20.0}))]
 pub struct SampleCreate {
     /// Disparity across the tilt axis, pixels.
+    #[schema(minimum = -1e6, maximum = 1e6)]
     pub disparity_px: f64,
     /// Known height, micrometres.
+    #[schema(minimum = -1e6, maximum = 1e6)]
     pub z_um: f64,
 }
 
@@ -296,6 +306,7 @@ pub struct SessionSampleCreate {
     /// The fitted calibration to extend.
     pub calibration_id: String,
     /// The height the stage was just moved to, micrometres.
+    #[schema(minimum = -1e6, maximum = 1e6)]
     pub z_um: f64,
 }
 

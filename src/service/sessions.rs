@@ -54,8 +54,11 @@ pub fn router() -> OpenApiRouter<AppState> {
         (status = 400, description = "Malformed JSON, unknown field or invalid parameter", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "Unknown calibration", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
         (status = 409, description = "Session limit reached", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn create_session(
@@ -146,6 +149,7 @@ pub async fn list_sessions(State(state): State<AppState>) -> Result<ApiJson<Sess
     params(("id" = String, Path, description = "Session id")),
     responses(
         (status = 200, description = "The session", body = SessionView),
+        (status = 400, description = "Invalid path: the id is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
     )
@@ -172,10 +176,13 @@ pub async fn get_session(
     request_body = SessionPatch,
     responses(
         (status = 200, description = "The changed session", body = SessionView),
-        (status = 400, description = "Malformed JSON, unknown field or invalid parameter", body = ErrorBody),
+        (status = 400, description = "Malformed JSON, unknown field, invalid parameter, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session or calibration", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn patch_session(
@@ -222,8 +229,10 @@ pub async fn patch_session(
     params(("id" = String, Path, description = "Session id")),
     responses(
         (status = 204, description = "Deleted"),
+        (status = 400, description = "Invalid path: the id is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn delete_session(
@@ -258,12 +267,13 @@ pub async fn delete_session(
     request_body(content = PairUpload, content_type = "multipart/form-data", description = "Parts `left` and `right`: PNG, TIFF (8/16-bit), JPEG or BMP of equal size"),
     responses(
         (status = 200, description = "The pair's result (status initialised, tracked or lost)", body = FrameResult),
-        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes", body = ErrorBody),
+        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes, a size other than the session's, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn upload_pair(
@@ -287,8 +297,10 @@ pub async fn upload_pair(
     params(("id" = String, Path, description = "Session id")),
     responses(
         (status = 200, description = "The session, awaiting its next first pair", body = SessionView),
+        (status = 400, description = "Invalid path: the id is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn reset_session(
@@ -328,6 +340,7 @@ pub struct ResultsQuery {
     pub since: u64,
     /// `json` (default) or `csv`.
     #[serde(default)]
+    #[param(inline)]
     pub format: ResultsFormat,
     /// Most results returned (default and maximum 10000).
     #[param(minimum = 1, maximum = 10000)]
@@ -346,9 +359,10 @@ pub struct ResultsQuery {
             (ResultsPage = "application/json"),
             (String = "text/csv", example = "frame,name,status,...")
         )),
-        (status = 400, description = "Invalid query", body = ErrorBody),
+        (status = 400, description = "Invalid query, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn session_results(
@@ -357,6 +371,12 @@ pub async fn session_results(
     ApiQuery(query): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
     state.session(&id)?;
+    if query.since > MAX_INDEX {
+        return Err(ApiError::bad_request(
+            "invalid_query",
+            format!("invalid since {} (expected 0..={MAX_INDEX})", query.since),
+        ));
+    }
     let limit = query.limit.unwrap_or(MAX_RESULTS_PAGE);
     if !(1..=MAX_RESULTS_PAGE).contains(&limit) {
         return Err(ApiError::bad_request(
@@ -410,12 +430,15 @@ pub async fn session_results(
     request_body = SessionSampleCreate,
     responses(
         (status = 200, description = "The refitted calibration", body = CalibrationView),
-        (status = 400, description = "Malformed JSON or unknown field", body = ErrorBody),
+        (status = 400, description = "Malformed JSON, unknown field, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session or calibration", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
         (status = 409, description = "No disparity measured yet, or not a fitted calibration", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
         (status = 422, description = "Invalid height, or the refit is degenerate", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn add_session_calibration_sample(
@@ -452,6 +475,7 @@ pub struct DepthQuery {
     pub calibration_id: Option<String>,
     /// Direction of the tilt axis, degrees from +x towards +y (default: the
     /// calibration's, else 90).
+    #[param(minimum = -360.0, maximum = 360.0)]
     pub tilt_axis_deg: Option<f64>,
 }
 
@@ -471,6 +495,7 @@ pub struct DepthQuery {
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
+        (status = 503, description = "The server is shutting down", body = ErrorBody),
     )
 )]
 pub async fn one_shot_depth(
@@ -521,11 +546,14 @@ fn merge_params(
     Ok(params)
 }
 
+/// Largest count or frame index the API takes: SQLite integers are i64.
+const MAX_INDEX: u64 = i64::MAX as u64;
+
 fn check_retention(retention: Option<u64>) -> Result<(), ApiError> {
     match retention {
-        Some(0) => Err(ApiError::bad_request(
+        Some(r) if !(1..=MAX_INDEX).contains(&r) => Err(ApiError::bad_request(
             "invalid_parameter",
-            "invalid retention 0 (expected at least 1 result kept)",
+            format!("invalid retention {r} (expected 1..={MAX_INDEX} results kept)"),
         )),
         _ => Ok(()),
     }

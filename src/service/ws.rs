@@ -133,7 +133,7 @@ pub struct StreamErrorReply {
     params(("id" = String, Path, description = "Session id"), StreamQuery),
     responses(
         (status = 101, description = "Switching to the WebSocket protocol: binary SDP1 pair messages in, one JSON text reply per pair out"),
-        (status = 400, description = "Not a WebSocket upgrade, or invalid query", body = ErrorBody),
+        (status = 400, description = "Not a WebSocket upgrade, invalid query, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
     )
