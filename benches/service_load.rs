@@ -8,6 +8,10 @@
 //! child process (`semdepth serve --listen 127.0.0.1:0 --db <temp>`); the
 //! clients run in this process on the same machine. Every scenario uses
 //! fresh sessions. Messages and PNG files are prepared before timing.
+//! The pairs are frames 0..30 of the clean blob sequence (seed 1), played
+//! forwards and backwards so that the object moves continuously; (in this
+//! sequence a tracking step costs about 2.5 times as much from frame 31 on,
+//! so the pool stops before it, like `benches/track.rs` measures frame 1).
 //! Latency is client-side: from the start of sending a pair to the arrival of
 //! its reply. The server's `timing_ms` (queue, decode, track, total) is
 //! reported as medians, and the CPU time of server and client per pair is
@@ -74,7 +78,7 @@ impl Sizes {
     fn new(quick: bool) -> Self {
         if quick {
             Self {
-                pool: 20,
+                pool: 30,
                 ws_warmup: 10,
                 ws_pairs: 150,
                 paced_pairs: 100,
@@ -90,7 +94,7 @@ impl Sizes {
             }
         } else {
             Self {
-                pool: 60,
+                pool: 30,
                 ws_warmup: 20,
                 ws_pairs: 500,
                 paced_pairs: 300,
@@ -166,6 +170,43 @@ fn cpu_seconds(pid: u32, ticks: f64) -> f64 {
     let utime: f64 = fields[11].parse().expect("utime");
     let stime: f64 = fields[12].parse().expect("stime");
     (utime + stime) / ticks
+}
+
+/// Minor page faults of a process so far (/proc/<pid>/stat field 10).
+fn minor_faults(pid: u32) -> u64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).expect("read /proc/<pid>/stat");
+    let after = &stat[stat.rfind(')').expect("stat format") + 2..];
+    after
+        .split_whitespace()
+        .nth(7)
+        .and_then(|f| f.parse().ok())
+        .expect("minflt")
+}
+
+/// Nanoseconds this thread has spent on a CPU (/proc/thread-self/schedstat).
+fn thread_run_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+/// Busy and total ticks of the whole machine (first line of /proc/stat).
+fn machine_ticks() -> (u64, u64) {
+    let stat = std::fs::read_to_string("/proc/stat").unwrap_or_default();
+    let fields: Vec<u64> = stat
+        .lines()
+        .next()
+        .unwrap_or_default()
+        .split_whitespace()
+        .skip(1)
+        .filter_map(|f| f.parse().ok())
+        .collect();
+    let total: u64 = fields.iter().take(8).sum();
+    let idle = fields.get(3).copied().unwrap_or(0) + fields.get(4).copied().unwrap_or(0);
+    (total - idle, total)
 }
 
 fn load_average() -> String {
@@ -599,11 +640,12 @@ struct Summary {
     processing_ms: f64,
     server_cpu_ms_per_pair: f64,
     client_cpu_ms_per_pair: f64,
+    server_faults_per_pair: f64,
     not_tracked: usize,
 }
 
 impl Summary {
-    fn new(name: &'static str, what: String, runs: &[Run], cpu: (f64, f64)) -> Summary {
+    fn new(name: &'static str, what: String, runs: &[Run], cpu: Usage) -> Summary {
         let replies: Vec<&Reply> = runs.iter().flat_map(|r| &r.replies).collect();
         let first = runs.iter().map(|r| r.first_send).min().expect("runs");
         let last = runs.iter().map(|r| r.last_reply).max().expect("runs");
@@ -623,8 +665,9 @@ impl Summary {
             track_ms: col(|r| r.track_ms),
             total_ms: col(|r| r.total_ms),
             processing_ms: col(|r| r.total_ms - r.queue_ms),
-            server_cpu_ms_per_pair: cpu.0 * 1e3 / pairs as f64,
-            client_cpu_ms_per_pair: cpu.1 * 1e3 / pairs as f64,
+            server_cpu_ms_per_pair: cpu.server_cpu_s * 1e3 / pairs as f64,
+            client_cpu_ms_per_pair: cpu.client_cpu_s * 1e3 / pairs as f64,
+            server_faults_per_pair: cpu.server_minor_faults as f64 / pairs as f64,
             not_tracked: replies.iter().filter(|r| r.status != "tracked").count(),
         }
     }
@@ -644,6 +687,7 @@ impl Summary {
             "server_processing_median_ms": r3(self.processing_ms),
             "server_cpu_ms_per_pair": r3(self.server_cpu_ms_per_pair),
             "client_cpu_ms_per_pair": r3(self.client_cpu_ms_per_pair),
+            "server_minor_page_faults_per_pair": r3(self.server_faults_per_pair),
             "not_tracked": self.not_tracked,
         })
     }
@@ -653,7 +697,16 @@ impl Summary {
 struct CpuMeter {
     server_pid: u32,
     ticks: f64,
-    start: (f64, f64),
+    start: Usage,
+}
+
+/// CPU seconds of the server and of this process, and the server's minor
+/// page faults.
+#[derive(Clone, Copy, Debug)]
+struct Usage {
+    server_cpu_s: f64,
+    client_cpu_s: f64,
+    server_minor_faults: u64,
 }
 
 impl CpuMeter {
@@ -662,15 +715,25 @@ impl CpuMeter {
         CpuMeter {
             server_pid: pid,
             ticks,
-            start: (cpu_seconds(pid, ticks), cpu_seconds(std::process::id(), ticks)),
+            start: Self::now(pid, ticks),
         }
     }
 
-    fn stop(&self) -> (f64, f64) {
-        (
-            cpu_seconds(self.server_pid, self.ticks) - self.start.0,
-            cpu_seconds(std::process::id(), self.ticks) - self.start.1,
-        )
+    fn now(pid: u32, ticks: f64) -> Usage {
+        Usage {
+            server_cpu_s: cpu_seconds(pid, ticks),
+            client_cpu_s: cpu_seconds(std::process::id(), ticks),
+            server_minor_faults: minor_faults(pid),
+        }
+    }
+
+    fn stop(&self) -> Usage {
+        let end = Self::now(self.server_pid, self.ticks);
+        Usage {
+            server_cpu_s: end.server_cpu_s - self.start.server_cpu_s,
+            client_cpu_s: end.client_cpu_s - self.start.client_cpu_s,
+            server_minor_faults: end.server_minor_faults - self.start.server_minor_faults,
+        }
     }
 }
 
@@ -684,7 +747,7 @@ async fn ws_scenario(
     clients: usize,
     warmup: usize,
     pace: Option<Duration>,
-) -> (Vec<Run>, (f64, f64)) {
+) -> (Vec<Run>, Usage) {
     let barrier = Arc::new(Barrier::new(clients + 1));
     let mut tasks = Vec::new();
     for _ in 0..clients {
@@ -717,7 +780,7 @@ async fn rest_scenario(
     clients: usize,
     warmup: usize,
     n: usize,
-) -> (Vec<Run>, (f64, f64)) {
+) -> (Vec<Run>, Usage) {
     let barrier = Arc::new(Barrier::new(clients + 1));
     let mut tasks = Vec::new();
     for _ in 0..clients {
@@ -827,20 +890,28 @@ fn reference_sum_ms(data: &Data, reps: usize) -> f64 {
 }
 
 /// In-process tracking step (no service) on the pool pairs, played like the
-/// WebSocket scenarios play them.
-fn reference_track_ms(data: &Data, reps: usize) -> f64 {
+/// WebSocket scenarios play them: median wall time, and the share of the
+/// wall time the thread spent on a CPU (the rest it waited for a core).
+fn reference_track_ms(data: &Data, reps: usize) -> (f64, f64) {
     let pool = data.frames.len();
     let mut tracker = StereoTracker::new(TrackerParams::default());
     let (l, r) = &data.frames[0];
     tracker.process(l, r).expect("first pair");
     let mut times = Vec::with_capacity(reps);
+    // The run time is accounted in scheduler ticks here: only the total is
+    // meaningful.
+    let (cpu0, wall0) = (thread_run_ns(), Instant::now());
     for k in 1..=reps.clamp(20, 200) {
         let (l, r) = &data.frames[pool_index(k, pool)];
         let t = Instant::now();
         std::hint::black_box(tracker.process(l, r).expect("pair"));
         times.push(ms(t.elapsed()));
     }
-    median(&times)
+    let on_cpu = match (cpu0, thread_run_ns()) {
+        (Some(a), Some(b)) => (b - a) as f64 / 1e9 / wall0.elapsed().as_secs_f64(),
+        _ => f64::NAN,
+    };
+    (median(&times), on_cpu)
 }
 
 async fn reference_healthz(http: &reqwest::Client, server: &Server, reps: usize) -> (f64, f64) {
@@ -929,9 +1000,13 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
 
     eprintln!("service_load: references");
     let sum_ms = reference_sum_ms(&data, sizes.reference_reps * 5);
-    let track_ms = reference_track_ms(&data, sizes.reference_reps);
+    let (track_ms, track_on_cpu) = reference_track_ms(&data, sizes.reference_reps);
     let server = Server::start();
     let rss_start_kib = server.rss_kib();
+    // CPU of the whole machine, of the server and of this process from here
+    // until the server stops: what is left is what other processes took.
+    let machine_start = (machine_ticks(), Instant::now());
+    let ours_start = cpu_seconds(server.pid(), ticks) + cpu_seconds(std::process::id(), ticks);
     let (healthz_ms, healthz_p99_ms) = reference_healthz(&http, &server, sizes.reference_reps).await;
     let (transport_ms, transport_p99_ms) =
         reference_ws_transport(&http, &server, pair_bytes + 150, sizes.reference_reps).await;
@@ -1035,6 +1110,11 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
     let rss_end_kib = server.rss_kib();
     let peak_kib = server.peak_rss_kib();
     let warnings = server.warnings();
+    let ours_s = cpu_seconds(server.pid(), ticks) + cpu_seconds(std::process::id(), ticks) - ours_start;
+    let machine_busy_s = (machine_ticks().0 - machine_start.0 .0) as f64 / ticks;
+    let machine_s = machine_start.1.elapsed().as_secs_f64();
+    let others_cores = ((machine_busy_s - ours_s) / machine_s).max(0.0);
+    let ours_cores = ours_s / machine_s;
     server.stop();
     let memory = if wanted("idle_memory") {
         eprintln!("service_load: idle_memory ({} sessions)", sizes.idle_sessions);
@@ -1055,13 +1135,18 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
         png_bytes / 1e6
     );
     println!(
-        "references: sum of both images {sum_ms:.3} ms; in-process track step {track_ms:.3} ms; \
+        "CPU during the scenarios: this benchmark (server and clients) {ours_cores:.2} cores, other processes {others_cores:.2} cores"
+    );
+    println!(
+        "references: sum of both images {sum_ms:.3} ms; in-process track step {track_ms:.3} ms \
+         (on a CPU {:.0}% of the time); \
          GET /healthz round trip {healthz_ms:.3} ms (p99 {healthz_p99_ms:.3}); \
-         WebSocket round trip of a rejected pair-sized message {transport_ms:.3} ms (p99 {transport_p99_ms:.3})"
+         WebSocket round trip of a rejected pair-sized message {transport_ms:.3} ms (p99 {transport_p99_ms:.3})",
+        track_on_cpu * 100.0
     );
     println!();
     println!(
-        "{:<10} {:>3} {:>5} {:>8} {:>8} {:>8} | {:>6} {:>6} {:>6} {:>6} | {:>7} {:>7} | {:>5}",
+        "{:<10} {:>3} {:>5} {:>8} {:>8} {:>8} | {:>6} {:>6} {:>6} {:>6} | {:>7} {:>7} | {:>7} | {:>5}",
         "scenario",
         "cl",
         "pairs",
@@ -1074,15 +1159,16 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
         "total",
         "srv cpu",
         "cli cpu",
+        "faults",
         "!trk"
     );
     println!(
-        "{:<10} {:>3} {:>5} {:>8} {:>8} {:>8} | {:>27} | {:>15} |",
-        "", "", "", "", "ms", "ms", "server timing_ms medians", "ms per pair"
+        "{:<10} {:>3} {:>5} {:>8} {:>8} {:>8} | {:>27} | {:>15} | {:>7} |",
+        "", "", "", "", "ms", "ms", "server timing_ms medians", "ms per pair", "srv/pr"
     );
     for s in &summaries {
         println!(
-            "{:<10} {:>3} {:>5} {:>8.1} {:>8.2} {:>8.2} | {:>6.2} {:>6.2} {:>6.2} {:>6.2} | {:>7.2} {:>7.2} | {:>5}",
+            "{:<10} {:>3} {:>5} {:>8.1} {:>8.2} {:>8.2} | {:>6.2} {:>6.2} {:>6.2} {:>6.2} | {:>7.2} {:>7.2} | {:>7.0} | {:>5}",
             s.name,
             s.clients,
             s.pairs,
@@ -1095,6 +1181,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
             s.total_ms,
             s.server_cpu_ms_per_pair,
             s.client_cpu_ms_per_pair,
+            s.server_faults_per_pair,
             s.not_tracked
         );
     }
@@ -1188,12 +1275,16 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
 
     let report = json!({
         "mode": if quick { "quick" } else { "full" },
-        "machine": {"cores": cores, "load_average_start": load_start, "load_average_end": load_end},
+        "machine": {
+            "cores": cores, "load_average_start": load_start, "load_average_end": load_end,
+            "cores_used_by_benchmark": r3(ours_cores), "cores_used_by_others": r3(others_cores),
+        },
         "pair": {"width": WIDTH, "height": HEIGHT, "raw_bytes": pair_bytes, "png_bytes_median": png_bytes},
         "sizes": format!("{sizes:?}"),
         "reference": {
             "sum_pair_ms": r3(sum_ms),
             "track_inprocess_ms": r3(track_ms),
+            "track_inprocess_on_cpu_share": r3(track_on_cpu),
             "healthz_rtt_median_ms": r3(healthz_ms),
             "healthz_rtt_p99_ms": r3(healthz_p99_ms),
             "ws_transport_rtt_median_ms": r3(transport_ms),
