@@ -462,6 +462,14 @@ fn build_geometric(g: GeometricSpec) -> Result<Calibration, CalibError> {
     }
     check_tilt_axis(g.tilt_axis_deg)?;
     let um_per_px = g.pixel_size_um / (2.0 * (g.vergence_deg.to_radians() / 2.0).sin());
+    // A subnormal vergence (or a huge pixel size) passes the range checks
+    // but overflows the scale; such a calibration could not be stored.
+    if !(um_per_px.is_finite() && (g.reference_disparity_px * um_per_px).is_finite()) {
+        return bad(format!(
+            "pixel_size_um {} with vergence_deg {} gives a non-finite scale (expected a vergence of at least a few microdegrees)",
+            g.pixel_size_um, g.vergence_deg
+        ));
+    }
     let poly = CenteredPoly {
         center_px: g.reference_disparity_px,
         scale_px: 1.0,
@@ -1217,5 +1225,18 @@ mod tests {
         // Reading it back gives the same calibration.
         let text = serde_json::to_string(&cal).unwrap();
         assert_eq!(from_json(&text).unwrap(), cal);
+    }
+
+    #[test]
+    fn geometric_scale_overflow_is_refused() {
+        let spec = CalibrationSpec::Geometric(GeometricSpec {
+            pixel_size_um: 0.5,
+            vergence_deg: 5e-324,
+            reference_disparity_px: 0.0,
+            tilt_axis_deg: 90.0,
+        });
+        let e = build(spec).unwrap_err();
+        assert_eq!(e.code(), "invalid_calibration");
+        assert!(e.to_string().contains("non-finite"), "{e}");
     }
 }

@@ -7,7 +7,7 @@ use axum::http::StatusCode;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use crate::calib::{build, Calibration, Sample};
+use crate::calib::{build, Sample};
 
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
 use super::model::{CalibrationCreate, CalibrationList, CalibrationView, SampleCreate};
@@ -47,7 +47,6 @@ pub async fn create_calibration(
     let (name, spec) = body.into_parts();
     check_name(name.as_deref())?;
     let calibration = build(spec)?;
-    check_finite(&calibration)?;
     let now = now_rfc3339();
     let record = CalibrationRecord {
         id: new_id("c"),
@@ -187,7 +186,6 @@ pub async fn add_sample(state: &AppState, id: &str, sample: Sample) -> Result<Ca
     }
     let mut calibration = record.calibration.clone();
     calibration.add_sample(sample)?;
-    check_finite(&calibration)?;
     record.calibration = calibration;
     record.updated_at = now_rfc3339();
     if !state.storage.update_calibration(record.clone()).await? {
@@ -224,30 +222,6 @@ async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
     users
 }
 
-/// Refuses a calibration whose coefficients or fit statistics overflowed
-/// (e.g. a vergence so small that 1 / sin(vergence / 2) is infinite): JSON
-/// has no infinity, so it could be neither returned nor stored.
-fn check_finite(calibration: &Calibration) -> Result<(), ApiError> {
-    let numbers = calibration
-        .coefficients()
-        .iter()
-        .copied()
-        .chain(calibration.residual_rms_um())
-        .chain(calibration.r_squared());
-    for x in numbers {
-        if !x.is_finite() {
-            return Err(ApiError::new(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                "invalid_calibration",
-                format!(
-                    "the calibration's coefficients or fit statistics are not finite ({x}); \
-                     expected parameters giving a finite z per pixel of disparity"
-                ),
-            ));
-        }
-    }
-    Ok(())
-}
 
 /// Labels are free text but bounded.
 pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
@@ -257,30 +231,5 @@ pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
             format!("name of {} characters (expected at most 200)", n.chars().count()),
         )),
         _ => Ok(()),
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::calib::{CalibrationSpec, GeometricSpec};
-
-    #[test]
-    fn a_vergence_too_small_for_a_finite_scale_is_refused() {
-        let spec = |vergence_deg| {
-            CalibrationSpec::Geometric(GeometricSpec {
-                pixel_size_um: 0.5,
-                vergence_deg,
-                reference_disparity_px: 0.0,
-                tilt_axis_deg: 90.0,
-            })
-        };
-        assert!(check_finite(&build(spec(6.0)).unwrap()).is_ok());
-        // Valid for `build` (0 < v <= 90) but 1 / sin(v / 2) is infinite.
-        let e = check_finite(&build(spec(5e-324)).unwrap()).unwrap_err();
-        assert_eq!(
-            (e.status, e.code.as_str()),
-            (StatusCode::UNPROCESSABLE_ENTITY, "invalid_calibration")
-        );
     }
 }

@@ -86,11 +86,10 @@ pub async fn process_session_pair(
     seq: Option<u64>,
 ) -> Result<FrameResult, ApiError> {
     let (task_state, task_session) = (state.clone(), session.clone());
-    let outcome = tokio::spawn(async move {
-        run_session_pair(&task_state, &task_session, input, received, seq).await
-    })
-    .await
-    .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
+    let outcome =
+        tokio::spawn(async move { run_session_pair(&task_state, &task_session, input, received, seq).await })
+            .await
+            .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
     match &outcome {
         Ok(r) => state
             .metrics
