@@ -56,9 +56,15 @@ fn every_operation_has_an_id_and_every_v1_error_is_described() {
     }
     for (path, item) in paths {
         for (method, op) in item.as_object().unwrap() {
-            assert!(op["operationId"].is_string(), "{method} {path} has no operationId");
+            assert!(
+                op["operationId"].is_string(),
+                "{method} {path} has no operationId"
+            );
             if path.starts_with("/v1") {
-                assert!(op["responses"]["401"].is_object(), "{method} {path} does not describe 401");
+                assert!(
+                    op["responses"]["401"].is_object(),
+                    "{method} {path} does not describe 401"
+                );
             }
         }
     }
