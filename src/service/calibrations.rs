@@ -222,7 +222,6 @@ async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
     users
 }
 
-
 /// Labels are free text but bounded.
 pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
     match name {
