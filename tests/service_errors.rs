@@ -32,7 +32,13 @@ async fn bad_inputs_get_clear_4xx_errors() {
     config.max_sessions = 3;
     config.max_body_bytes = 8 * 1024 * 1024;
     let server = TestServer::start(config).await;
-    let http = reqwest::Client::new();
+    // No connection reuse: a request refused before its body is read (an
+    // unknown session, a wrong content type) ends its connection, and a
+    // pooled client could pick that connection for the next request.
+    let http = reqwest::Client::builder()
+        .pool_max_idle_per_host(0)
+        .build()
+        .unwrap();
     let base = &server.base;
     let sid = http
         .post(format!("{base}/v1/sessions"))

@@ -3,6 +3,8 @@
 //! semaphore), in session order, then queue the result and the tracker
 //! snapshot for storage and acknowledge only once they are committed.
 
+use std::future::Future;
+use std::pin::Pin;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -17,7 +19,7 @@ use crate::tracker::{PairResult, StereoTracker, TrackerParams};
 use super::error::ApiError;
 use super::model::{FrameResult, TimingMs};
 use super::state::{now_rfc3339, AppState, Session};
-use super::storage::PairRecord;
+use super::storage::{PairRecord, StorageError};
 
 /// The two images of a pair as received.
 #[derive(Clone, Debug)]
@@ -71,13 +73,17 @@ impl PairInput {
     }
 }
 
+/// A pair tracked and queued for storage, not yet acknowledged.
+pub struct TrackedPair {
+    /// The result (with the caller's `seq`).
+    pub result: FrameResult,
+    /// Resolves once the result and the tracker snapshot are committed.
+    pub commit: Pin<Box<dyn Future<Output = Result<(), StorageError>> + Send>>,
+}
+
 /// Processes one pair of a session: strictly after the session's earlier
 /// pairs, with at most `workers` pairs in flight overall. Returns once the
 /// result is committed to storage.
-///
-/// The work runs in its own task: a client that disconnects mid-request
-/// does not cancel a pair halfway (which would advance the tracker without
-/// storing the result).
 pub async fn process_session_pair(
     state: &AppState,
     session: &Arc<Session>,
@@ -85,18 +91,57 @@ pub async fn process_session_pair(
     received: Instant,
     seq: Option<u64>,
 ) -> Result<FrameResult, ApiError> {
+    let tracked = track_session_pair(state, session, input, received, seq).await?;
+    acknowledge(state, tracked, received).await
+}
+
+/// Tracks one pair of a session (in order, bounded) and queues its result
+/// for storage; returns as soon as the session is free for its next pair,
+/// before the commit. [`acknowledge`] waits for the commit. The stream uses
+/// the two halves to track the next pair while the last one commits.
+///
+/// The work runs in its own task: a client that disconnects mid-request
+/// does not cancel a pair halfway (which would advance the tracker without
+/// storing the result).
+pub async fn track_session_pair(
+    state: &AppState,
+    session: &Arc<Session>,
+    input: PairInput,
+    received: Instant,
+    seq: Option<u64>,
+) -> Result<TrackedPair, ApiError> {
     let (task_state, task_session) = (state.clone(), session.clone());
     let outcome =
         tokio::spawn(async move { run_session_pair(&task_state, &task_session, input, received, seq).await })
             .await
             .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
-    match &outcome {
-        Ok(r) => state
-            .metrics
-            .processed(r.result.status.name(), received.elapsed().as_secs_f64()),
-        Err(e) => state.metrics.failed(&e.code),
+    if let Err(e) = &outcome {
+        state.metrics.failed(&e.code);
     }
     outcome
+}
+
+/// Waits until a tracked pair is committed; only then is it a result.
+pub async fn acknowledge(
+    state: &AppState,
+    tracked: TrackedPair,
+    received: Instant,
+) -> Result<FrameResult, ApiError> {
+    match tracked.commit.await {
+        Ok(()) => {
+            state.metrics.stored_pairs.inc();
+            state.metrics.processed(
+                tracked.result.result.status.name(),
+                received.elapsed().as_secs_f64(),
+            );
+            Ok(tracked.result)
+        }
+        Err(e) => {
+            let e = ApiError::from(e);
+            state.metrics.failed(&e.code);
+            Err(e)
+        }
+    }
 }
 
 async fn run_session_pair(
@@ -105,7 +150,7 @@ async fn run_session_pair(
     input: PairInput,
     received: Instant,
     seq: Option<u64>,
-) -> Result<FrameResult, ApiError> {
+) -> Result<TrackedPair, ApiError> {
     let mut core = session.core.clone().lock_owned().await;
     if core.deleted {
         return Err(ApiError::not_found("session", &session.id));
@@ -160,9 +205,10 @@ async fn run_session_pair(
         updated_at: now,
     });
     drop(core);
-    commit.await?;
-    state.metrics.stored_pairs.inc();
-    Ok(FrameResult { seq, ..frame })
+    Ok(TrackedPair {
+        result: FrameResult { seq, ..frame },
+        commit: Box::pin(commit),
+    })
 }
 
 /// The one-shot measurement: a fresh tracker on one pair, nothing stored.

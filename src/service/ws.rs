@@ -6,9 +6,10 @@
 //! `{"seq": n|null, "error": {...}}` for a malformed message (the socket stays
 //! open).
 //!
-//! Three tasks per socket: the reader (never waits on processing, so
+//! Four tasks per socket: the reader (never waits on processing, so
 //! ping/pong stays prompt; tungstenite answers pings while reading), the
-//! processor (one pair at a time, in order) and the writer. Between reader
+//! processor (one pair at a time, in order), the acknowledger (replies once
+//! a pair is committed, while the processor tracks the next) and the writer. Between reader
 //! and processor sits a bounded queue: with `policy=latest` at most one pair
 //! waits and a newer one replaces it (the replaced one is answered
 //! `{"seq": n, "status": "skipped"}`); with `policy=all` up to
@@ -32,7 +33,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
-use super::pipeline::{process_session_pair, PairInput};
+use super::pipeline::{acknowledge, track_session_pair, PairInput, TrackedPair};
 use super::state::{AppState, Session};
 
 /// Magic bytes opening every pair message.
@@ -317,9 +318,37 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
             (QueueIn::All(tx), QueueOut::All(rx))
         }
     };
+    // Acknowledger: waits for each pair's commit, in order, then replies;
+    // meanwhile the processor already tracks the next pair.
+    let (ack_tx, mut ack_rx) = mpsc::channel::<(u64, Instant, Result<TrackedPair, ApiError>)>(8);
+    let acknowledger = {
+        let (state, reply_tx) = (state.clone(), reply_tx.clone());
+        tokio::spawn(async move {
+            while let Some((seq, received, tracked)) = ack_rx.recv().await {
+                let outcome = match tracked {
+                    Ok(tracked) => acknowledge(&state, tracked, received).await,
+                    Err(e) => Err(e),
+                };
+                let reply = match outcome {
+                    Ok(result) => serde_json::to_string(&result),
+                    Err(e) => serde_json::to_string(&StreamErrorReply {
+                        seq: Some(seq),
+                        error: e.body().error,
+                    }),
+                };
+                match reply {
+                    Ok(text) => {
+                        if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                            break;
+                        }
+                    }
+                    Err(e) => tracing::error!(error = %e, "serialising a stream reply"),
+                }
+            }
+        })
+    };
     let processor = {
-        let (state, session, reply_tx, done) =
-            (state.clone(), session.clone(), reply_tx.clone(), done.clone());
+        let (state, session, done) = (state.clone(), session.clone(), done.clone());
         tokio::spawn(async move {
             loop {
                 let job = match &mut queue_out {
@@ -342,28 +371,13 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
                     }
                 };
                 let seq = job.message.seq;
-                let reply =
-                    match process_session_pair(&state, &session, job.message.input, job.received, Some(seq))
-                        .await
-                    {
-                        Ok(result) => serde_json::to_string(&result),
-                        Err(e) => {
-                            if e.code == "session_not_found" {
-                                done.cancel();
-                            }
-                            serde_json::to_string(&StreamErrorReply {
-                                seq: Some(seq),
-                                error: e.body().error,
-                            })
-                        }
-                    };
-                match reply {
-                    Ok(text) => {
-                        if reply_tx.send(Message::Text(text.into())).await.is_err() {
-                            break;
-                        }
-                    }
-                    Err(e) => tracing::error!(error = %e, "serialising a stream reply"),
+                let tracked =
+                    track_session_pair(&state, &session, job.message.input, job.received, Some(seq)).await;
+                if matches!(&tracked, Err(e) if e.code == "session_not_found") {
+                    done.cancel();
+                }
+                if ack_tx.send((seq, job.received, tracked)).await.is_err() {
+                    break;
                 }
             }
         })
@@ -457,6 +471,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
     drop(queue_in);
     done.cancel();
     let _ = processor.await;
+    let _ = acknowledger.await;
     drop(reply_tx);
     let _ = writer.await;
     state.metrics.active_websockets.dec();
