@@ -7,7 +7,7 @@ mod server;
 use reqwest::multipart::{Form, Part};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{pair_form, png, synth_pairs, test_config, TestServer};
+use server::{new_session, pair_form, png, synth_pairs, test_config, TestServer};
 
 /// Checks status and error code, and that the message is not empty.
 async fn expect_error(r: reqwest::Response, status: u16, code: &str) -> String {
@@ -40,18 +40,7 @@ async fn bad_inputs_get_clear_4xx_errors() {
         .build()
         .unwrap();
     let base = &server.base;
-    let sid = http
-        .post(format!("{base}/v1/sessions"))
-        .json(&json!({}))
-        .send()
-        .await
-        .unwrap()
-        .json::<Value>()
-        .await
-        .unwrap()["id"]
-        .as_str()
-        .unwrap()
-        .to_string();
+    let sid = new_session(base).await;
     let frames = format!("{base}/v1/sessions/{sid}/frames");
     let pairs = synth_pairs(Preset::Clean, Shape::Blob, 1, 1);
     let left = png(&pairs[0].left);
@@ -373,18 +362,10 @@ async fn bad_inputs_get_clear_4xx_errors() {
 async fn a_gigabyte_body_is_refused_without_reading_it() {
     let dir = tempfile::tempdir().unwrap();
     let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
-    let sid: Value = reqwest::Client::new()
-        .post(format!("{}/v1/sessions", server.base))
-        .json(&json!({}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let sid = new_session(&server.base).await;
     // Declare 1 GiB: the server must answer 413 from the declared length
     // without waiting for (or buffering) the body.
-    let path = format!("/v1/sessions/{}/frames", sid["id"].as_str().unwrap());
+    let path = format!("/v1/sessions/{sid}/frames");
     let reply = raw_upload(server.addr, &path, Some(1 << 30), &[0u8; 4096]).await;
     assert!(reply.starts_with("HTTP/1.1 413"), "{reply}");
     assert!(reply.contains("body_too_large"), "{reply}");

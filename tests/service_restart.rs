@@ -16,24 +16,12 @@ use std::time::Duration;
 use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape, SynthPair};
 use serde_json::{json, Value};
-use server::{offset_free_rms, pair_form, sdp1_raw, synth_pairs, test_config, TestServer};
+use server::{get_json, offset_free_rms, post_json, sdp1_raw, synth_pairs, test_config, upload, TestServer};
 use tokio_tungstenite::tungstenite::Message;
 
 /// Disparity RMS limit over the whole sequence, before and after the
 /// restart (px, offset removed): the same budget as the other service tests.
 const MAX_DISPARITY_RMS_PX: f64 = 0.15;
-
-async fn post_json(url: &str, body: Value) -> Value {
-    let r = reqwest::Client::new().post(url).json(&body).send().await.unwrap();
-    assert!(r.status().is_success(), "{url}: {}", r.status());
-    r.json().await.unwrap()
-}
-
-async fn get_json(url: &str) -> Value {
-    let r = reqwest::get(url).await.unwrap();
-    assert!(r.status().is_success(), "{url}: {}", r.status());
-    r.json().await.unwrap()
-}
 
 /// Checks the stored results against the truth: frames 0..n, in order,
 /// with accurate disparities.
@@ -224,15 +212,7 @@ async fn nothing_acknowledged_is_lost_when_the_process_is_killed() {
     let sid = session["id"].as_str().unwrap().to_string();
     let mut acknowledged = Vec::new();
     for pair in first {
-        let r: Value = http
-            .post(format!("{}/v1/sessions/{sid}/frames", server.base))
-            .multipart(pair_form(pair))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        let r = upload(&http, &server.base, &sid, pair).await;
         acknowledged.push(r);
     }
     // Killed right after the last acknowledgement: no flush, no checkpoint.
@@ -248,15 +228,7 @@ async fn nothing_acknowledged_is_lost_when_the_process_is_killed() {
         assert_eq!(s, a, "a stored result differs from what was acknowledged");
     }
     for pair in second {
-        let r: Value = http
-            .post(format!("{}/v1/sessions/{sid}/frames", server.base))
-            .multipart(pair_form(pair))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
+        let r = upload(&http, &server.base, &sid, pair).await;
         assert_eq!(r["status"], "tracked", "{r}");
     }
     let page = get_json(&format!("{}/v1/sessions/{sid}/results", server.base)).await;

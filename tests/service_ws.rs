@@ -11,24 +11,11 @@ use std::time::{Duration, Instant};
 use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{offset_free_rms, png, sdp1, sdp1_raw, synth_pairs, test_config, TestServer};
+use server::{new_session, offset_free_rms, png, sdp1, sdp1_raw, synth_pairs, test_config, TestServer};
 use tokio_tungstenite::tungstenite::Message;
 
 /// Disparity RMS limit (px, offset removed); see tests/service_api.rs.
 const MAX_DISPARITY_RMS_PX: f64 = 0.15;
-
-async fn new_session(server: &TestServer) -> String {
-    let r: Value = reqwest::Client::new()
-        .post(format!("{}/v1/sessions", server.base))
-        .json(&json!({}))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
-    r["id"].as_str().unwrap().to_string()
-}
 
 type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
 
@@ -52,7 +39,7 @@ async fn next_reply(ws: &mut Socket) -> Value {
 async fn all_policy_answers_every_pair_in_order_with_true_disparities() {
     let dir = tempfile::tempdir().unwrap();
     let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let (ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
         .await
         .unwrap();
@@ -102,7 +89,7 @@ async fn latest_policy_skips_under_overload_and_says_so() {
     let mut config = test_config(&dir.path().join("db.sqlite3"));
     config.workers = 1;
     let server = TestServer::start(config).await;
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "latest"))
         .await
         .unwrap();
@@ -158,7 +145,7 @@ async fn latest_policy_skips_under_overload_and_says_so() {
 async fn malformed_messages_get_errors_and_the_socket_stays_open() {
     let dir = tempfile::tempdir().unwrap();
     let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
         .await
         .unwrap();
@@ -225,7 +212,7 @@ async fn ping_is_answered_while_pairs_are_processed() {
     let mut config = test_config(&dir.path().join("db.sqlite3"));
     config.workers = 1;
     let server = TestServer::start(config).await;
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "latest"))
         .await
         .unwrap();
@@ -286,7 +273,7 @@ async fn stream_of_unknown_session_is_404_and_plain_get_is_400() {
         tokio_tungstenite::tungstenite::Error::Http(r) => assert_eq!(r.status(), 404),
         other => panic!("expected an HTTP 404, got {other:?}"),
     }
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let r = reqwest::get(format!("{}/v1/sessions/{sid}/stream", server.base))
         .await
         .unwrap();
@@ -320,7 +307,7 @@ async fn a_4096x3072_16_bit_pair_fits_over_rest_and_websocket() {
     );
 
     // REST: 16-bit PNGs in a multipart body on the default limits.
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let form = reqwest::multipart::Form::new()
         .part("left", reqwest::multipart::Part::bytes(png(&pair.left)))
         .part("right", reqwest::multipart::Part::bytes(png(&pair.right)));
@@ -352,7 +339,7 @@ async fn a_4096x3072_16_bit_pair_fits_over_rest_and_websocket() {
         &r16,
     );
     assert!(message.len() > 50_000_000);
-    let sid = new_session(&server).await;
+    let sid = new_session(&server.base).await;
     let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
         .await
         .unwrap();

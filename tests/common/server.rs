@@ -162,3 +162,40 @@ pub fn offset_free_rms(errors: &[f64]) -> f64 {
     let mean = errors.iter().sum::<f64>() / errors.len() as f64;
     (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / errors.len() as f64).sqrt()
 }
+
+/// POSTs JSON and returns the JSON answer; panics on a non-2xx status.
+pub async fn post_json(url: &str, body: serde_json::Value) -> serde_json::Value {
+    let r = reqwest::Client::new().post(url).json(&body).send().await.unwrap();
+    assert!(r.status().is_success(), "{url}: {}", r.status());
+    r.json().await.unwrap()
+}
+
+/// GETs JSON; panics on a non-2xx status.
+pub async fn get_json(url: &str) -> serde_json::Value {
+    let r = reqwest::get(url).await.unwrap();
+    assert!(r.status().is_success(), "{url}: {}", r.status());
+    r.json().await.unwrap()
+}
+
+/// Creates a session on default parameters and returns its id.
+pub async fn new_session(base: &str) -> String {
+    let s = post_json(&format!("{base}/v1/sessions"), serde_json::json!({})).await;
+    s["id"].as_str().unwrap().to_string()
+}
+
+/// Uploads a synthetic pair as PNG parts and returns the parsed answer.
+pub async fn upload(
+    http: &reqwest::Client,
+    base: &str,
+    session: &str,
+    pair: &SynthPair,
+) -> serde_json::Value {
+    http.post(format!("{base}/v1/sessions/{session}/frames"))
+        .multipart(pair_form(pair))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap()
+}
