@@ -32,18 +32,29 @@ async fn bad_inputs_get_clear_4xx_errors() {
     config.max_sessions = 3;
     config.max_body_bytes = 8 * 1024 * 1024;
     let server = TestServer::start(config).await;
-    // No connection reuse: a request refused before its body is read (an
-    // unknown session, a wrong content type) ends its connection, and a
-    // pooled client could pick that connection for the next request.
-    let http = reqwest::Client::builder()
-        .pool_max_idle_per_host(0)
-        .build()
-        .unwrap();
+    // A pooled client, as lab scripts use: a request refused before its body
+    // is read ends its connection, and the server says so (below), so the
+    // pool does not reuse it.
+    let http = reqwest::Client::new();
     let base = &server.base;
     let sid = new_session(base).await;
     let frames = format!("{base}/v1/sessions/{sid}/frames");
     let pairs = synth_pairs(Preset::Clean, Shape::Blob, 1, 1);
     let left = png(&pairs[0].left);
+
+    // An upload refused before its body is read closes its connection, and
+    // the answer says so.
+    let r = http
+        .post(format!("{base}/v1/sessions/s_missing/frames"))
+        .multipart(pair_form(&pairs[0]))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(
+        r.headers().get("connection").map(|v| v.to_str().unwrap()),
+        Some("close")
+    );
+    expect_error(r, 404, "session_not_found").await;
 
     // Unknown ids and routes.
     expect_error(

@@ -290,14 +290,17 @@ async fn require_token(token: Option<Arc<str>>, req: Request, next: Next) -> Res
 }
 
 /// Refuses a body whose declared length is over the limit before reading
-/// any of it (the streaming limit alone would wait for the bytes).
+/// any of it (the streaming limit alone would wait for the bytes). Error
+/// answers to requests with a body say `Connection: close`: the body may be
+/// unread, so the connection ends, and a pooled client must not reuse it.
 async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Response {
     let declared = req
         .headers()
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
-    match declared {
+    let has_body = declared.is_some_and(|n| n > 0) || req.headers().contains_key(header::TRANSFER_ENCODING);
+    let mut response = match declared {
         Some(n) if n > limit as u64 => ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
             "body_too_large",
@@ -305,7 +308,14 @@ async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Respon
         )
         .into_response(),
         _ => next.run(req).await,
+    };
+    let status = response.status();
+    if has_body && (status.is_client_error() || status.is_server_error()) {
+        response
+            .headers_mut()
+            .insert(header::CONNECTION, header::HeaderValue::from_static("close"));
     }
+    response
 }
 
 async fn request_timeout(limit: Duration, req: Request, next: Next) -> Response {
