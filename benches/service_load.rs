@@ -416,18 +416,11 @@ fn render(pool: usize) -> Data {
 
 /// One `SDP1` message: magic, header length, JSON header, left, right.
 fn sdp1(seq: usize, left: &[u8], right: &[u8]) -> Bytes {
-    let header = serde_json::to_vec(&json!({
+    let header = json!({
         "seq": seq, "encoding": "raw", "width": WIDTH, "height": HEIGHT, "bit_depth": 8,
         "left_len": left.len(), "right_len": right.len(),
-    }))
-    .expect("header JSON");
-    let mut m = Vec::with_capacity(8 + header.len() + left.len() + right.len());
-    m.extend_from_slice(b"SDP1");
-    m.extend_from_slice(&(header.len() as u32).to_le_bytes());
-    m.extend_from_slice(&header);
-    m.extend_from_slice(left);
-    m.extend_from_slice(right);
-    Bytes::from(m)
+    });
+    Bytes::from(semdepth::service::ws::encode_pair_message(&header, left, right))
 }
 
 /// Messages with seq 0..n over the pool.

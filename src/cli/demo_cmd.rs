@@ -15,6 +15,7 @@ use tokio_tungstenite::tungstenite::Message;
 
 use super::CliError;
 use crate::service::state::ServiceConfig;
+use crate::service::ws::encode_pair_message;
 use crate::synth::{frames, Preset, Shape, SynthConfig};
 
 /// Arguments of `semdepth demo`.
@@ -155,14 +156,12 @@ async fn demo(args: DemoArgs) -> Result<(), CliError> {
     let sequence = frames(&config).map_err(|e| fail("generating", e.to_string()))?;
     for (seq, pair) in sequence.enumerate() {
         let (left, right) = (pair.left.to_gray8().into_raw(), pair.right.to_gray8().into_raw());
-        let header = serde_json::to_vec(&json!({"seq": seq, "encoding": "raw", "width": pair.left.width,
-            "height": pair.left.height, "bit_depth": 8, "left_len": left.len(), "right_len": right.len()}))
-        .map_err(|e| fail("header", e.to_string()))?;
-        let mut message = b"SDP1".to_vec();
-        message.extend_from_slice(&(header.len() as u32).to_le_bytes());
-        message.extend_from_slice(&header);
-        message.extend_from_slice(&left);
-        message.extend_from_slice(&right);
+        let message = encode_pair_message(
+            &json!({"seq": seq, "encoding": "raw", "width": pair.left.width,
+                "height": pair.left.height, "bit_depth": 8, "left_len": left.len(), "right_len": right.len()}),
+            &left,
+            &right,
+        );
         ws.send(Message::Binary(message.into()))
             .await
             .map_err(|e| fail("sending a pair", e.to_string()))?;

@@ -166,6 +166,21 @@ pub async fn stream_session(
         .on_upgrade(move |socket| tracker.track_future(run_stream(state, session, query.policy, socket))))
 }
 
+/// Builds a pair message: [`MAGIC`], the header's length (u32 little
+/// endian), the JSON header, then the left and right bytes. The header is a
+/// JSON value, not a [`PairHeader`], so that callers (and tests) can send any
+/// header, valid or not.
+pub fn encode_pair_message(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Vec<u8> {
+    let header = header.to_string().into_bytes();
+    let mut m = Vec::with_capacity(8 + header.len() + left.len() + right.len());
+    m.extend_from_slice(MAGIC);
+    m.extend_from_slice(&(header.len() as u32).to_le_bytes());
+    m.extend_from_slice(&header);
+    m.extend_from_slice(left);
+    m.extend_from_slice(right);
+    m
+}
+
 /// One parsed pair message.
 #[derive(Debug)]
 pub struct PairMessage {
@@ -482,13 +497,7 @@ mod tests {
     use super::*;
 
     fn message(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Bytes {
-        let h = serde_json::to_vec(header).unwrap();
-        let mut m = MAGIC.to_vec();
-        m.extend_from_slice(&(h.len() as u32).to_le_bytes());
-        m.extend_from_slice(&h);
-        m.extend_from_slice(left);
-        m.extend_from_slice(right);
-        Bytes::from(m)
+        Bytes::from(encode_pair_message(header, left, right))
     }
 
     #[test]

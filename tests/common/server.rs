@@ -136,13 +136,7 @@ pub fn pair_form(pair: &SynthPair) -> reqwest::multipart::Form {
 
 /// A binary stream message: `SDP1`, header length, JSON header, left, right.
 pub fn sdp1(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Vec<u8> {
-    let h = serde_json::to_vec(header).unwrap();
-    let mut m = b"SDP1".to_vec();
-    m.extend_from_slice(&(h.len() as u32).to_le_bytes());
-    m.extend_from_slice(&h);
-    m.extend_from_slice(left);
-    m.extend_from_slice(right);
-    m
+    semdepth::service::ws::encode_pair_message(header, left, right)
 }
 
 /// A raw 8-bit stream message for a synthetic pair.
