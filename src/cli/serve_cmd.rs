@@ -10,7 +10,10 @@ use clap::{Args, ValueEnum};
 
 use super::CliError;
 use crate::imageio::DecodeLimits;
-use crate::service::state::ServiceConfig;
+use crate::service::state::{
+    ServiceConfig, DEFAULT_DB_PATH, DEFAULT_LISTEN, DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_MESSAGE_MIB,
+    DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_WS_QUEUE,
+};
 
 /// Log output format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
@@ -25,40 +28,40 @@ pub enum LogFormat {
 #[derive(Debug, Args)]
 pub struct ServeArgs {
     /// Address to listen on.
-    #[arg(long, env = "SEMDEPTH_LISTEN", default_value = "127.0.0.1:8080")]
+    #[arg(long, env = "SEMDEPTH_LISTEN", default_value = DEFAULT_LISTEN)]
     pub listen: String,
     /// SQLite database file (created with its folder), or `:memory:`.
-    #[arg(long, env = "SEMDEPTH_DB", default_value = "data/semdepth.sqlite3")]
+    #[arg(long, env = "SEMDEPTH_DB", default_value = DEFAULT_DB_PATH)]
     pub db: String,
     /// Bearer token required on every /v1 request.
     #[arg(long, env = "SEMDEPTH_TOKEN", hide_env_values = true)]
     pub token: Option<String>,
     /// Largest request body, MiB.
-    #[arg(long, env = "SEMDEPTH_MAX_BODY_MIB", default_value_t = 128)]
+    #[arg(long, env = "SEMDEPTH_MAX_BODY_MIB", default_value_t = DEFAULT_MAX_BODY_MIB)]
     pub max_body_mib: usize,
     /// Largest WebSocket message (one pair), MiB.
-    #[arg(long, env = "SEMDEPTH_MAX_MESSAGE_MIB", default_value_t = 128)]
+    #[arg(long, env = "SEMDEPTH_MAX_MESSAGE_MIB", default_value_t = DEFAULT_MAX_MESSAGE_MIB)]
     pub max_message_mib: usize,
     /// Largest image width and height accepted, pixels.
-    #[arg(long, env = "SEMDEPTH_MAX_IMAGE_SIDE", default_value_t = 8192)]
+    #[arg(long, env = "SEMDEPTH_MAX_IMAGE_SIDE", default_value_t = DecodeLimits::default().max_width)]
     pub max_image_side: u32,
     /// Most memory one image's decoder may allocate, MiB.
-    #[arg(long, env = "SEMDEPTH_MAX_DECODE_MIB", default_value_t = 512)]
+    #[arg(long, env = "SEMDEPTH_MAX_DECODE_MIB", default_value_t = DecodeLimits::default().max_alloc_bytes >> 20)]
     pub max_decode_mib: u64,
     /// Most sessions held at once.
-    #[arg(long, env = "SEMDEPTH_MAX_SESSIONS", default_value_t = 256)]
+    #[arg(long, env = "SEMDEPTH_MAX_SESSIONS", default_value_t = DEFAULT_MAX_SESSIONS)]
     pub max_sessions: usize,
     /// Pairs processed at once [default: the number of CPU cores].
     #[arg(long, env = "SEMDEPTH_WORKERS")]
     pub workers: Option<usize>,
     /// Results kept per session unless the session says otherwise.
-    #[arg(long, env = "SEMDEPTH_RETENTION", default_value_t = 100_000)]
+    #[arg(long, env = "SEMDEPTH_RETENTION", default_value_t = DEFAULT_RETENTION)]
     pub retention: u64,
     /// Longest time one HTTP request may take, seconds.
-    #[arg(long, env = "SEMDEPTH_REQUEST_TIMEOUT_S", default_value_t = 60.0)]
+    #[arg(long, env = "SEMDEPTH_REQUEST_TIMEOUT_S", default_value_t = DEFAULT_REQUEST_TIMEOUT_S)]
     pub request_timeout_s: f64,
     /// Pairs that may wait per WebSocket under policy=all.
-    #[arg(long, env = "SEMDEPTH_WS_QUEUE", default_value_t = 4)]
+    #[arg(long, env = "SEMDEPTH_WS_QUEUE", default_value_t = DEFAULT_WS_QUEUE)]
     pub ws_queue: usize,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
@@ -201,7 +204,7 @@ pub fn run_openapi(args: OpenapiArgs) -> Result<(), CliError> {
 #[derive(Debug, Args)]
 pub struct HealthcheckArgs {
     /// Address of the server (the port of `--listen`; a 0.0.0.0 host is asked on 127.0.0.1).
-    #[arg(long, env = "SEMDEPTH_LISTEN", default_value = "127.0.0.1:8080")]
+    #[arg(long, env = "SEMDEPTH_LISTEN", default_value = DEFAULT_LISTEN)]
     pub listen: String,
     /// Seconds to wait for the answer.
     #[arg(long, default_value_t = 3.0)]

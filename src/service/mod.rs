@@ -98,7 +98,7 @@ pub async fn serve(
 
 /// Restores calibrations and sessions from storage.
 async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState, ServeError> {
-    let calibrations = storage
+    let calibrations: std::collections::BTreeMap<_, _> = storage
         .calibrations()
         .await?
         .into_iter()
@@ -128,7 +128,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
     }
     metrics.active_sessions.set(sessions.len() as i64);
     tracing::info!(
-        calibrations = %calibrations_len(&calibrations),
+        calibrations = calibrations.len(),
         sessions = sessions.len(),
         "restored from storage"
     );
@@ -144,10 +144,6 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         shutdown: tokio_util::sync::CancellationToken::new(),
         sockets: tokio_util::task::TaskTracker::new(),
     })))
-}
-
-fn calibrations_len(c: &std::collections::BTreeMap<String, storage::CalibrationRecord>) -> usize {
-    c.len()
 }
 
 /// The complete application: routes, auth, limits, request ids, tracing.

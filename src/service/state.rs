@@ -19,6 +19,25 @@ use super::metrics::Metrics;
 use super::model::SessionView;
 use super::storage::{CalibrationRecord, SessionRecord, Storage};
 
+/// Address `semdepth serve` listens on by default.
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:8080";
+/// Default database file, relative to the working directory.
+pub const DEFAULT_DB_PATH: &str = "data/semdepth.sqlite3";
+/// Default request body limit, MiB: two 4096x3072 16-bit images are 50 MB
+/// raw; PNG of noisy data can be slightly larger than raw, multipart adds
+/// little.
+pub const DEFAULT_MAX_BODY_MIB: usize = 128;
+/// Default WebSocket message (one pair) limit, MiB.
+pub const DEFAULT_MAX_MESSAGE_MIB: usize = 128;
+/// Default maximum number of sessions.
+pub const DEFAULT_MAX_SESSIONS: usize = 256;
+/// Default number of results kept per session.
+pub const DEFAULT_RETENTION: u64 = 100_000;
+/// Default longest time of one HTTP request, seconds.
+pub const DEFAULT_REQUEST_TIMEOUT_S: f64 = 60.0;
+/// Default number of pairs waiting per WebSocket under `policy=all`.
+pub const DEFAULT_WS_QUEUE: usize = 4;
+
 /// Everything `semdepth serve` can be configured with (flags and
 /// environment variables map onto it in `cli::serve_cmd`).
 #[derive(Clone, Debug)]
@@ -48,18 +67,16 @@ pub struct ServiceConfig {
 impl Default for ServiceConfig {
     fn default() -> Self {
         Self {
-            db_path: "data/semdepth.sqlite3".into(),
+            db_path: DEFAULT_DB_PATH.into(),
             token: None,
-            // Two 4096x3072 16-bit images are 50 MB raw; PNG of noisy data
-            // can be slightly larger than raw, multipart adds little.
-            max_body_bytes: 128 * 1024 * 1024,
-            max_ws_message_bytes: 128 * 1024 * 1024,
+            max_body_bytes: DEFAULT_MAX_BODY_MIB << 20,
+            max_ws_message_bytes: DEFAULT_MAX_MESSAGE_MIB << 20,
             decode_limits: DecodeLimits::default(),
-            max_sessions: 256,
+            max_sessions: DEFAULT_MAX_SESSIONS,
             workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
-            default_retention: 100_000,
-            request_timeout: Duration::from_secs(60),
-            ws_queue: 4,
+            default_retention: DEFAULT_RETENTION,
+            request_timeout: Duration::from_secs_f64(DEFAULT_REQUEST_TIMEOUT_S),
+            ws_queue: DEFAULT_WS_QUEUE,
         }
     }
 }
