@@ -7,7 +7,7 @@ mod server;
 use reqwest::multipart::{Form, Part};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{new_session, pair_form, png, synth_pairs, test_config, TestServer};
+use server::{new_session, pair_form, png, synth_pairs, test_config, upload, TestServer};
 
 /// Checks status and error code, and that the message is not empty.
 async fn expect_error(r: reqwest::Response, status: u16, code: &str) -> String {
@@ -356,15 +356,7 @@ async fn bad_inputs_get_clear_4xx_errors() {
     .await;
 
     // After all that the session still works.
-    let r: Value = http
-        .post(&frames)
-        .multipart(pair_form(&pairs[0]))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let r = upload(&http, base, &sid, &pairs[0]).await;
     assert_eq!(r["status"], "initialised", "{r}");
     server.stop().await.unwrap();
 }

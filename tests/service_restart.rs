@@ -16,7 +16,9 @@ use std::time::Duration;
 use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape, SynthPair};
 use serde_json::{json, Value};
-use server::{get_json, offset_free_rms, post_json, sdp1_raw, synth_pairs, test_config, upload, TestServer};
+use server::{
+    get_json, next_reply, offset_free_rms, post_json, sdp1_raw, synth_pairs, test_config, upload, TestServer,
+};
 use tokio_tungstenite::tungstenite::Message;
 
 /// Disparity RMS limit over the whole sequence, before and after the
@@ -65,13 +67,8 @@ async fn graceful_restart_continues_the_stream_where_it_stopped() {
         ws.send(Message::Binary(sdp1_raw(i as u64, pair).into()))
             .await
             .unwrap();
-        loop {
-            if let Message::Text(t) = ws.next().await.unwrap().unwrap() {
-                let r: Value = serde_json::from_str(&t).unwrap();
-                assert_eq!(r["seq"], i as u64);
-                break;
-            }
-        }
+        let r = next_reply(&mut ws).await;
+        assert_eq!(r["seq"], i as u64);
     }
     // Stop with the socket still open: it gets a close frame (1001).
     let stopping = tokio::spawn(server.stop());
@@ -111,17 +108,12 @@ async fn graceful_restart_continues_the_stream_where_it_stopped() {
         ws.send(Message::Binary(sdp1_raw(100 + i as u64, pair).into()))
             .await
             .unwrap();
-        loop {
-            if let Message::Text(t) = ws.next().await.unwrap().unwrap() {
-                let r: Value = serde_json::from_str(&t).unwrap();
-                assert_eq!(
-                    (r["seq"].as_u64(), r["frame"].as_u64()),
-                    (Some(100 + i as u64), Some(6 + i as u64))
-                );
-                assert!(r["z_um"].is_number(), "{r}");
-                break;
-            }
-        }
+        let r = next_reply(&mut ws).await;
+        assert_eq!(
+            (r["seq"].as_u64(), r["frame"].as_u64()),
+            (Some(100 + i as u64), Some(6 + i as u64))
+        );
+        assert!(r["z_um"].is_number(), "{r}");
     }
     ws.close(None).await.unwrap();
     let page = get_json(&format!("{}/v1/sessions/{sid}/results", server.base)).await;

@@ -11,29 +11,13 @@ use std::time::{Duration, Instant};
 use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{new_session, offset_free_rms, png, sdp1, sdp1_raw, synth_pairs, test_config, TestServer};
+use server::{
+    new_session, next_reply, offset_free_rms, png, sdp1, sdp1_raw, synth_pairs, test_config, TestServer,
+};
 use tokio_tungstenite::tungstenite::Message;
 
 /// Disparity RMS limit (px, offset removed); see tests/service_api.rs.
 const MAX_DISPARITY_RMS_PX: f64 = 0.15;
-
-type Socket = tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
-
-/// The next text reply (pongs and other control frames skipped).
-async fn next_reply(ws: &mut Socket) -> Value {
-    loop {
-        let m = tokio::time::timeout(Duration::from_secs(60), ws.next())
-            .await
-            .expect("no reply within 60 s")
-            .expect("socket closed")
-            .unwrap();
-        match m {
-            Message::Text(t) => return serde_json::from_str(&t).unwrap(),
-            Message::Close(c) => panic!("socket closed: {c:?}"),
-            _ => continue,
-        }
-    }
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn all_policy_answers_every_pair_in_order_with_true_disparities() {
@@ -63,12 +47,7 @@ async fn all_policy_answers_every_pair_in_order_with_true_disparities() {
     let (task, mut stream) = sender;
     let mut errors = Vec::new();
     for (i, pair) in pairs.iter().enumerate() {
-        let r = loop {
-            match stream.next().await.unwrap().unwrap() {
-                Message::Text(t) => break serde_json::from_str::<Value>(&t).unwrap(),
-                _ => continue,
-            }
-        };
+        let r = next_reply(&mut stream).await;
         assert_eq!(r["seq"], 100 + i as u64, "{r}");
         assert_eq!(r["frame"], i as u64, "{r}");
         assert_ne!(r["status"], "lost", "{r}");

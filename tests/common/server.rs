@@ -193,3 +193,27 @@ pub async fn upload(
         .await
         .unwrap()
 }
+
+/// The next text reply on a WebSocket (or its read half), parsed; control
+/// frames are skipped. Panics on close, error or 60 s without a reply.
+pub async fn next_reply<S>(ws: &mut S) -> serde_json::Value
+where
+    S: futures_util::Stream<
+            Item = Result<tokio_tungstenite::tungstenite::Message, tokio_tungstenite::tungstenite::Error>,
+        > + Unpin,
+{
+    use futures_util::StreamExt;
+    use tokio_tungstenite::tungstenite::Message;
+    loop {
+        let m = tokio::time::timeout(Duration::from_secs(60), ws.next())
+            .await
+            .expect("no reply within 60 s")
+            .expect("socket closed")
+            .unwrap();
+        match m {
+            Message::Text(t) => return serde_json::from_str(&t).unwrap(),
+            Message::Close(c) => panic!("socket closed: {c:?}"),
+            _ => continue,
+        }
+    }
+}
