@@ -754,14 +754,7 @@ async fn ws_scenario(
             barrier.clone(),
         )));
     }
-    // Every client has finished its warm-up: start measuring.
-    barrier.wait().await;
-    let cpu = CpuMeter::start(server, ticks);
-    let mut runs = Vec::new();
-    for t in tasks {
-        runs.push(t.await.expect("client task"));
-    }
-    (runs, cpu.stop())
+    measure(server, ticks, &barrier, tasks).await
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -788,6 +781,17 @@ async fn rest_scenario(
             barrier.clone(),
         )));
     }
+    measure(server, ticks, &barrier, tasks).await
+}
+
+/// Waits until every client has finished its warm-up (the barrier), then
+/// measures CPU use until all of them are done.
+async fn measure(
+    server: &Server,
+    ticks: f64,
+    barrier: &Barrier,
+    tasks: Vec<tokio::task::JoinHandle<Run>>,
+) -> (Vec<Run>, Usage) {
     barrier.wait().await;
     let cpu = CpuMeter::start(server, ticks);
     let mut runs = Vec::new();
