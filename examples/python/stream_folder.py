@@ -26,8 +26,8 @@ from typing import List, Optional
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from semdepth_client import SemdepthClient, SemdepthError, encode_pair, find_pairs, stream_pairs  # noqa: E402
-from upload_folder import calibration_args, fmt, resolve_calibration  # noqa: E402
+from semdepth_client import SemdepthClient, SemdepthError, encode_pair, stream_pairs  # noqa: E402
+from upload_folder import calibration_args, fmt, folder_pairs, resolve_calibration  # noqa: E402
 
 
 async def run(args: argparse.Namespace, pairs: list) -> int:
@@ -82,13 +82,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     calibration_args(parser)
     args = parser.parse_args(argv)
 
-    try:
-        pairs = find_pairs(args.folder)
-    except (OSError, ValueError) as e:
-        print(f"error: {args.folder}: {e}", file=sys.stderr)
-        return 2
-    if not pairs:
-        print(f"error: no NAME_left.EXT / NAME_right.EXT pairs in {args.folder}", file=sys.stderr)
+    pairs = folder_pairs(args.folder)
+    if pairs is None:
         return 2
     try:
         return asyncio.run(run(args, pairs))

@@ -22,11 +22,24 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import List, Optional
+from typing import List, Optional, Tuple
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from semdepth_client import SemdepthClient, SemdepthError, find_pairs  # noqa: E402
+
+
+def folder_pairs(folder: Path) -> Optional[List[Tuple[str, Path, Path]]]:
+    """The folder's pairs, or None after printing why there are none."""
+    try:
+        pairs = find_pairs(folder)
+    except (OSError, ValueError) as e:
+        print(f"error: {folder}: {e}", file=sys.stderr)
+        return None
+    if not pairs:
+        print(f"error: no NAME_left.EXT / NAME_right.EXT pairs in {folder}", file=sys.stderr)
+        return None
+    return pairs
 
 
 def calibration_args(parser: argparse.ArgumentParser) -> None:
@@ -72,13 +85,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--timeout", type=float, default=60, help="seconds per request (default %(default)s)")
     args = parser.parse_args(argv)
 
-    try:
-        pairs = find_pairs(args.folder)
-    except (OSError, ValueError) as e:
-        print(f"error: {args.folder}: {e}", file=sys.stderr)
-        return 2
-    if not pairs:
-        print(f"error: no NAME_left.EXT / NAME_right.EXT pairs in {args.folder}", file=sys.stderr)
+    pairs = folder_pairs(args.folder)
+    if pairs is None:
         return 2
 
     api = SemdepthClient(args.server, token=args.token, timeout=args.timeout)
