@@ -19,16 +19,19 @@ const MAX_CENTROID_RMS_PX: f64 = 0.5;
 struct Accuracy {
     disparity_rms: f64,
     centroid_rms: f64,
+    /// Largest left centroid error of any pair.
+    centroid_max: f64,
     lost: usize,
     pairs: usize,
 }
 
-fn measure(preset: Preset) -> Accuracy {
+fn measure(preset: Preset, seeds: std::ops::Range<u64>, frame_count: usize) -> Accuracy {
     let (mut sq_disparity, mut sq_centroid, mut pairs, mut lost) = (0.0, 0.0, 0usize, 0usize);
+    let mut centroid_max = 0.0f64;
     for shape in Shape::ALL {
-        for seed in SEEDS {
+        for seed in seeds.clone() {
             let config = SynthConfig {
-                frames: FRAMES,
+                frames: frame_count,
                 ..SynthConfig::preset(preset, shape, seed)
             };
             let mut tracker = StereoTracker::new(TrackerParams::default());
@@ -48,7 +51,9 @@ fn measure(preset: Preset) -> Accuracy {
                 }
                 errors.push(result.disparity_px.unwrap()[0] - pair.truth.disparity_px[0]);
                 let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-                sq_centroid += (c[0] - t[0]).powi(2) + (c[1] - t[1]).powi(2);
+                let centroid_error = (c[0] - t[0]).hypot(c[1] - t[1]);
+                sq_centroid += centroid_error.powi(2);
+                centroid_max = centroid_max.max(centroid_error);
             }
             let offset = errors.iter().sum::<f64>() / errors.len().max(1) as f64;
             sq_disparity += errors.iter().map(|e| (e - offset).powi(2)).sum::<f64>();
@@ -58,14 +63,16 @@ fn measure(preset: Preset) -> Accuracy {
     let accuracy = Accuracy {
         disparity_rms: (sq_disparity / pairs as f64).sqrt(),
         centroid_rms: (sq_centroid / pairs as f64).sqrt(),
+        centroid_max,
         lost,
         pairs,
     };
     eprintln!(
-        "{:>9}: disparity RMS {:.4} px, left centroid RMS {:.3} px, {} pairs, {} lost",
+        "{:>9}: disparity RMS {:.4} px, left centroid RMS {:.3} px (max {:.3}), {} pairs, {} lost",
         preset.name(),
         accuracy.disparity_rms,
         accuracy.centroid_rms,
+        accuracy.centroid_max,
         accuracy.pairs,
         accuracy.lost
     );
@@ -73,7 +80,7 @@ fn measure(preset: Preset) -> Accuracy {
 }
 
 fn check(preset: Preset, max_disparity_rms: f64) {
-    let a = measure(preset);
+    let a = measure(preset, SEEDS, FRAMES);
     assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
     assert_eq!(a.pairs, Shape::ALL.len() * SEEDS.count() * FRAMES);
     assert!(
@@ -114,4 +121,26 @@ fn grey_level_flicker() {
 fn cluttered_background() {
     // Not a condition of the issue; held to the noisy limit.
     check(Preset::Cluttered, 0.15);
+}
+
+#[test]
+fn long_sequences_follow_the_rotating_object() {
+    // 45 pairs while the object turns by up to 0.01 rad per pair: a template
+    // that does not turn with it drifts (blob seed 1 reached 0.9 px here, and
+    // 2.7 px at 1024x768, before blob outlines counted as rotation-observable).
+    const LONG_FRAMES: usize = 45;
+    let seeds = 0..3;
+    let a = measure(Preset::Clean, seeds.clone(), LONG_FRAMES);
+    assert_eq!(a.lost, 0, "{} pairs lost", a.lost);
+    assert_eq!(a.pairs, Shape::ALL.len() * seeds.count() * LONG_FRAMES);
+    assert!(
+        a.disparity_rms <= 0.05,
+        "disparity RMS {:.4} px > 0.05",
+        a.disparity_rms
+    );
+    assert!(
+        a.centroid_max <= MAX_CENTROID_RMS_PX,
+        "largest left centroid error {:.3} px > {MAX_CENTROID_RMS_PX}",
+        a.centroid_max
+    );
 }
