@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::calib::{axis_component, Calibration};
 use crate::energy::{evaluate, michelson, EnergyParams, EnergyTerms};
 use crate::fit::{
-    fit_free, fit_rigid, place, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
+    fit_free, fit_rigid, newton_polish, place, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
 use crate::geometry::{Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
@@ -48,7 +48,10 @@ pub struct TrackerParams {
     /// right view is searched from the left position. Default 64.
     #[schema(minimum = 0.0, maximum = 4096.0)]
     pub max_disparity_px: f64,
-    /// Vertex spacing of the rigid template, pixels. Default 2.
+    /// Vertex spacing of the rigid template, pixels. Default 2. (4 and 6 px
+    /// gave the same accuracy on the synthetic suites and a 25% faster step,
+    /// but moved the real quartz 01->02 shift from 0.74 to 1.12 px off the
+    /// silhouette reference.)
     #[schema(minimum = 0.5, maximum = 20.0)]
     pub template_spacing_px: f64,
     /// The pair is lost when the contrast in either image falls below this
@@ -579,9 +582,9 @@ impl StereoTracker {
             max_evaluations: rigid.max_evaluations,
         };
         for _ in 0..2 {
-            pose = search
-                .run(pose, |p| sectors.masked_energy(&sums, template, p, &mask, m_ref))
-                .0;
+            let masked = |p: Pose| sectors.masked_energy(&sums, template, p, &mask, m_ref);
+            let (found, e, _) = search.run(pose, masked);
+            pose = newton_polish(found, e, template.radius, search.rotate, masked).0;
             let new_mask = judge(pose).0;
             if new_mask == mask || widespread(&new_mask) {
                 break;
