@@ -672,7 +672,13 @@ impl StereoTracker {
     }
 
     /// Prefix sums over what the template can reach from `pose` within `reach`.
-    fn sums_around(&self, frame: &GrayFrame, template: &RigidTemplate, pose: Pose, reach: f64) -> PrefixSums {
+    fn sums_around<'f>(
+        &self,
+        frame: &'f GrayFrame,
+        template: &RigidTemplate,
+        pose: Pose,
+        reach: f64,
+    ) -> PrefixSums<'f> {
         let [x0, y0, x1, y1] = template.reach(pose, reach);
         let rect =
             PixelRect::covering(x0, y0, x1, y1, frame.width, frame.height).unwrap_or(PixelRect::full(frame));
