@@ -611,24 +611,10 @@ fn rotation_is_observable(points: &[Point]) -> bool {
 }
 
 /// The outline resampled at about 1 px and low-passed along its length:
-/// three passes of a circular 7-sample box filter (sigma about 3.5 px).
+/// three passes of a 7-vertex moving average (sigma about 3.5 px).
 fn smoothed(outline: &Polygon) -> Polygon {
     let n = (outline.length().round() as usize).max(16);
-    let mut pts = outline.resampled(n).points;
-    const HALF: usize = 3;
-    for _ in 0..3 {
-        let prev = pts.clone();
-        for (i, p) in pts.iter_mut().enumerate() {
-            let mut acc = [0.0; 2];
-            for k in 0..=2 * HALF {
-                let q = prev[(i + n + k - HALF) % n];
-                acc[0] += q[0];
-                acc[1] += q[1];
-            }
-            *p = acc.map(|v| v / (2 * HALF + 1) as f64);
-        }
-    }
-    Polygon::new(pts)
+    (0..3).fold(outline.resampled(n), |p, _| p.moving_average(3))
 }
 
 /// One round of compass search over x, y (and rotation); returns the new

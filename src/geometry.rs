@@ -205,6 +205,29 @@ impl Polygon {
         Self::new(points)
     }
 
+    /// Moving average over `2 * half + 1` neighbouring vertices (the outline
+    /// is closed, so the window wraps); unchanged when it has fewer than
+    /// `2 * half + 3` vertices.
+    pub fn moving_average(&self, half: usize) -> Self {
+        let n = self.points.len();
+        if n < 2 * half + 3 {
+            return self.clone();
+        }
+        let k = (2 * half + 1) as f64;
+        let points = (0..n)
+            .map(|i| {
+                let mut s = [0.0, 0.0];
+                for j in 0..=2 * half {
+                    let p = self.points[(i + n + j - half) % n];
+                    s[0] += p[0];
+                    s[1] += p[1];
+                }
+                [s[0] / k, s[1] / k]
+            })
+            .collect();
+        Self::new(points)
+    }
+
     /// Resamples the outline to `n` vertices evenly spaced along its length,
     /// starting at the first vertex.
     pub fn resampled(&self, n: usize) -> Self {

@@ -868,31 +868,10 @@ fn to_full_resolution(border: &[[i32; 2]], scale: u32, roi: [u32; 4], spacing: f
     let raw = Polygon::new(border.iter().map(|p| [p[0] as f64, p[1] as f64]).collect());
     // A traced border is a pixel staircase; a short moving average turns it
     // into a sub-pixel outline before resampling.
-    let smooth = smooth_closed(&raw, 2);
+    let smooth = raw.moving_average(2);
     let full = smooth.scaled(s, offset);
     let n = ((full.length() / spacing).round() as usize).max(8);
     full.resampled(n)
-}
-
-/// Moving average over `2 * half + 1` neighbouring vertices of a closed polygon.
-fn smooth_closed(polygon: &Polygon, half: usize) -> Polygon {
-    let n = polygon.len();
-    if n < 2 * half + 3 {
-        return polygon.clone();
-    }
-    let k = (2 * half + 1) as f64;
-    let points = (0..n)
-        .map(|i| {
-            let mut s = [0.0, 0.0];
-            for j in 0..=2 * half {
-                let p = polygon.points[(i + n + j - half) % n];
-                s[0] += p[0];
-                s[1] += p[1];
-            }
-            [s[0] / k, s[1] / k]
-        })
-        .collect();
-    Polygon::new(points)
 }
 
 /// The region of interest as `[x, y, w, h]`, checked against the frame.

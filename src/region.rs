@@ -239,7 +239,6 @@ impl<'a> PrefixSums<'a> {
         let slope = (u_end - u) / (v_end - v); // du/dv
                                                // Every piece of the edge has dv/du = 1/slope: one division per edge.
         let inverse_slope = 1.0 / slope;
-        let steep = (u_end - u).abs() <= 1e-9 * (v_end - v);
         let hmax = self.rect.height as usize - 1;
         let mut row = (v.max(0.0) as usize).min(hmax);
         let mut acc = 0.0;
@@ -254,7 +253,7 @@ impl<'a> PrefixSums<'a> {
             let dv = v_next - v;
             let du = u_next - u;
             let start = self.row_at(row);
-            acc += if !steep && du.abs() > 1e-3 {
+            acc += if du.abs() > 1e-3 {
                 (self.g(start, u_next) - self.g(start, u)) * inverse_slope
             } else {
                 // Nearly vertical: F is (all but) constant over the piece.
@@ -295,8 +294,8 @@ impl<'a> PrefixSums<'a> {
         self.g[row.table + c] - self.g[row.table + c - 1] + 0.5 * self.pixel(row, c - 1)
     }
 
-    /// F at local u in the row starting at `base` (0 left of the area, the
-    /// row total right of it).
+    /// F at local u in `row` (0 left of the area, the row total right of
+    /// it).
     #[inline(always)]
     fn f(&self, row: RowStart, u: f64) -> f64 {
         let w = self.rect.width as usize;
@@ -307,8 +306,8 @@ impl<'a> PrefixSums<'a> {
         self.g[row.table + c + 1] - self.g[row.table + c] + (t - 0.5) * self.pixel(row, c)
     }
 
-    /// G (the integral of F from the area's left edge) at local u in the row
-    /// starting at `base`; linear beyond the right edge, 0 left of the area.
+    /// G (the integral of F from the area's left edge) at local u in `row`;
+    /// linear beyond the right edge, 0 left of the area.
     #[inline(always)]
     fn g(&self, row: RowStart, u: f64) -> f64 {
         let w = self.rect.width as usize;
