@@ -27,7 +27,7 @@ from typing import List, Optional
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from semdepth_client import SemdepthClient, SemdepthError, encode_pair, stream_pairs  # noqa: E402
-from upload_folder import calibration_args, fmt, folder_pairs, resolve_calibration  # noqa: E402
+from upload_folder import calibration_args, fmt, folder_pairs, folder_parser, resolve_calibration  # noqa: E402
 
 
 async def run(args: argparse.Namespace, pairs: list) -> int:
@@ -70,11 +70,7 @@ async def run(args: argparse.Namespace, pairs: list) -> int:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("folder", type=Path, help="folder of NAME_left.EXT / NAME_right.EXT pairs")
-    parser.add_argument("--server", default="http://127.0.0.1:8080", help="server address (default %(default)s)")
-    parser.add_argument("--token", default=None, help="bearer token, when the server has one")
-    parser.add_argument("--name", default=None, help="session name (default: the folder's name)")
+    parser = folder_parser(__doc__)
     parser.add_argument("--session-id", default=None, metavar="ID",
                         help="stream into this existing session instead of creating one")
     parser.add_argument("--policy", choices=["all", "latest"], default="all",

@@ -42,6 +42,17 @@ def folder_pairs(folder: Path) -> Optional[List[Tuple[str, Path, Path]]]:
     return pairs
 
 
+def folder_parser(doc: str) -> argparse.ArgumentParser:
+    """The arguments both scripts take: the folder, the server, its token and
+    the session name; the description is the first paragraph of `doc`."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="folder of NAME_left.EXT / NAME_right.EXT pairs")
+    parser.add_argument("--server", default="http://127.0.0.1:8080", help="server address (default %(default)s)")
+    parser.add_argument("--token", default=None, help="bearer token, when the server has one")
+    parser.add_argument("--name", default=None, help="session name (default: the folder's name)")
+    return parser
+
+
 def calibration_args(parser: argparse.ArgumentParser) -> None:
     """Adds --calibration-id / --geometric (shared with stream_folder.py)."""
     group = parser.add_mutually_exclusive_group()
@@ -73,11 +84,7 @@ def fmt(value: Optional[float], digits: int) -> str:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("folder", type=Path, help="folder of NAME_left.EXT / NAME_right.EXT pairs")
-    parser.add_argument("--server", default="http://127.0.0.1:8080", help="server address (default %(default)s)")
-    parser.add_argument("--token", default=None, help="bearer token, when the server has one")
-    parser.add_argument("--name", default=None, help="session name (default: the folder's name)")
+    parser = folder_parser(__doc__)
     calibration_args(parser)
     parser.add_argument("--csv", type=Path, default=None, metavar="PATH",
                         help="where to write the results CSV (default: ./semdepth_<session id>.csv)")
