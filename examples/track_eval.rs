@@ -14,6 +14,12 @@ fn main() {
         Preset::Flicker,
         Preset::Cluttered,
     ] {
+        // ONLY=occluded,noisy restricts the run to those conditions.
+        if let Ok(only) = std::env::var("ONLY") {
+            if !only.split(',').any(|p| p == preset.name()) {
+                continue;
+            }
+        }
         let (mut sq_d, mut sq_c, mut n, mut lost, mut worst, mut flagged) =
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
         let t = std::time::Instant::now();

@@ -54,6 +54,26 @@ fn main() {
             }
         }
         let (l, rr) = (r.left.unwrap(), r.right.unwrap());
+        // DUMP=dir writes each left image with the tracked and true outlines.
+        if let Ok(dir) = std::env::var("DUMP") {
+            let mut canvas = image::DynamicImage::ImageLuma8(pair.left.to_gray8()).to_rgb8();
+            for (pts, colour) in [
+                (&l.contour, [255u8, 0, 0]),
+                (&pair.truth.left.polygon.points, [0, 255, 0]),
+            ] {
+                let n = pts.len();
+                for i in 0..n {
+                    let (p, q) = (pts[i], pts[(i + 1) % n]);
+                    imageproc::drawing::draw_line_segment_mut(
+                        &mut canvas,
+                        (p[0] as f32, p[1] as f32),
+                        (q[0] as f32, q[1] as f32),
+                        image::Rgb(colour),
+                    );
+                }
+            }
+            canvas.save(format!("{dir}/left_{:02}.png", r.frame)).unwrap();
+        }
         let tl = pair.truth.left.centroid;
         let tr = pair.truth.right.centroid;
         println!(
