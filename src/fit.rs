@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::energy::{combine, evaluate, window_of, EnergyParams, EnergyTerms};
+use crate::energy::{combine, evaluate, evaluate_with_length, window_of, EnergyParams, EnergyTerms};
 use crate::geometry::{dist, Point, Polygon};
 use crate::region::PrefixSums;
 
@@ -228,11 +228,20 @@ impl Pose {
 
 /// The template's vertices placed at `pose`.
 pub fn place(template: &[Point], pose: Pose) -> Vec<Point> {
+    let mut placed = Vec::with_capacity(template.len());
+    place_into(template, pose, &mut placed);
+    placed
+}
+
+/// [`place`] into a reused buffer.
+pub fn place_into(template: &[Point], pose: Pose, placed: &mut Vec<Point>) {
     let (s, c) = pose.theta.sin_cos();
-    template
-        .iter()
-        .map(|p| [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]])
-        .collect()
+    placed.clear();
+    placed.extend(
+        template
+            .iter()
+            .map(|p| [pose.x + c * p[0] - s * p[1], pose.y + s * p[0] + c * p[1]]),
+    );
 }
 
 /// Parameters of the rigid fit.
@@ -328,6 +337,10 @@ pub struct RigidTemplate {
     pub points: Vec<Point>,
     /// A decimated copy for the coarse stage.
     pub coarse: Vec<Point>,
+    /// Perimeter of `points` (unchanged by rigid motion).
+    pub length: f64,
+    /// Perimeter of `coarse`.
+    pub coarse_length: f64,
     /// Largest vertex distance from the centroid (turns pixel steps into angles).
     pub radius: f64,
     /// Window margin (fixed for the template's area).
@@ -358,6 +371,8 @@ impl RigidTemplate {
             .points;
         let rotation_observable = rotation_is_observable(&points);
         let template = Self {
+            length: Polygon::new(points.clone()).length(),
+            coarse_length: Polygon::new(coarse.clone()).length(),
             points,
             coarse,
             radius,
@@ -397,7 +412,13 @@ pub fn fit_rigid(
     energy: &EnergyParams,
     params: &RigidParams,
 ) -> RigidOutcome {
-    let eval = |pts: &[Point], pose: Pose| evaluate(sums, &place(pts, pose), energy, template.margin).energy;
+    // One vertex buffer for every evaluation (no allocation per pose).
+    let placed = std::cell::RefCell::new(Vec::with_capacity(template.points.len()));
+    let eval = |pts: &[Point], length: f64, pose: Pose| {
+        let mut placed = placed.borrow_mut();
+        place_into(pts, pose, &mut placed);
+        evaluate_with_length(sums, &placed, energy, template.margin, length).energy
+    };
     let mut pose = start;
     let mut evaluations = 0;
     // Coarse stage: translation only, decimated contour.
@@ -409,7 +430,7 @@ pub fn fit_rigid(
             rotate: false,
             max_evaluations: params.max_evaluations,
         };
-        let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, p));
+        let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, template.coarse_length, p));
         pose = p;
         evaluations += used;
     }
@@ -427,7 +448,7 @@ pub fn fit_rigid(
     // pose alone: two fits of the same image from different starts share
     // their minimum (a window held where each fit's coarse stage ended gave
     // identical images a disparity of up to 1.8 px on the quartz images).
-    let energy_at = |p: Pose| eval(&template.points, p);
+    let energy_at = |p: Pose| eval(&template.points, template.length, p);
     let (pose, best, used) = fine.run(pose, energy_at);
     let (pose, _, polished) = newton_polish(pose, best, template.radius, fine.rotate, energy_at);
     let terms = evaluate(sums, &place(&template.points, pose), energy, template.margin);
