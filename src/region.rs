@@ -225,14 +225,30 @@ impl<'a> PrefixSums<'a> {
     /// sum, with the sign of the polygon's signed area.
     #[inline]
     pub fn edge_integral(&self, a: Point, b: Point) -> f64 {
+        self.edge_walk(a, b, None, None)
+    }
+
+    /// G at a vertex, in the row it lies in: what the walk of either edge
+    /// meeting there looks up at that end (see [`PrefixSums::polygon`]).
+    #[inline(always)]
+    fn vertex_g(&self, p: Point) -> f64 {
+        let (ox, oy) = (self.rect.x as f64 - 0.5, self.rect.y as f64 - 0.5);
+        let row = ((p[1] - oy).max(0.0) as usize).min(self.rect.height as usize - 1);
+        self.g(self.row_at(row), p[0] - ox)
+    }
+
+    /// [`PrefixSums::edge_integral`], optionally with G already known at a
+    /// and b ([`PrefixSums::vertex_g`]); the result is bit-identical.
+    #[inline(always)]
+    fn edge_walk(&self, a: Point, b: Point, g_a: Option<f64>, g_b: Option<f64>) -> f64 {
         // Local coordinates: pixel (c, r) of the rect covers u in [c, c+1),
         // v in [r, r+1). Walk downwards (increasing v); an upward edge is the
         // same walk with the opposite sign.
         let (ox, oy) = (self.rect.x as f64 - 0.5, self.rect.y as f64 - 0.5);
-        let (mut u, mut v, u_end, v_end, sign) = if b[1] > a[1] {
-            (a[0] - ox, a[1] - oy, b[0] - ox, b[1] - oy, 1.0)
+        let (mut u, mut v, u_end, v_end, sign, g_top, g_bottom) = if b[1] > a[1] {
+            (a[0] - ox, a[1] - oy, b[0] - ox, b[1] - oy, 1.0, g_a, g_b)
         } else if b[1] < a[1] {
-            (b[0] - ox, b[1] - oy, a[0] - ox, a[1] - oy, -1.0)
+            (b[0] - ox, b[1] - oy, a[0] - ox, a[1] - oy, -1.0, g_b, g_a)
         } else {
             return 0.0;
         };
@@ -241,6 +257,10 @@ impl<'a> PrefixSums<'a> {
         let inverse_slope = 1.0 / slope;
         let hmax = self.rect.height as usize - 1;
         let mut row = (v.max(0.0) as usize).min(hmax);
+        // The bottom vertex's G is the last piece's only if that piece lies
+        // in the vertex's own row (not when the vertex sits on a row boundary).
+        let bottom_row = (v_end.max(0.0) as usize).min(hmax);
+        let mut g_start = g_top;
         let mut acc = 0.0;
         loop {
             // The piece of the edge inside the current row.
@@ -254,7 +274,12 @@ impl<'a> PrefixSums<'a> {
             let du = u_next - u;
             let start = self.row_at(row);
             acc += if du.abs() > 1e-3 {
-                (self.g(start, u_next) - self.g(start, u)) * inverse_slope
+                let g_end = match g_bottom {
+                    Some(g) if v_next >= v_end && row == bottom_row => g,
+                    _ => self.g(start, u_next),
+                };
+                let g_begin = g_start.unwrap_or_else(|| self.g(start, u));
+                (g_end - g_begin) * inverse_slope
             } else {
                 // Nearly vertical: F is (all but) constant over the piece.
                 self.f(start, 0.5 * (u + u_next)) * dv
@@ -265,6 +290,7 @@ impl<'a> PrefixSums<'a> {
             u = u_next;
             v = v_next;
             row += 1;
+            g_start = None;
         }
         acc * sign
     }
@@ -329,11 +355,21 @@ impl<'a> PrefixSums<'a> {
     pub fn polygon(&self, points: &[Point]) -> RegionSum {
         let n = points.len();
         let (mut twice_area, mut sum) = (0.0, 0.0);
+        // Each vertex ends one edge and starts the next, and both walks look
+        // up G there in the same row: one lookup serves both (a fifth of
+        // all lookups for a contour with 2 px spacing).
+        let Some(&first) = points.first() else {
+            return RegionSum::default();
+        };
+        let g_first = self.vertex_g(first);
+        let mut g_a = g_first;
         for i in 0..n {
             let a = points[i];
             let b = points[(i + 1) % n];
+            let g_b = if i + 1 == n { g_first } else { self.vertex_g(b) };
             twice_area += a[0] * b[1] - b[0] * a[1];
-            sum += self.edge_integral(a, b);
+            sum += self.edge_walk(a, b, Some(g_a), Some(g_b));
+            g_a = g_b;
         }
         let sign = if twice_area < 0.0 { -1.0 } else { 1.0 };
         RegionSum {
