@@ -246,11 +246,11 @@ pub fn evaluate_with_length(
     margin: f64,
     length: f64,
 ) -> EnergyTerms {
-    let [x0, y0, x1, y1] = window_of(points, 0.0);
-    let [ex0, ey0, ex1, ey1] = sums.rect().extent();
-    if points.len() < 3 || !(x0 >= ex0 && y0 >= ey0 && x1 <= ex1 && y1 <= ey1) {
+    let bounds = window_of(points, 0.0);
+    if points.len() < 3 || !sums.contains_box(bounds) {
         return EnergyTerms::INVALID;
     }
+    let [x0, y0, x1, y1] = bounds;
     let window = [x0 - margin, y0 - margin, x1 + margin, y1 + margin];
     region_energy(sums, points, params, window, length)
 }

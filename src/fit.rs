@@ -523,7 +523,8 @@ pub fn newton_polish(
         let Some(step) = solve_newton(&hess, &g, d) else {
             break;
         };
-        if step.iter().map(|v| v * v).sum::<f64>().sqrt() > 1.0 {
+        let step_length = step.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if step_length > 1.0 {
             break;
         }
         let candidate = shifted(pose, step);
@@ -535,7 +536,7 @@ pub fn newton_polish(
         } else {
             break;
         }
-        if step.iter().map(|v| v * v).sum::<f64>().sqrt() < CONVERGED {
+        if step_length < CONVERGED {
             break;
         }
     }

@@ -220,6 +220,14 @@ impl<'a> PrefixSums<'a> {
             .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
     }
 
+    /// True when the box `[x0, y0, x1, y1]` (e.g. a polygon's bounding box)
+    /// lies inside the covered area: the same test as [`PrefixSums::contains`]
+    /// for a caller that has the bounding box already.
+    pub fn contains_box(&self, [x0, y0, x1, y1]: [f64; 4]) -> bool {
+        let [ex0, ey0, ex1, ey1] = self.rect.extent();
+        x0 >= ex0 && y0 >= ey0 && x1 <= ex1 && y1 <= ey1
+    }
+
     /// Signed intensity integral along the edge a -> b: the integral of
     /// F(x, y) dy. Summed over a closed polygon it is the interior's intensity
     /// sum, with the sign of the polygon's signed area.
