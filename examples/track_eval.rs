@@ -40,8 +40,11 @@ fn main() {
                 if let Ok(v) = std::env::var("MINSTEP") {
                     params.rigid.min_step_px = v.parse().unwrap();
                 }
+                if let Ok(v) = std::env::var("SECTORS") {
+                    params.occlusion.sectors = v.parse().unwrap();
+                }
                 if let Ok(v) = std::env::var("TSPACING") {
-                    params.template_spacing_px = v.parse().unwrap();
+                    params.template_spacing_px = Some(v.parse().unwrap());
                 }
                 let mut tracker = StereoTracker::new(params);
                 let mut errs = Vec::new();

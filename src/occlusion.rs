@@ -88,6 +88,9 @@ impl OcclusionParams {
 /// outlines (in template coordinates, like the template's vertices).
 #[derive(Clone, Debug)]
 pub struct SectorTemplate {
+    /// The template's outline resampled to vertices at most
+    /// [`SectorTemplate::MAX_SPACING_PX`] apart (template coordinates).
+    contour: Vec<Point>,
     /// First vertex of each sector; sector k runs from `starts[k]` to
     /// `starts[k + 1]` inclusive (wrapping), so neighbours share a vertex.
     starts: Vec<usize>,
@@ -98,12 +101,20 @@ pub struct SectorTemplate {
 }
 
 impl SectorTemplate {
+    /// Largest vertex spacing of the sector outline, pixels. The template
+    /// itself is coarser (the free fit's vertices, 6 px apart by default),
+    /// but sector boundaries fall on vertices, and whole 6-px steps moved
+    /// them enough to change which partly covered sectors were dropped.
+    pub const MAX_SPACING_PX: f64 = 2.0;
+
     /// Sectors of about equal vertex count. The inner band is at most a
     /// third of the object's mean thickness (2A/L) wide, so it stays inside
     /// thin objects; the outer band is as wide as the template's margin, up
     /// to 12 px.
     pub fn new(template: &RigidTemplate, sectors: usize) -> Self {
-        let polygon = Polygon::new(template.points.clone());
+        let outline = Polygon::new(template.points.clone());
+        let dense = ((outline.length() / Self::MAX_SPACING_PX).round() as usize).max(outline.len());
+        let polygon = outline.resampled(dense);
         let n = polygon.len();
         let sectors = sectors.clamp(1, n.max(1));
         let starts = (0..sectors).map(|k| k * n / sectors).collect();
@@ -114,6 +125,7 @@ impl SectorTemplate {
             starts,
             inner: polygon.offset_along_normals(-inner_width).points,
             outer: polygon.offset_along_normals(outer_width).points,
+            contour: polygon.points,
         }
     }
 
@@ -128,13 +140,8 @@ impl SectorTemplate {
     }
 
     /// Inner- and outer-band sums of every sector at `pose`.
-    pub fn band_sums(
-        &self,
-        sums: &PrefixSums,
-        template: &RigidTemplate,
-        pose: Pose,
-    ) -> Vec<(RegionSum, RegionSum)> {
-        let contour = place(&template.points, pose);
+    pub fn band_sums(&self, sums: &PrefixSums, pose: Pose) -> Vec<(RegionSum, RegionSum)> {
+        let contour = place(&self.contour, pose);
         let inner = place(&self.inner, pose);
         let outer = place(&self.outer, pose);
         let n = contour.len();
@@ -157,8 +164,8 @@ impl SectorTemplate {
     }
 
     /// Michelson contrast of every sector's inner band against its outer band.
-    pub fn contrasts(&self, sums: &PrefixSums, template: &RigidTemplate, pose: Pose) -> Vec<f64> {
-        self.band_sums(sums, template, pose)
+    pub fn contrasts(&self, sums: &PrefixSums, pose: Pose) -> Vec<f64> {
+        self.band_sums(sums, pose)
             .into_iter()
             .map(|(a, b)| michelson(a.mean(), b.mean()))
             .collect()
@@ -166,15 +173,9 @@ impl SectorTemplate {
 
     /// The inner and outer bands of the sectors not marked occluded, each
     /// summed into one region.
-    pub fn visible_bands(
-        &self,
-        sums: &PrefixSums,
-        template: &RigidTemplate,
-        pose: Pose,
-        occluded: &[bool],
-    ) -> (RegionSum, RegionSum) {
+    pub fn visible_bands(&self, sums: &PrefixSums, pose: Pose, occluded: &[bool]) -> (RegionSum, RegionSum) {
         let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
-        for (k, (inside, outside)) in self.band_sums(sums, template, pose).into_iter().enumerate() {
+        for (k, (inside, outside)) in self.band_sums(sums, pose).into_iter().enumerate() {
             if occluded.get(k).copied().unwrap_or(false) {
                 continue;
             }
@@ -190,18 +191,11 @@ impl SectorTemplate {
     /// two-region likelihood ratio of the union of their inner bands against
     /// the union of their outer bands, divided by `m_ref`. `+inf` when the
     /// contour leaves the covered area or nothing is left.
-    pub fn masked_energy(
-        &self,
-        sums: &PrefixSums,
-        template: &RigidTemplate,
-        pose: Pose,
-        occluded: &[bool],
-        m_ref: f64,
-    ) -> f64 {
+    pub fn masked_energy(&self, sums: &PrefixSums, pose: Pose, occluded: &[bool], m_ref: f64) -> f64 {
         if !sums.contains(&place(&self.outer, pose)) {
             return f64::INFINITY;
         }
-        let (a, b) = self.visible_bands(sums, template, pose, occluded);
+        let (a, b) = self.visible_bands(sums, pose, occluded);
         let both = RegionSum {
             count: a.count + b.count,
             sum: a.sum + b.sum,
