@@ -55,8 +55,9 @@ pub struct TrackerParams {
     /// every step dearer for nothing measurable: 1024x768 step 2.42 -> 1.90
     /// ms (minimum of 400), synthetic suites within 0.001 px except the
     /// occluded rods, which are chaotic either way (seeds 100-104: 0.087 ->
-    /// 0.120 px; 200-219: 0.167 -> 0.165 px), quartz 01->02 0.742 -> 0.746 px
-    /// off the silhouette reference. Resampling at 4 or 6 px cuts the corners
+    /// 0.120 px; 100-119: 0.21 -> 0.49 px, two rods; 200-219: 0.167 ->
+    /// 0.165 px), quartz 01->02 0.742 -> 0.746 px off the silhouette
+    /// reference. Resampling at 4 or 6 px cuts the corners
     /// more: quartz 01->02 moved to 1.12 px.
     #[schema(minimum = 0.5, maximum = 20.0)]
     pub template_spacing_px: Option<f64>,
