@@ -53,7 +53,7 @@ pub struct TrackerParams {
     /// Resampling a polygon more densely only adds vertices on its edges
     /// (and cuts its corners a little), so the old default of 2 px made
     /// every step dearer for nothing measurable: 1024x768 step 2.42 -> 1.90
-    /// ms (minimum of 400), synthetic suites within 0.001 px except the
+    /// ms (minimum of 400), synthetic suites within 0.004 px except the
     /// occluded rods, which are chaotic either way (seeds 100-104: 0.087 ->
     /// 0.120 px; 100-119: 0.21 -> 0.49 px, two rods; 200-219: 0.167 ->
     /// 0.165 px), quartz 01->02 0.742 -> 0.746 px off the silhouette
