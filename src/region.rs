@@ -260,8 +260,9 @@ impl<'a> PrefixSums<'a> {
         } else {
             return 0.0;
         };
-        let slope = (u_end - u) / (v_end - v); // du/dv
-                                               // Every piece of the edge has dv/du = 1/slope: one division per edge.
+        // du/dv; every piece of the edge has dv/du = 1/slope: one division
+        // per edge.
+        let slope = (u_end - u) / (v_end - v);
         let inverse_slope = 1.0 / slope;
         let hmax = self.rect.height as usize - 1;
         let mut row = (v.max(0.0) as usize).min(hmax);

@@ -57,8 +57,8 @@ pub struct TrackerParams {
     /// occluded rods, which are chaotic either way (seeds 100-104: 0.087 ->
     /// 0.120 px; 100-119: 0.21 -> 0.49 px, two rods; 200-219: 0.167 ->
     /// 0.165 px), quartz 01->02 0.742 -> 0.746 px off the silhouette
-    /// reference. Resampling at 4 or 6 px cuts the corners
-    /// more: quartz 01->02 moved to 1.12 px.
+    /// reference. Resampling at 4 or 6 px cuts the corners more: quartz
+    /// 01->02 moved to 1.12 px.
     #[schema(minimum = 0.5, maximum = 20.0)]
     pub template_spacing_px: Option<f64>,
     /// The pair is lost when the contrast in either image falls below this
@@ -356,12 +356,19 @@ impl StereoTracker {
         }
         let frame = self.frames;
         self.frames += 1;
-        let result = match (&self.state, &self.template) {
+        // The templates are lent to the step, not copied: tracking does not
+        // change them, and initialising replaces them.
+        let result = match (&self.state, self.template.take()) {
             (Some(state), Some(templates)) if !state.lost => {
-                let (state, templates) = (state.clone(), templates.clone());
-                self.track(frame, left, right, state, &templates)
+                let state = state.clone();
+                let result = self.track(frame, left, right, state, &templates);
+                self.template = Some(templates);
+                result
             }
-            _ => self.initialise(frame, left, right),
+            (_, templates) => {
+                self.template = templates;
+                self.initialise(frame, left, right)
+            }
         };
         Ok(result)
     }
