@@ -8,8 +8,11 @@
 //!
 //! Four tasks per socket: the reader (never waits on processing, so
 //! ping/pong stays prompt; tungstenite answers pings while reading), the
-//! processor (one pair at a time, in order), the acknowledger (replies once
-//! a pair is committed, while the processor tracks the next) and the writer. Between reader
+//! processor (one pair at a time, in order; pairs already waiting are
+//! tracked in the same blocking task, see
+//! [`track_stream_batch`](super::pipeline::track_stream_batch)), the
+//! acknowledger (replies once a pair is committed, while the processor
+//! tracks the next) and the writer. Between reader
 //! and processor sits a bounded queue: with `policy=latest` at most one pair
 //! waits and a newer one replaces it (the replaced one is answered
 //! `{"seq": n, "status": "skipped"}`); with `policy=all` up to
@@ -33,7 +36,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
-use super::pipeline::{acknowledge, track_session_pair, PairInput, TrackedPair};
+use super::pipeline::{acknowledge, track_stream_batch, PairInput, PairQueue, StreamPair, TrackedPair};
 use super::state::{AppState, Session};
 
 /// Magic bytes opening every pair message.
@@ -291,6 +294,49 @@ enum QueueOut {
     All(mpsc::Receiver<Job>),
 }
 
+impl QueueOut {
+    /// Waits for the next pair; `None` once the reader is gone (`all`) or
+    /// `done` is cancelled and nothing waits (`latest`).
+    async fn next(&mut self, done: &tokio_util::sync::CancellationToken) -> Option<Job> {
+        match self {
+            QueueOut::All(rx) => rx.recv().await,
+            QueueOut::Latest(latest) => loop {
+                let next = latest.slot.lock().ok().and_then(|mut s| s.pop_front());
+                match next {
+                    Some(job) => return Some(job),
+                    None if done.is_cancelled() => return None,
+                    None => {
+                        tokio::select! {
+                            _ = latest.ready.notified() => {}
+                            _ = done.cancelled() => {}
+                        }
+                    }
+                }
+            },
+        }
+    }
+}
+
+impl PairQueue for QueueOut {
+    fn try_next(&mut self) -> Option<StreamPair> {
+        let job = match self {
+            QueueOut::All(rx) => rx.try_recv().ok(),
+            QueueOut::Latest(latest) => latest.slot.lock().ok().and_then(|mut s| s.pop_front()),
+        };
+        job.map(Job::into_pair)
+    }
+}
+
+impl Job {
+    fn into_pair(self) -> StreamPair {
+        StreamPair {
+            input: self.message.input,
+            received: self.received,
+            seq: self.message.seq,
+        }
+    }
+}
+
 async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, socket: WebSocket) {
     state.metrics.active_websockets.inc();
     let (mut sink, mut stream) = socket.split();
@@ -320,7 +366,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
     });
 
     // Processor: one pair at a time, in order.
-    let (queue_in, mut queue_out) = match policy {
+    let (queue_in, queue_out) = match policy {
         Policy::Latest => {
             let slot = Arc::new(LatestSlot {
                 slot: Mutex::new(VecDeque::new()),
@@ -365,33 +411,20 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
     let processor = {
         let (state, session, done) = (state.clone(), session.clone(), done.clone());
         tokio::spawn(async move {
-            loop {
-                let job = match &mut queue_out {
-                    QueueOut::All(rx) => match rx.recv().await {
-                        Some(job) => job,
-                        None => break,
-                    },
-                    QueueOut::Latest(latest) => {
-                        let next = latest.slot.lock().ok().and_then(|mut s| s.pop_front());
-                        match next {
-                            Some(job) => job,
-                            None if done.is_cancelled() => break,
-                            None => {
-                                tokio::select! {
-                                    _ = latest.ready.notified() => continue,
-                                    _ = done.cancelled() => continue,
-                                }
-                            }
-                        }
+            let mut queue = queue_out;
+            while let Some(job) = queue.next(&done).await {
+                let (ack_tx, done) = (ack_tx.clone(), done.clone());
+                // Runs on the blocking pool: sends without awaiting.
+                let deliver = move |seq, received, tracked: Result<TrackedPair, ApiError>| {
+                    if matches!(&tracked, Err(e) if e.code == "session_not_found") {
+                        done.cancel();
                     }
+                    ack_tx.blocking_send((seq, received, tracked)).is_ok()
                 };
-                let seq = job.message.seq;
-                let tracked =
-                    track_session_pair(&state, &session, job.message.input, job.received, Some(seq)).await;
-                if matches!(&tracked, Err(e) if e.code == "session_not_found") {
-                    done.cancel();
-                }
-                if ack_tx.send((seq, job.received, tracked)).await.is_err() {
+                let (returned, go_on) =
+                    track_stream_batch(&state, &session, job.into_pair(), queue, deliver).await;
+                queue = returned;
+                if !go_on {
                     break;
                 }
             }
