@@ -144,26 +144,30 @@ impl SectorTemplate {
         self.starts.is_empty()
     }
 
-    /// Inner- and outer-band sums of every sector at `pose`.
+    /// Inner- and outer-band sums of every sector at `pose`. Each band is
+    /// the sector's arc of the contour, closed by the matching arc of the
+    /// inner (outer) outline; the contour arc is walked once for both.
     pub fn band_sums(&self, sums: &PrefixSums, pose: Pose) -> Vec<(RegionSum, RegionSum)> {
         let contour = place(&self.contour, pose);
         let inner = place(&self.inner, pose);
         let outer = place(&self.outer, pose);
         let n = contour.len();
-        let mut band = Vec::with_capacity(2 * n / self.starts.len().max(1) + 4);
+        let mut arc = Vec::with_capacity(n / self.starts.len().max(1) + 4);
         (0..self.starts.len())
             .map(|k| {
                 let (start, end) = (self.starts[k], self.starts.get(k + 1).copied().unwrap_or(n));
-                let arc = |out: &mut Vec<Point>, other: &[Point]| {
-                    out.clear();
-                    out.extend((start..=end).map(|i| contour[i % n]));
-                    out.extend((start..=end).rev().map(|i| other[i % n]));
+                arc.clear();
+                arc.extend((start..=end).map(|i| contour[i % n]));
+                let along = sums.path(&arc);
+                let (first, last) = (contour[start % n], contour[end % n]);
+                let mut band = |other: &[Point]| {
+                    arc.clear();
+                    arc.push(last);
+                    arc.extend((start..=end).rev().map(|i| other[i % n]));
+                    arc.push(first);
+                    (along + sums.path(&arc)).region()
                 };
-                arc(&mut band, &inner);
-                let inside = sums.polygon(&band);
-                arc(&mut band, &outer);
-                let outside = sums.polygon(&band);
-                (inside, outside)
+                (band(&inner), band(&outer))
             })
             .collect()
     }

@@ -102,6 +102,40 @@ impl RegionSum {
     }
 }
 
+/// What a run of polygon edges (an open path) contributes to the region
+/// sums: paths that join into a closed chain add up to the enclosed
+/// region ([`PathSum::region`]). Lets polygons that share edges (the
+/// occlusion bands share the contour) walk them once.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PathSum {
+    /// Twice the signed area swept (shoelace terms of the edges).
+    pub twice_area: f64,
+    /// Signed intensity integral along the edges (see
+    /// [`PrefixSums::edge_integral`]).
+    pub sum: f64,
+}
+
+impl std::ops::Add for PathSum {
+    type Output = Self;
+    fn add(self, other: Self) -> Self {
+        Self {
+            twice_area: self.twice_area + other.twice_area,
+            sum: self.sum + other.sum,
+        }
+    }
+}
+
+impl PathSum {
+    /// The region enclosed by a closed chain of paths, in either orientation.
+    pub fn region(self) -> RegionSum {
+        let sign = if self.twice_area < 0.0 { -1.0 } else { 1.0 };
+        RegionSum {
+            count: 0.5 * self.twice_area.abs(),
+            sum: self.sum * sign,
+        }
+    }
+}
+
 /// Row-wise integrals of the cumulative sums and a summed-area table over a
 /// rectangle of an image, with intensities `sample + offset` (the offset
 /// keeps them positive for the `z ln z` energy).
@@ -387,6 +421,25 @@ impl<'a> PrefixSums<'a> {
         }
     }
 
+    /// The edges `points[i] -> points[i + 1]` of an open path (no closing
+    /// edge); each edge's terms are exactly those [`PrefixSums::polygon`]
+    /// adds for it.
+    pub fn path(&self, points: &[Point]) -> PathSum {
+        let Some(&first) = points.first() else {
+            return PathSum::default();
+        };
+        let mut g_a = self.vertex_g(first);
+        let (mut twice_area, mut sum) = (0.0, 0.0);
+        for edge in points.windows(2) {
+            let (a, b) = (edge[0], edge[1]);
+            let g_b = self.vertex_g(b);
+            twice_area += a[0] * b[1] - b[0] * a[1];
+            sum += self.edge_walk(a, b, Some(g_a), Some(g_b));
+            g_a = g_b;
+        }
+        PathSum { twice_area, sum }
+    }
+
     /// Count and sum over the continuous box `[x0, x1] x [y0, y1]` clipped to
     /// the covered area.
     pub fn rect_sum(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> RegionSum {
@@ -644,6 +697,39 @@ mod tests {
             assert!(
                 (fast - reference).abs() < 1e-9 * reference.abs(),
                 "case {case}: {fast} vs {reference}"
+            );
+        }
+    }
+
+    #[test]
+    fn open_paths_joined_into_a_loop_give_the_polygon() {
+        let frame = random_frame(48, 40, 11);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        for case in 0..30 {
+            let c = [rng.gen_range(16.0..32.0), rng.gen_range(14.0..26.0)];
+            let radius = rng.gen_range(3.0..12.0);
+            let poly = random_polygon(&mut rng, c, radius);
+            // Split the loop at a random vertex; both paths share it and the
+            // first vertex.
+            let cut = rng.gen_range(1..poly.len());
+            let mut rest = poly[cut..].to_vec();
+            rest.push(poly[0]);
+            let joined = (sums.path(&poly[..=cut]) + sums.path(&rest)).region();
+            let whole = sums.polygon(&poly);
+            assert!(
+                (joined.sum - whole.sum).abs() < 1e-9 * whole.sum.abs()
+                    && (joined.count - whole.count).abs() < 1e-9 * whole.count,
+                "case {case}: {joined:?} vs {whole:?}"
+            );
+            // The reversed loop encloses the same region.
+            let mut reversed = poly.clone();
+            reversed.push(poly[0]);
+            reversed.reverse();
+            let back = sums.path(&reversed).region();
+            assert!(
+                (back.sum - whole.sum).abs() < 1e-9 * whole.sum.abs(),
+                "case {case}"
             );
         }
     }
