@@ -365,7 +365,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
         let _ = sink.close().await;
     });
 
-    // Processor: one pair at a time, in order.
+    // Processor: one pair at a time, in order (in batches of waiting pairs).
     let (queue_in, queue_out) = match policy {
         Policy::Latest => {
             let slot = Arc::new(LatestSlot {
