@@ -396,43 +396,38 @@ impl<'a> PrefixSums<'a> {
 
     /// Count (absolute area) and intensity sum inside a closed polygon.
     pub fn polygon(&self, points: &[Point]) -> RegionSum {
-        let n = points.len();
-        let (mut twice_area, mut sum) = (0.0, 0.0);
-        // Each vertex ends one edge and starts the next, and both walks look
-        // up G there in the same row: one lookup serves both (a fifth of
-        // all lookups for a contour with 2 px spacing).
-        let Some(&first) = points.first() else {
-            return RegionSum::default();
-        };
-        let g_first = self.vertex_g(first);
-        let mut g_a = g_first;
-        for i in 0..n {
-            let a = points[i];
-            let b = points[(i + 1) % n];
-            let g_b = if i + 1 == n { g_first } else { self.vertex_g(b) };
-            twice_area += a[0] * b[1] - b[0] * a[1];
-            sum += self.edge_walk(a, b, Some(g_a), Some(g_b));
-            g_a = g_b;
-        }
-        let sign = if twice_area < 0.0 { -1.0 } else { 1.0 };
-        RegionSum {
-            count: 0.5 * twice_area.abs(),
-            sum: sum * sign,
-        }
+        self.walk(points, true).region()
     }
 
     /// The edges `points[i] -> points[i + 1]` of an open path (no closing
     /// edge); each edge's terms are exactly those [`PrefixSums::polygon`]
     /// adds for it.
     pub fn path(&self, points: &[Point]) -> PathSum {
+        self.walk(points, false)
+    }
+
+    /// The edges of `points` in order, and the closing edge back to the
+    /// first vertex when `closed`.
+    #[inline(always)]
+    fn walk(&self, points: &[Point], closed: bool) -> PathSum {
+        let n = points.len();
+        let (mut twice_area, mut sum) = (0.0, 0.0);
+        // Each vertex ends one edge and starts the next, and both walks look
+        // up G there in the same row: one lookup serves both (a fifth of
+        // all lookups for a contour with 2 px spacing).
         let Some(&first) = points.first() else {
             return PathSum::default();
         };
-        let mut g_a = self.vertex_g(first);
-        let (mut twice_area, mut sum) = (0.0, 0.0);
-        for edge in points.windows(2) {
-            let (a, b) = (edge[0], edge[1]);
-            let g_b = self.vertex_g(b);
+        let g_first = self.vertex_g(first);
+        let mut g_a = g_first;
+        let edges = if closed { n } else { n - 1 };
+        for i in 0..edges {
+            let a = points[i];
+            let (b, g_b) = if i + 1 == n {
+                (first, g_first)
+            } else {
+                (points[i + 1], self.vertex_g(points[i + 1]))
+            };
             twice_area += a[0] * b[1] - b[0] * a[1];
             sum += self.edge_walk(a, b, Some(g_a), Some(g_b));
             g_a = g_b;
