@@ -12,6 +12,7 @@ use axum::body::Bytes;
 use axum::extract::multipart::{Multipart, MultipartError};
 use axum::extract::{FromRequest, Request};
 use axum::http::StatusCode;
+use tokio::sync::{OwnedMutexGuard, OwnedSemaphorePermit};
 
 use crate::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
 use crate::tracker::{PairResult, StereoTracker, TrackerParams};
@@ -97,13 +98,12 @@ pub async fn process_session_pair(
 
 /// Tracks one pair of a session (in order, bounded) and queues its result
 /// for storage; returns as soon as the session is free for its next pair,
-/// before the commit. [`acknowledge`] waits for the commit. The stream uses
-/// the two halves to track the next pair while the last one commits.
+/// before the commit. [`acknowledge`] waits for the commit.
 ///
 /// The work runs in its own task: a client that disconnects mid-request
 /// does not cancel a pair halfway (which would advance the tracker without
 /// storing the result).
-pub async fn track_session_pair(
+async fn track_session_pair(
     state: &AppState,
     session: &Arc<Session>,
     input: PairInput,
@@ -151,11 +151,7 @@ async fn run_session_pair(
     received: Instant,
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
-    let core = session.core.clone().lock_owned().await;
-    if core.deleted {
-        return Err(ApiError::not_found("session", &session.id));
-    }
-    let permit = worker_permit(state).await?;
+    let (core, permit) = claim(state, session).await?;
     let (task_state, session_id) = (state.clone(), session.id.clone());
     let outcome = tokio::task::spawn_blocking(move || {
         let mut core = core;
@@ -210,14 +206,8 @@ where
     Q: PairQueue,
     D: FnMut(u64, Instant, Result<TrackedPair, ApiError>) -> bool + Send + 'static,
 {
-    let core = session.core.clone().lock_owned().await;
-    let permit = if core.deleted {
-        Err(ApiError::not_found("session", &session.id))
-    } else {
-        worker_permit(state).await
-    };
-    let permit = match permit {
-        Ok(permit) => permit,
+    let (core, permit) = match claim(state, session).await {
+        Ok(claimed) => claimed,
         Err(e) => {
             state.metrics.failed(&e.code);
             let go_on = deliver(first.seq, first.received, Err(e));
@@ -368,8 +358,21 @@ pub async fn process_one_shot(
     outcome
 }
 
+/// The session's core (held for the whole processing, so its pairs go in
+/// order) and then a worker slot; an error once the session is deleted.
+async fn claim(
+    state: &AppState,
+    session: &Session,
+) -> Result<(OwnedMutexGuard<SessionCore>, OwnedSemaphorePermit), ApiError> {
+    let core = session.core.clone().lock_owned().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &session.id));
+    }
+    Ok((core, worker_permit(state).await?))
+}
+
 /// One of the `workers` slots for a pair.
-async fn worker_permit(state: &AppState) -> Result<tokio::sync::OwnedSemaphorePermit, ApiError> {
+async fn worker_permit(state: &AppState) -> Result<OwnedSemaphorePermit, ApiError> {
     state.workers.clone().acquire_owned().await.map_err(|_| {
         ApiError::new(
             StatusCode::SERVICE_UNAVAILABLE,

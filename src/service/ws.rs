@@ -278,6 +278,13 @@ struct LatestSlot {
     ready: Notify,
 }
 
+impl LatestSlot {
+    /// Takes the waiting pair, if any.
+    fn take(&self) -> Option<Job> {
+        self.slot.lock().ok().and_then(|mut s| s.pop_front())
+    }
+}
+
 /// The reader's end of the queue.
 enum QueueIn {
     /// See [`LatestSlot`].
@@ -301,8 +308,7 @@ impl QueueOut {
         match self {
             QueueOut::All(rx) => rx.recv().await,
             QueueOut::Latest(latest) => loop {
-                let next = latest.slot.lock().ok().and_then(|mut s| s.pop_front());
-                match next {
+                match latest.take() {
                     Some(job) => return Some(job),
                     None if done.is_cancelled() => return None,
                     None => {
@@ -321,7 +327,7 @@ impl PairQueue for QueueOut {
     fn try_next(&mut self) -> Option<StreamPair> {
         let job = match self {
             QueueOut::All(rx) => rx.try_recv().ok(),
-            QueueOut::Latest(latest) => latest.slot.lock().ok().and_then(|mut s| s.pop_front()),
+            QueueOut::Latest(latest) => latest.take(),
         };
         job.map(Job::into_pair)
     }
