@@ -400,13 +400,13 @@ impl RigidTemplate {
 }
 
 /// Rigid minimisation by compass search, in the paper's order: translation
-/// in x, translation in y, rotation about the centroid, repeated until
-/// nothing improves; then the step halves, down to `min_step_px`. A move
-/// that helps is repeated while it keeps helping. The coarse stage runs on a
-/// decimated contour with steps from `coarse_step_px` down to 1 px
-/// (translation only), so motion of tens of pixels costs little; the fine
-/// stage uses every vertex, with steps from 0.5 px after a coarse stage (1 px
-/// without one) down to `min_step_px`, then [`newton_polish`].
+/// in x, translation in y, rotation about the centroid; a move that helps is
+/// repeated while it keeps helping. Each step size gets one such round and
+/// then halves; at `min_step_px` rounds repeat until nothing improves. The
+/// coarse stage runs on a decimated contour with steps from `coarse_step_px`
+/// down to 1 px (translation only), so motion of tens of pixels costs
+/// little; the fine stage uses every vertex, with steps from 0.5 px down to
+/// `min_step_px`, then [`newton_polish`].
 pub fn fit_rigid(
     sums: &PrefixSums,
     template: &RigidTemplate,
@@ -431,6 +431,7 @@ pub fn fit_rigid(
             radius: template.radius,
             rotate: false,
             max_evaluations: params.max_evaluations,
+            settle_every_step: false,
         };
         let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, template.coarse_length, p));
         pose = p;
@@ -438,13 +439,16 @@ pub fn fit_rigid(
     }
     // Fine stage: every vertex, with rotation.
     let fine = CompassSearch {
-        // After the coarse stage (translation to 1 px) the fine stage can
-        // start at half a pixel: its first round at 1 px rarely moved.
-        first_step: if params.coarse_step_px > 1.0 { 0.5f64 } else { 1.0 }.max(params.min_step_px),
+        // Half a pixel, after a coarse stage (translation to 1 px) or from
+        // the right view's prediction: a round at 1 px rarely moved, and a
+        // move that helps is repeated anyway (measured: 4 fewer evaluations
+        // per 1024x768 step, synthetic suites unchanged to 1e-4 px).
+        first_step: 0.5f64.max(params.min_step_px),
         min_step: params.min_step_px,
         radius: template.radius,
         rotate: params.rotate && template.rotation_observable,
         max_evaluations: params.max_evaluations.saturating_sub(evaluations).max(1),
+        settle_every_step: false,
     };
     // The window moves with the contour, so the energy is a function of the
     // pose alone: two fits of the same image from different starts share
@@ -587,6 +591,14 @@ pub struct CompassSearch {
     pub rotate: bool,
     /// Cap on energy evaluations.
     pub max_evaluations: usize,
+    /// Repeat rounds at every step size until one brings no improvement
+    /// (classic compass search). When false, every step above `min_step`
+    /// gets a single round and then halves; only `min_step` is settled.
+    /// The rigid fit's stages do this: the round that confirmed each
+    /// larger step was 4-6 evaluations that almost never changed the result
+    /// (measured: 114 -> 94 polygon evaluations per 1024x768 step, and the
+    /// reference sequences' outputs within 6e-8 px).
+    pub settle_every_step: bool,
 }
 
 impl CompassSearch {
@@ -607,7 +619,7 @@ impl CompassSearch {
             if evaluations >= self.max_evaluations {
                 break;
             }
-            if !improved {
+            if !improved || (!self.settle_every_step && step > self.min_step) {
                 if step <= self.min_step {
                     break;
                 }

@@ -600,6 +600,10 @@ impl StereoTracker {
             radius: template.radius,
             rotate: rigid.rotate && template.rotation_observable,
             max_evaluations: rigid.max_evaluations,
+            // One round per step above the smallest, as in the rigid fit:
+            // settling every step gave the same occluded-suite figures
+            // (seeds 100-119: 0.492 against 0.493 px disparity RMS).
+            settle_every_step: false,
         };
         for _ in 0..2 {
             let masked = |p: Pose| sectors.masked_energy(&sums, p, &mask, m_ref);
