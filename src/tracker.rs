@@ -542,7 +542,8 @@ impl StereoTracker {
     /// Rigid fit in one view from a predicted pose, ignoring occluded
     /// sectors: when the prediction is roughly right (median sector contrast
     /// ratio >= 0.6) occlusion is judged there, before anything can slide
-    /// onto the occluder; otherwise (large motion) after a full fit. A masked
+    /// onto the occluder; otherwise (large motion), or when the full fit
+    /// moved 1 px or more from a clear prediction, after a full fit. A masked
     /// fit re-derives the mask at its result and refits once if it changed.
     /// When more than `max_occluded_fraction` of the sectors change, that is
     /// a change of appearance (e.g. the outline of a 3-D object changing
@@ -587,6 +588,14 @@ impl StereoTracker {
         let mut pose = predicted;
         if median < 0.6 || !mask.contains(&true) || widespread(&mask) {
             let fit = full_fit(predicted);
+            // A clear prediction that the fit left by less than a pixel is
+            // judged already: judging again there changed nothing on the
+            // occluded suites (seeds 100-119 and 200-209, 20 pairs); it is a
+            // quarter of the band sums of a 1024x768 step (72 of 288 paths).
+            let moved = (fit.pose.x - predicted.x).hypot(fit.pose.y - predicted.y);
+            if median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
+                return fit;
+            }
             mask = judge(fit.pose).0;
             if !mask.contains(&true) || widespread(&mask) {
                 return fit;
