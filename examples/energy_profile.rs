@@ -19,7 +19,7 @@ fn main() {
         }
         let pair = Scene::new(&cfg).unwrap().render(0);
         let truth = pair.truth.left.polygon.resampled(400);
-        let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+        let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1);
         let p = EnergyParams {
             lambda: 0.0,
             ..EnergyParams::default()

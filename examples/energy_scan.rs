@@ -30,7 +30,7 @@ fn main() {
         ("L", &pair.left, &pair.truth.left),
         ("R", &pair.right, &pair.truth.right),
     ] {
-        let sums = PrefixSums::new(img, PixelRect::full(img), 1.0);
+        let sums = PrefixSums::new(img, PixelRect::full(img), 1);
         let c = truth.centroid;
         let mut best = (0.0, f64::INFINITY);
         let mut line = String::new();

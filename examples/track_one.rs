@@ -30,7 +30,7 @@ fn main() {
                 ("L", &pair.left, st.left, pair.truth.left.centroid),
                 ("R", &pair.right, st.right, pair.truth.right.centroid),
             ] {
-                let sums = PrefixSums::new(img, PixelRect::full(img), 1.0);
+                let sums = PrefixSums::new(img, PixelRect::full(img), 1);
                 let mut best = (0.0, f64::INFINITY);
                 for i in -30..=30 {
                     let mut p = pose;

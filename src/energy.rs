@@ -343,7 +343,7 @@ mod tests {
             };
             let pair = Scene::new(&config).unwrap().render(0);
             let truth = pair.truth.left.polygon.resampled(300);
-            let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+            let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1);
             let params = EnergyParams {
                 lambda: 0.0,
                 ..EnergyParams::default()

@@ -732,7 +732,7 @@ mod tests {
             let r = truth.area().sqrt();
             let grow = 1.0 + 3.0 / r;
             let start = truth.scaled(grow, [c[0] * (1.0 - grow), c[1] * (1.0 - grow)]);
-            let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+            let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1);
             let out = fit_free(&sums, &start, &EnergyParams::default(), &FreeFitParams::default());
             let (w, h) = (config.width, config.height);
             let truth_mask = truth.rasterize(w, h);
@@ -760,7 +760,7 @@ mod tests {
         let truth = &pair.truth.left.polygon;
         let energy = EnergyParams::default();
         let (template, true_pose) = RigidTemplate::new(&truth.resampled(240), 48, &energy);
-        let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1.0);
+        let sums = PrefixSums::new(&pair.left, PixelRect::full(&pair.left), 1);
         for (dx, dy, dt) in [
             (0.3, -0.2, 0.0),
             (-12.0, 9.0, 0.03),

@@ -191,8 +191,10 @@ impl<'a> PrefixSums<'a> {
     /// 5% of an energy evaluation and the table at 2 bytes per pixel.
     pub const SAT_ROW_STEP: usize = 4;
 
-    /// Builds the tables over `rect` (clipped to the frame) in one pass.
-    pub fn new(frame: &'a GrayFrame, rect: PixelRect, offset: f64) -> Self {
+    /// Builds the tables over `rect` (clipped to the frame) in one pass;
+    /// `offset` is added to every sample. Exact for areas up to 65536
+    /// pixels on a side (every decoder limits frames to 8192).
+    pub fn new(frame: &'a GrayFrame, rect: PixelRect, offset: u16) -> Self {
         let rect = PixelRect {
             x: rect.x.min(frame.width - 1),
             y: rect.y.min(frame.height - 1),
@@ -206,33 +208,44 @@ impl<'a> PrefixSums<'a> {
         let stride = w + 1;
         let mut g = TablePool::take(stride * h);
         let mut sat = TablePool::take(stride * (h / Self::SAT_ROW_STEP + 1));
+        // The sums are accumulated in integers: F and the column sums are
+        // whole numbers and G a multiple of 1/2, all below 2^53 (samples
+        // plus offset < 2^17 and sides <= 2^16 give F < 2^33, 2G < 2^50), so
+        // the f64 tables are exactly those an f64 accumulation gave, and
+        // the integer chains are shorter (measured: 1024x768 step 1.535 ->
+        // 1.47 ms, reference outputs bit-identical).
+        let offset_i = i64::from(offset);
         // Column sums of F over the rows so far: the summed-area table's
         // current row, stored every SAT_ROW_STEP rows.
-        let mut column = vec![0.0; stride];
+        let mut column = vec![0i64; stride];
+        let store = |sat: &mut [f64], k: usize, column: &[i64]| {
+            for (out, &c) in sat[k * stride..(k + 1) * stride].iter_mut().zip(column) {
+                *out = c as f64;
+            }
+        };
         for (r, g_row) in g.chunks_exact_mut(stride).enumerate() {
             if r % Self::SAT_ROW_STEP == 0 {
-                let k = r / Self::SAT_ROW_STEP;
-                sat[k * stride..(k + 1) * stride].copy_from_slice(&column);
+                store(&mut sat, r / Self::SAT_ROW_STEP, &column);
             }
             let src = &frame.row(rect.y + r as u32)[rect.x as usize..rect.x as usize + w];
-            let (mut acc, mut integral) = (0.0, 0.0);
+            // F before and after the pixel, and twice G.
+            let (mut acc, mut twice_g) = (0i64, 0i64);
             g_row[0] = 0.0;
             for ((&v, g_out), col) in src.iter().zip(&mut g_row[1..]).zip(&mut column[1..]) {
                 let before = acc;
-                acc += v as f64 + offset;
+                acc += i64::from(v) + offset_i;
                 // F is linear over the pixel: its integral is the trapezoid.
-                integral += 0.5 * (before + acc);
-                *g_out = integral;
+                twice_g += before + acc;
+                *g_out = twice_g as f64 * 0.5;
                 *col += acc;
             }
         }
         if h % Self::SAT_ROW_STEP == 0 {
-            let k = h / Self::SAT_ROW_STEP;
-            sat[k * stride..(k + 1) * stride].copy_from_slice(&column);
+            store(&mut sat, h / Self::SAT_ROW_STEP, &column);
         }
         Self {
             frame,
-            offset,
+            offset: f64::from(offset),
             rect,
             stride,
             g,
@@ -615,7 +628,7 @@ mod tests {
     #[test]
     fn polygon_sums_match_supersampled_brute_force() {
         let frame = random_frame(64, 48, 1);
-        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
         for case in 0..40 {
             let c = [rng.gen_range(20.0..44.0), rng.gen_range(18.0..30.0)];
@@ -682,7 +695,7 @@ mod tests {
     #[test]
     fn row_integrals_equal_splitting_at_every_crossing() {
         let frame = random_frame(48, 40, 9);
-        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(10);
         for case in 0..30 {
             let c = [rng.gen_range(16.0..32.0), rng.gen_range(14.0..26.0)];
@@ -699,7 +712,7 @@ mod tests {
     #[test]
     fn open_paths_joined_into_a_loop_give_the_polygon() {
         let frame = random_frame(48, 40, 11);
-        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
         for case in 0..30 {
             let c = [rng.gen_range(16.0..32.0), rng.gen_range(14.0..26.0)];
@@ -732,7 +745,7 @@ mod tests {
     #[test]
     fn pixel_aligned_rectangle_is_exact() {
         let frame = random_frame(32, 32, 3);
-        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 0.0);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 0);
         // Boxes of pixels 5..=12 x 7..=20.
         let poly = vec![[4.5, 6.5], [12.5, 6.5], [12.5, 20.5], [4.5, 20.5]];
         let exact: f64 = (7..=20)
@@ -749,7 +762,7 @@ mod tests {
     #[test]
     fn sums_are_continuous_in_subpixel_shifts() {
         let frame = random_frame(64, 64, 4);
-        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
         let base = random_polygon(&mut rand_chacha::ChaCha8Rng::seed_from_u64(5), [32.0, 32.0], 14.0);
         let mut last = sums.polygon(&base).sum;
         // Shifting by 1/1000 px changes the sum by at most 1/1000 of the
@@ -770,9 +783,9 @@ mod tests {
     #[test]
     fn subrect_sums_equal_full_frame_sums() {
         let frame = random_frame(80, 60, 6);
-        let full = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let full = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
         let rect = PixelRect::covering(20.2, 10.7, 60.3, 45.1, 80, 60).unwrap();
-        let part = PrefixSums::new(&frame, rect, 1.0);
+        let part = PrefixSums::new(&frame, rect, 1);
         let poly = random_polygon(&mut rand_chacha::ChaCha8Rng::seed_from_u64(7), [40.0, 28.0], 14.0);
         assert!(part.contains(&poly));
         let (a, b) = (full.polygon(&poly), part.polygon(&poly));
@@ -787,7 +800,7 @@ mod tests {
     #[test]
     fn rect_sum_matches_brute_force_for_fractional_corners() {
         let frame = random_frame(40, 40, 8);
-        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1.0);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
         let poly = vec![[5.3, 7.8], [30.1, 7.8], [30.1, 22.45], [5.3, 22.45]];
         let slow = brute_force(&frame, &poly, 40, 1.0);
         let fast = sums.rect_sum(5.3, 7.8, 30.1, 22.45);
@@ -820,7 +833,7 @@ mod tests {
                 height: 39,
             },
         ] {
-            let sums = PrefixSums::new(&frame, rect, 1.0);
+            let sums = PrefixSums::new(&frame, rect, 1);
             let [ex0, ey0, ex1, ey1] = rect.extent();
             for _ in 0..200 {
                 let x0 = rng.gen_range(ex0..ex1 - 1.0);
@@ -844,16 +857,16 @@ mod tests {
         let small = random_frame(30, 20, 11);
         let large = random_frame(90, 70, 12);
         let poly = vec![[3.2, 4.1], [22.7, 2.9], [25.3, 15.2], [6.6, 17.8]];
-        let first = PrefixSums::new(&small, PixelRect::full(&small), 1.0).polygon(&poly);
-        drop(PrefixSums::new(&large, PixelRect::full(&large), 1.0));
-        let again = PrefixSums::new(&small, PixelRect::full(&small), 1.0);
+        let first = PrefixSums::new(&small, PixelRect::full(&small), 1).polygon(&poly);
+        drop(PrefixSums::new(&large, PixelRect::full(&large), 1));
+        let again = PrefixSums::new(&small, PixelRect::full(&small), 1);
         assert_eq!(again.polygon(&poly), first);
         let copy = again.clone();
         drop(again);
         assert_eq!(copy.polygon(&poly), first);
         assert_eq!(
             copy.rect_sum(1.0, 1.0, 20.0, 15.0),
-            PrefixSums::new(&small, PixelRect::full(&small), 1.0).rect_sum(1.0, 1.0, 20.0, 15.0)
+            PrefixSums::new(&small, PixelRect::full(&small), 1).rect_sum(1.0, 1.0, 20.0, 15.0)
         );
     }
 }

@@ -24,7 +24,7 @@ use crate::region::{PixelRect, PrefixSums};
 
 /// Added to every grey value so that f(z) = z ln z is defined (method note:
 /// "+1 on 8-bit counts"); the same for every frame, so energies compare.
-pub const INTENSITY_OFFSET: f64 = 1.0;
+pub const INTENSITY_OFFSET: u16 = 1;
 
 /// All tracking parameters, with documented defaults.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
