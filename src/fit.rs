@@ -416,11 +416,16 @@ pub fn fit_rigid(
 ) -> RigidOutcome {
     // One vertex buffer for every evaluation (no allocation per pose).
     let placed = std::cell::RefCell::new(Vec::with_capacity(template.points.len()));
-    let eval = |pts: &[Point], length: f64, pose: Pose| {
+    // The lowest-energy pose of the fine stage with its terms: the fit ends
+    // there, so its terms need no evaluation of their own (one of about 30
+    // per view).
+    let lowest = std::cell::Cell::new(None::<(Pose, EnergyTerms)>);
+    let eval_terms = |pts: &[Point], length: f64, pose: Pose| {
         let mut placed = placed.borrow_mut();
         place_into(pts, pose, &mut placed);
-        evaluate_with_length(sums, &placed, energy, template.margin, length).energy
+        evaluate_with_length(sums, &placed, energy, template.margin, length)
     };
+    let eval = |pts: &[Point], length: f64, pose: Pose| eval_terms(pts, length, pose).energy;
     let mut pose = start;
     let mut evaluations = 0;
     // Coarse stage: translation only, decimated contour.
@@ -454,10 +459,19 @@ pub fn fit_rigid(
     // pose alone: two fits of the same image from different starts share
     // their minimum (a window held where each fit's coarse stage ended gave
     // identical images a disparity of up to 1.8 px on the quartz images).
-    let energy_at = |p: Pose| eval(&template.points, template.length, p);
+    let energy_at = |p: Pose| {
+        let terms = eval_terms(&template.points, template.length, p);
+        if lowest.get().is_none_or(|(_, t)| terms.energy < t.energy) {
+            lowest.set(Some((p, terms)));
+        }
+        terms.energy
+    };
     let (pose, best, used) = fine.run(pose, energy_at);
     let (pose, _, polished) = newton_polish(pose, best, template.radius, fine.rotate, energy_at);
-    let terms = evaluate(sums, &place(&template.points, pose), energy, template.margin);
+    let terms = match lowest.get() {
+        Some((at, terms)) if at == pose => terms,
+        _ => evaluate(sums, &place(&template.points, pose), energy, template.margin),
+    };
     RigidOutcome {
         pose,
         terms,
