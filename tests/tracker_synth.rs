@@ -25,10 +25,10 @@ struct Accuracy {
     pairs: usize,
 }
 
-fn measure(preset: Preset, seeds: std::ops::Range<u64>, frame_count: usize) -> Accuracy {
+fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_count: usize) -> Accuracy {
     let (mut sq_disparity, mut sq_centroid, mut pairs, mut lost) = (0.0, 0.0, 0usize, 0usize);
     let mut centroid_max = 0.0f64;
-    for shape in Shape::ALL {
+    for &shape in shapes {
         for seed in seeds.clone() {
             let config = SynthConfig {
                 frames: frame_count,
@@ -80,7 +80,7 @@ fn measure(preset: Preset, seeds: std::ops::Range<u64>, frame_count: usize) -> A
 }
 
 fn check(preset: Preset, max_disparity_rms: f64) {
-    let a = measure(preset, SEEDS, FRAMES);
+    let a = measure(preset, &Shape::ALL, SEEDS, FRAMES);
     assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
     assert_eq!(a.pairs, Shape::ALL.len() * SEEDS.count() * FRAMES);
     assert!(
@@ -130,9 +130,30 @@ fn long_sequences_follow_the_rotating_object() {
     // 2.7 px at 1024x768, before blob outlines counted as rotation-observable).
     const LONG_FRAMES: usize = 45;
     let seeds = 0..3;
-    let a = measure(Preset::Clean, seeds.clone(), LONG_FRAMES);
+    let a = measure(Preset::Clean, &Shape::ALL, seeds.clone(), LONG_FRAMES);
     assert_eq!(a.lost, 0, "{} pairs lost", a.lost);
     assert_eq!(a.pairs, Shape::ALL.len() * seeds.count() * LONG_FRAMES);
+    assert!(
+        a.disparity_rms <= 0.05,
+        "disparity RMS {:.4} px > 0.05",
+        a.disparity_rms
+    );
+    assert!(
+        a.centroid_max <= MAX_CENTROID_RMS_PX,
+        "largest left centroid error {:.3} px > {MAX_CENTROID_RMS_PX}",
+        a.centroid_max
+    );
+}
+
+#[test]
+fn an_edge_chain_touching_the_outline_does_not_become_part_of_it() {
+    // Clean tip, seed 201: a chain of background edges met the tip's outline
+    // and the initial outline ran 300 px out along it and back. The tail
+    // carried 19 of 24 occlusion sectors; occlusion was flagged from pair 2,
+    // the pair was lost at 5 and the disparity error reached 2.2 px.
+    let seeds = 201..202;
+    let a = measure(Preset::Clean, &[Shape::Tip], seeds, 20);
+    assert_eq!(a.lost, 0, "{} pairs lost", a.lost);
     assert!(
         a.disparity_rms <= 0.05,
         "disparity RMS {:.4} px > 0.05",
