@@ -254,7 +254,9 @@ pub struct RigidParams {
     /// pixels; the prefix sums cover the contour's reach plus this. Default
     /// 24; range 1..=500.
     pub search_radius_px: f64,
-    /// First step of the coarse stage, pixels. Default 8.
+    /// First step of the coarse stage, pixels. Default 8. With occlusion
+    /// handling on, the tracker skips the coarse stage when the sectors
+    /// confirm the predicted pose (each keeps >= 70% of its contrast there).
     pub coarse_step_px: f64,
     /// Vertices of the decimated contour used in the coarse stage. Default 48.
     pub coarse_vertices: usize,
