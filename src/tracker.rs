@@ -587,7 +587,8 @@ impl StereoTracker {
         };
         let widespread = |mask: &[bool]| fraction(mask) > occlusion.max_occluded_fraction;
         let at_prediction = judge(predicted);
-        let (mut mask, median) = (at_prediction.occluded.clone(), at_prediction.median_ratio);
+        let confirmed = at_prediction.confirms_pose();
+        let (mut mask, median) = (at_prediction.occluded, at_prediction.median_ratio);
         let mut pose = predicted;
         if median < 0.6 || !mask.contains(&true) || widespread(&mask) {
             // Every sector still has its contrast at the prediction: it is
@@ -596,7 +597,7 @@ impl StereoTracker {
             // (measured: 1024x768 step 1.47 -> 1.31 ms; the synthetic
             // suites, seeds 100-104 and 200-209, and the occluded seeds
             // 100-119 gave the same figures).
-            let fit = if at_prediction.confirms_pose() {
+            let fit = if confirmed {
                 full_fit(
                     predicted,
                     &RigidParams {
