@@ -790,7 +790,7 @@ fn select_object(
         let Some((border, area)) = largest_component_border(&eroded) else {
             continue;
         };
-        let border: Vec<[i32; 2]> = border.iter().map(|p| [p[0] + x0, p[1] + y0]).collect();
+        let border = shifted(&border, [x0, y0]);
         // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
         let thickness = 2.0 * area / border.len().max(1) as f64;
         let touched = touched_border(&border, width, height);
@@ -808,7 +808,7 @@ fn select_object(
             border_hit.get_or_insert(edge);
             continue;
         }
-        return Ok(without_tails(&eroded, border, x0, y0));
+        return Ok(without_tails(&eroded, border, [x0, y0]));
     }
     Err(match border_hit {
         Some(edge) => SelectError::Border(edge),
@@ -825,15 +825,19 @@ fn select_object(
 /// tail 300 px long, false occlusion from frame 2, lost at frame 5). An
 /// opening of radius 1 removes such lines; its border replaces the original
 /// only when it is more than 15% shorter, so outlines without tails keep
-/// their corners.
-fn without_tails(eroded: &GrayImage, border: Vec<[i32; 2]>, x0: i32, y0: i32) -> Vec<[i32; 2]> {
+/// their corners. `border` is in image coordinates, `eroded` starts at
+/// `origin`.
+fn without_tails(eroded: &GrayImage, border: Vec<[i32; 2]>, origin: [i32; 2]) -> Vec<[i32; 2]> {
     let opened = dilate_disk(&erode_disk(eroded, 1), 1);
-    match largest_component_border(&opened) {
-        Some((cut, _)) if (cut.len() as f64) < 0.85 * border.len() as f64 => {
-            cut.iter().map(|p| [p[0] + x0, p[1] + y0]).collect()
-        }
+    match outer_regions(&opened).into_iter().next() {
+        Some(cut) if (cut.border.len() as f64) < 0.85 * border.len() as f64 => shifted(&cut.border, origin),
         _ => border,
     }
+}
+
+/// Border points moved by `origin`.
+fn shifted(border: &[[i32; 2]], [x0, y0]: [i32; 2]) -> Vec<[i32; 2]> {
+    border.iter().map(|p| [p[0] + x0, p[1] + y0]).collect()
 }
 
 /// Border and filled pixel count of the largest top-level region of a mask.
@@ -1220,12 +1224,12 @@ mod tests {
             with_tail.len(),
             plain.len()
         );
-        let cut = without_tails(&tailed, with_tail, 5, 7);
+        let cut = without_tails(&tailed, shifted(&with_tail, [5, 7]), [5, 7]);
         let top = cut.iter().map(|p| p[1]).min().unwrap();
         // Shifted by (5, 7): the disc's top row is 80 + 7; the tail reached 1 + 7.
         assert!(top >= 80 + 7 - 1, "tail left: top row {top}");
         assert!(cut.len() + 10 >= plain.len(), "{} vs {}", cut.len(), plain.len());
         // Without a tail the border is returned as it was (corners intact).
-        assert_eq!(without_tails(&disc, plain.clone(), 0, 0), plain);
+        assert_eq!(without_tails(&disc, plain.clone(), [0, 0]), plain);
     }
 }
