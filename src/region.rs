@@ -245,10 +245,7 @@ impl<'a> PrefixSums<'a> {
             for c in 0..w {
                 let v = [s0[c], s1[c], s2[c], s3[c]];
                 for j in 0..STEP {
-                    let before = acc[j];
-                    acc[j] += i64::from(v[j]) + offset_i;
-                    // F is linear over the pixel: its integral is the trapezoid.
-                    twice[j] += before + acc[j];
+                    trapezoid_step(&mut acc[j], &mut twice[j], v[j], offset_i);
                 }
                 g0[c + 1] = twice[0] as f64 * 0.5;
                 g1[c + 1] = twice[1] as f64 * 0.5;
@@ -266,9 +263,7 @@ impl<'a> PrefixSums<'a> {
             let (mut acc, mut twice_g) = (0i64, 0i64);
             g_row[0] = 0.0;
             for (&v, g_out) in src.iter().zip(&mut g_row[1..]) {
-                let before = acc;
-                acc += i64::from(v) + offset_i;
-                twice_g += before + acc;
+                trapezoid_step(&mut acc, &mut twice_g, v, offset_i);
                 *g_out = twice_g as f64 * 0.5;
             }
         }
@@ -551,6 +546,16 @@ struct TablePool {
     spares: Vec<Vec<f64>>,
     /// Capacity held, bytes.
     bytes: usize,
+}
+
+/// One pixel of a row: F (`acc`, the sum so far) grows by the sample plus
+/// offset, and twice G by F before and after it (F is linear over the
+/// pixel, so its integral is the trapezoid).
+#[inline(always)]
+fn trapezoid_step(acc: &mut i64, twice_g: &mut i64, sample: u16, offset: i64) {
+    let before = *acc;
+    *acc += i64::from(sample) + offset;
+    *twice_g += before + *acc;
 }
 
 thread_local! {
