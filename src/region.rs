@@ -304,75 +304,103 @@ impl<'a> PrefixSums<'a> {
     /// sum, with the sign of the polygon's signed area.
     #[inline]
     pub fn edge_integral(&self, a: Point, b: Point) -> f64 {
-        self.edge_walk(a, b, None, None)
+        let (a, b) = (self.local(a), self.local(b));
+        self.edge_sum(a, b, self.vertex_g(a), self.vertex_g(b))
     }
 
-    /// G at a vertex, in the row it lies in: what the walk of either edge
-    /// meeting there looks up at that end (see [`PrefixSums::polygon`]).
+    /// A point in local coordinates: pixel (c, r) of the rect covers u in
+    /// [c, c+1), v in [r, r+1).
+    #[inline(always)]
+    fn local(&self, p: Point) -> Point {
+        [
+            p[0] - (self.rect.x as f64 - 0.5),
+            p[1] - (self.rect.y as f64 - 0.5),
+        ]
+    }
+
+    /// The row a local v lies in, clamped to the area: the part of an edge
+    /// above (below) the area counts as part of the first (last) row.
+    #[inline(always)]
+    fn row_of(&self, v: f64) -> usize {
+        (v.max(0.0) as usize).min(self.rect.height as usize - 1)
+    }
+
+    /// G at a local point, in the row it lies in: what the pieces of both
+    /// edges meeting there look up at that end.
     #[inline(always)]
     fn vertex_g(&self, p: Point) -> f64 {
-        let (ox, oy) = (self.rect.x as f64 - 0.5, self.rect.y as f64 - 0.5);
-        let row = ((p[1] - oy).max(0.0) as usize).min(self.rect.height as usize - 1);
-        self.g(self.row_at(row), p[0] - ox)
+        self.g(self.row_at(self.row_of(p[1])), p[0])
     }
 
-    /// [`PrefixSums::edge_integral`], optionally with G already known at a
-    /// and b ([`PrefixSums::vertex_g`]); the result is bit-identical.
+    /// The integral of F dv along the local edge a -> b, given G at both
+    /// ends ([`PrefixSums::vertex_g`]).
+    ///
+    /// Walked downwards, the edge is split into pieces at the row
+    /// boundaries v = k it crosses; in row r the piece from u to u' adds
+    /// (G_r(u') - G_r(u)) / slope. Grouped by boundary instead of by piece,
+    /// that is (G at the bottom end - G at the top end + the sum over the
+    /// boundaries of G_{k-1}(u_k) - G_k(u_k)) / slope: one lookup of both
+    /// rows per boundary, with one column and fraction, and the ends' G
+    /// shared with the neighbouring edges. (Walking piece by piece, with
+    /// two lookups per boundary and the ends' pieces treated apart, took
+    /// about 25 ns more per edge.)
     #[inline(always)]
-    fn edge_walk(&self, a: Point, b: Point, g_a: Option<f64>, g_b: Option<f64>) -> f64 {
-        // Local coordinates: pixel (c, r) of the rect covers u in [c, c+1),
-        // v in [r, r+1). Walk downwards (increasing v); an upward edge is the
-        // same walk with the opposite sign.
-        let (ox, oy) = (self.rect.x as f64 - 0.5, self.rect.y as f64 - 0.5);
-        let (mut u, mut v, u_end, v_end, sign, g_top, g_bottom) = if b[1] > a[1] {
-            (a[0] - ox, a[1] - oy, b[0] - ox, b[1] - oy, 1.0, g_a, g_b)
+    fn edge_sum(&self, a: Point, b: Point, g_a: f64, g_b: f64) -> f64 {
+        let (top, bottom, g_top, g_bottom, sign) = if b[1] > a[1] {
+            (a, b, g_a, g_b, 1.0)
         } else if b[1] < a[1] {
-            (b[0] - ox, b[1] - oy, a[0] - ox, a[1] - oy, -1.0, g_b, g_a)
+            (b, a, g_b, g_a, -1.0)
         } else {
             return 0.0;
         };
-        // du/dv; every piece of the edge has dv/du = 1/slope: one division
-        // per edge.
-        let slope = (u_end - u) / (v_end - v);
-        let inverse_slope = 1.0 / slope;
-        let hmax = self.rect.height as usize - 1;
-        let mut row = (v.max(0.0) as usize).min(hmax);
-        // The bottom vertex's G is the last piece's only if that piece lies
-        // in the vertex's own row (not when the vertex sits on a row boundary).
-        let bottom_row = (v_end.max(0.0) as usize).min(hmax);
-        let mut g_start = g_top;
-        let mut acc = 0.0;
-        loop {
-            // The piece of the edge inside the current row.
-            let boundary = (row + 1) as f64;
-            let (v_next, u_next) = if v_end <= boundary || row == hmax {
-                (v_end, u_end)
-            } else {
-                (boundary, u + slope * (boundary - v))
-            };
-            let dv = v_next - v;
-            let du = u_next - u;
-            let start = self.row_at(row);
-            acc += if du.abs() > 1e-3 {
-                let g_end = match g_bottom {
-                    Some(g) if v_next >= v_end && row == bottom_row => g,
-                    _ => self.g(start, u_next),
-                };
-                let g_begin = g_start.unwrap_or_else(|| self.g(start, u));
-                (g_end - g_begin) * inverse_slope
-            } else {
-                // Nearly vertical: F is (all but) constant over the piece.
-                self.f(start, 0.5 * (u + u_next)) * dv
-            };
-            if v_next >= v_end {
-                break;
+        // du/dv: one division per edge.
+        let slope = (bottom[0] - top[0]) / (bottom[1] - top[1]);
+        // Boundaries k with top < k <= bottom (a vertex on a boundary ends
+        // its edge in the row above), inside the area.
+        let (first, last) = (self.row_of(top[1]) + 1, self.row_of(bottom[1]));
+        let u_at = |k: usize| top[0] + slope * (k as f64 - top[1]);
+        if slope.abs() <= 1e-3 {
+            // (Nearly) vertical: dividing by the slope would lose the
+            // digits, and F is (all but) constant across each piece.
+            let mut sum = 0.0;
+            let (mut u, mut v, mut row) = (top[0], top[1], first - 1);
+            for k in first..=last {
+                let u_next = u_at(k);
+                sum += self.f(self.row_at(row), 0.5 * (u + u_next)) * (k as f64 - v);
+                (u, v, row) = (u_next, k as f64, k);
             }
-            u = u_next;
-            v = v_next;
-            row += 1;
-            g_start = None;
+            sum += self.f(self.row_at(row), 0.5 * (u + bottom[0])) * (bottom[1] - v);
+            return sign * sum;
         }
-        acc * sign
+        let mut sum = g_bottom - g_top;
+        if top[0].min(bottom[0]) > 0.0 && top[0].max(bottom[0]) < self.rect.width as f64 {
+            // Every crossing lies inside the area's columns.
+            for k in first..=last {
+                sum += self.g_step_down(k, u_at(k));
+            }
+        } else {
+            for k in first..=last {
+                let u = u_at(k);
+                sum += self.g(self.row_at(k - 1), u) - self.g(self.row_at(k), u);
+            }
+        }
+        sign * sum / slope
+    }
+
+    /// G in row `k - 1` minus G in row `k` at local `u`, for `0 < u < width`
+    /// and `1 <= k < height`: [`PrefixSums::g`] in both rows with one
+    /// column and fraction.
+    #[inline(always)]
+    fn g_step_down(&self, k: usize, u: f64) -> f64 {
+        let c = u as usize;
+        let t = u - c as f64;
+        let below = self.row_at(k);
+        let above = below.table - self.stride;
+        let (a0, a1) = (self.g[above + c], self.g[above + c + 1]);
+        let (b0, b1) = (self.g[below.table + c], self.g[below.table + c + 1]);
+        let above_sample = self.frame.data[below.samples - self.frame.width as usize + c];
+        let di = f64::from(above_sample) - f64::from(self.frame.data[below.samples + c]);
+        (a0 - b0) + t * ((a1 - a0) - (b1 - b0)) - 0.5 * t * (1.0 - t) * di
     }
 
     /// Where local row `r` starts in `g` and in the frame's samples.
@@ -449,25 +477,27 @@ impl<'a> PrefixSums<'a> {
     fn walk(&self, points: &[Point], closed: bool) -> PathSum {
         let n = points.len();
         let (mut twice_area, mut sum) = (0.0, 0.0);
-        // Each vertex ends one edge and starts the next, and both walks look
-        // up G there in the same row: one lookup serves both (a fifth of
-        // all lookups for a contour with 2 px spacing).
         let Some(&first) = points.first() else {
             return PathSum::default();
         };
-        let g_first = self.vertex_g(first);
-        let mut g_a = g_first;
+        // Each vertex ends one edge and starts the next: one lookup of G
+        // there serves both.
+        let first_local = self.local(first);
+        let g_first = self.vertex_g(first_local);
+        let (mut a_local, mut g_a) = (first_local, g_first);
         let edges = if closed { n } else { n - 1 };
         for i in 0..edges {
             let a = points[i];
-            let (b, g_b) = if i + 1 == n {
-                (first, g_first)
+            let (b, b_local, g_b) = if i + 1 == n {
+                (first, first_local, g_first)
             } else {
-                (points[i + 1], self.vertex_g(points[i + 1]))
+                let b = points[i + 1];
+                let b_local = self.local(b);
+                (b, b_local, self.vertex_g(b_local))
             };
             twice_area += a[0] * b[1] - b[0] * a[1];
-            sum += self.edge_walk(a, b, Some(g_a), Some(g_b));
-            g_a = g_b;
+            sum += self.edge_sum(a_local, b_local, g_a, g_b);
+            (a_local, g_a) = (b_local, g_b);
         }
         PathSum { twice_area, sum }
     }
@@ -740,6 +770,36 @@ mod tests {
                 (fast - reference).abs() < 1e-9 * reference.abs(),
                 "case {case}: {fast} vs {reference}"
             );
+        }
+    }
+
+    #[test]
+    fn vertical_edges_edges_on_row_boundaries_and_edges_leaving_the_area_equal_splitting() {
+        // The cases the boundary-grouped walk treats apart: (nearly)
+        // vertical edges, vertices exactly on row boundaries (local v an
+        // integer: image y = k + 0.5), and crossings outside the area's
+        // rows and columns (clamped to the first / last row and column).
+        let frame = random_frame(40, 32, 11);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
+        let cases: [&[Point]; 5] = [
+            &[[5.2, 3.1], [5.2, 20.7], [18.9, 20.7], [18.9, 3.1]],
+            &[[6.3, 4.5], [6.3004, 25.5], [30.1, 25.5], [29.9, 4.5]],
+            &[[-6.0, -4.2], [12.3, -5.0], [14.1, 9.6], [-3.3, 12.2]],
+            &[[25.0, 20.0], [47.5, 22.2], [44.0, 39.0], [30.2, 36.4]],
+            &[[10.5, 2.5], [20.5, 2.5], [20.5, 12.5], [15.2, 17.5], [10.5, 12.5]],
+        ];
+        for (case, poly) in cases.iter().enumerate() {
+            for reversed in [false, true] {
+                let mut poly = poly.to_vec();
+                if reversed {
+                    poly.reverse();
+                }
+                let (fast, reference) = (sums.polygon(&poly).sum, split_everywhere(&frame, &poly, 1.0));
+                assert!(
+                    (fast - reference).abs() < 1e-9 * reference.abs(),
+                    "case {case} (reversed {reversed}): {fast} vs {reference}"
+                );
+            }
         }
     }
 
