@@ -322,7 +322,7 @@ impl<'a> PrefixSums<'a> {
     /// above (below) the area counts as part of the first (last) row.
     #[inline(always)]
     fn row_of(&self, v: f64) -> usize {
-        (v.max(0.0) as usize).min(self.rect.height as usize - 1)
+        cell(v.max(0.0)).min(self.rect.height as usize - 1)
     }
 
     /// G at a local point, in the row it lies in: what the pieces of both
@@ -374,9 +374,16 @@ impl<'a> PrefixSums<'a> {
         }
         let mut sum = g_bottom - g_top;
         if top[0].min(bottom[0]) > 0.0 && top[0].max(bottom[0]) < self.rect.width as f64 {
-            // Every crossing lies inside the area's columns.
-            for k in first..=last {
-                sum += self.g_step_down(k, u_at(k));
+            // Every crossing lies inside the area's columns. Stepping u and
+            // the row starts from boundary to boundary instead of computing
+            // them for each: 20% fewer instructions per crossing.
+            let mut u = u_at(first);
+            let mut below = self.row_at(first);
+            for _ in first..=last {
+                sum += self.g_step_down(below, u);
+                u += slope;
+                below.table += self.stride;
+                below.samples += self.frame.width as usize;
             }
         } else {
             for k in first..=last {
@@ -387,14 +394,13 @@ impl<'a> PrefixSums<'a> {
         sign * sum / slope
     }
 
-    /// G in row `k - 1` minus G in row `k` at local `u`, for `0 < u < width`
-    /// and `1 <= k < height`: [`PrefixSums::g`] in both rows with one
-    /// column and fraction.
+    /// G in the row above `below` minus G in row `below` at local `u`, for
+    /// `0 < u < width` and `below` not the first row: [`PrefixSums::g`] in
+    /// both rows with one column and fraction.
     #[inline(always)]
-    fn g_step_down(&self, k: usize, u: f64) -> f64 {
-        let c = u as usize;
+    fn g_step_down(&self, below: RowStart, u: f64) -> f64 {
+        let c = cell(u);
         let t = u - c as f64;
-        let below = self.row_at(k);
         let above = below.table - self.stride;
         let (a0, a1) = (self.g[above + c], self.g[above + c + 1]);
         let (b0, b1) = (self.g[below.table + c], self.g[below.table + c + 1]);
@@ -434,7 +440,7 @@ impl<'a> PrefixSums<'a> {
     fn f(&self, row: RowStart, u: f64) -> f64 {
         let w = self.rect.width as usize;
         let u = u.clamp(0.0, w as f64);
-        let c = (u as usize).min(w - 1);
+        let c = cell(u).min(w - 1);
         let t = u - c as f64;
         // F(c) + t I(c), with F(c) = G(c+1) - G(c) - I(c)/2.
         self.g[row.table + c + 1] - self.g[row.table + c] + (t - 0.5) * self.pixel(row, c)
@@ -451,7 +457,7 @@ impl<'a> PrefixSums<'a> {
         if u >= w as f64 {
             return self.g[row.table + w] + self.f_at_edge(row, w) * (u - w as f64);
         }
-        let c = u as usize;
+        let c = cell(u);
         let t = u - c as f64;
         // G(c) + t F(c) + t^2 I(c) / 2 with F(c) = G(c+1) - G(c) - I(c)/2:
         // linear interpolation of G less a parabola.
@@ -542,8 +548,8 @@ impl<'a> PrefixSums<'a> {
     #[inline]
     fn integral_at(&self, u: f64, v: f64) -> f64 {
         let (w, h) = (self.rect.width as usize, self.rect.height as usize);
-        let c = (u.max(0.0) as usize).min(w - 1);
-        let r = (v.max(0.0) as usize).min(h - 1);
+        let c = cell(u.max(0.0)).min(w - 1);
+        let r = cell(v.max(0.0)).min(h - 1);
         let (fu, fv) = (u - c as f64, v - r as f64);
         let (top_left, top_right) = (self.sat_at(r, c), self.sat_at(r, c + 1));
         let row = self.row_at(r);
@@ -576,6 +582,15 @@ struct TablePool {
     spares: Vec<Vec<f64>>,
     /// Capacity held, bytes.
     bytes: usize,
+}
+
+/// The integer part of a local coordinate `x >= 0` (larger than any area
+/// side when `x >= 2^31`). Through `i32` because Rust's saturating `f64 as
+/// usize` takes twice the instructions, and this runs at every row crossing
+/// (cachegrind, same conversions: 45 -> 23 million instructions).
+#[inline(always)]
+fn cell(x: f64) -> usize {
+    x as i32 as usize
 }
 
 /// One pixel of a row: F (`acc`, the sum so far) grows by the sample plus
