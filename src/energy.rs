@@ -20,8 +20,9 @@
 //!   for a fixed window the energy equals the paper's up to a constant; it
 //!   stops the energy from rewarding a window that slides onto brighter
 //!   background.
-//! - Dividing by `m_ref` (the mean of the area the sums cover, constant for
-//!   an image) makes D independent of the grey-level scale (8 or 16 bit, dose,
+//! - Dividing by `m_ref` (the mean of the sums' reference area, constant for
+//!   an image: the area they cover, or for the tracker the object's
+//!   neighbourhood, see [`PrefixSums::with_reference`]) makes D independent of the grey-level scale (8 or 16 bit, dose,
 //!   charging), so `lambda` means the same in every image: D / m_ref is in
 //!   pixels (about 0.25 per pixel of area for a 2:1 contrast).
 //! - Exponent: k = 2 by default, making L^2/A the scale-free compactness
@@ -239,6 +240,11 @@ pub fn evaluate_in_window(
 /// both the window and the containment test. (With the length measured and
 /// the window and containment found in two passes, evaluation overhead
 /// outside the edge integrals was 5% of a 1024x768 step.)
+///
+/// Invalid also when the window reaches past the covered area anywhere but
+/// across the image border ([`PrefixSums::covers_window`]): the rigid fit
+/// moves far enough from where its tables were built for that, and a
+/// window clipped there would be a different energy, not this pose's.
 pub fn evaluate_with_length(
     sums: &PrefixSums,
     points: &[Point],
@@ -247,11 +253,11 @@ pub fn evaluate_with_length(
     length: f64,
 ) -> EnergyTerms {
     let bounds = window_of(points, 0.0);
-    if points.len() < 3 || !sums.contains_box(bounds) {
-        return EnergyTerms::INVALID;
-    }
     let [x0, y0, x1, y1] = bounds;
     let window = [x0 - margin, y0 - margin, x1 + margin, y1 + margin];
+    if points.len() < 3 || !sums.contains_box(bounds) || !sums.covers_window(window) {
+        return EnergyTerms::INVALID;
+    }
     region_energy(sums, points, params, window, length)
 }
 
@@ -271,7 +277,7 @@ fn region_energy(
         let [x0, y0, x1, y1] = window;
         sums.rect_sum(x0, y0, x1, y1)
     };
-    combine(params, inside, window, length, sums.total().mean())
+    combine(params, inside, window, length, sums.reference_mean())
 }
 
 #[cfg(test)]
@@ -392,5 +398,35 @@ mod tests {
                 }
             }
         }
+    }
+    #[test]
+    fn a_shared_reference_area_makes_the_energy_independent_of_the_tables_reach() {
+        let config = SynthConfig {
+            frames: 1,
+            ..SynthConfig::preset(Preset::Noisy, Shape::Tip, 4)
+        };
+        let pair = Scene::new(&config).unwrap().render(0);
+        let truth = &pair.truth.left.polygon;
+        let params = EnergyParams::default();
+        let margin = params.margin_for_area(truth.area());
+        let [x0, y0, x1, y1] = window_of(&truth.points, margin + 2.0);
+        let (w, h) = (pair.left.width, pair.left.height);
+        let near = PixelRect::covering(x0, y0, x1, y1, w, h).unwrap();
+        let far = PixelRect::covering(x0 - 30.0, y0 - 30.0, x1 + 30.0, y1 + 30.0, w, h).unwrap();
+        let energy = |sums: &PrefixSums| evaluate(sums, &truth.points, &params, margin).energy;
+        let (e_near, e_far) = (
+            energy(&PrefixSums::new(&pair.left, near, 1)),
+            energy(&PrefixSums::new(&pair.left, far, 1)),
+        );
+        // Each table's own area as the reference: the scale differs.
+        assert!(
+            (e_near - e_far).abs() > 1e-4 * e_near.abs(),
+            "{e_near} vs {e_far}"
+        );
+        let shared = energy(&PrefixSums::new(&pair.left, far, 1).with_reference(near));
+        assert!(
+            (shared - e_near).abs() < 1e-9 * e_near.abs(),
+            "{shared} vs {e_near}"
+        );
     }
 }

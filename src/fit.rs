@@ -100,7 +100,7 @@ pub fn fit_free(
     params: &FreeFitParams,
 ) -> FreeFitOutcome {
     let margin = energy.margin_for_area(initial.area());
-    let m_ref = sums.total().mean();
+    let m_ref = sums.reference_mean();
     let vertices = |p: &Polygon| ((p.length() / params.spacing_px).round() as usize).max(MIN_FREE_VERTICES);
     let mut pts = initial.resampled(vertices(initial)).points;
     let mut last_simple = pts.clone();
@@ -332,6 +332,11 @@ pub struct RigidOutcome {
     pub terms: EnergyTerms,
     /// Energy evaluations used.
     pub evaluations: usize,
+    /// Some evaluated pose had no finite energy: its contour left the area
+    /// the prefix sums cover (or a region was empty). The search could not
+    /// go there, so a caller that built the sums over a short reach
+    /// rebuilds them over a longer one and fits again.
+    pub outside_area: bool,
 }
 
 /// A rigid template with what the fit needs precomputed.
@@ -422,10 +427,15 @@ pub fn fit_rigid(
     // there, so its terms need no evaluation of their own (one of about 30
     // per view).
     let lowest = std::cell::Cell::new(None::<(Pose, EnergyTerms)>);
+    let outside_area = std::cell::Cell::new(false);
     let eval_terms = |pts: &[Point], length: f64, pose: Pose| {
         let mut placed = placed.borrow_mut();
         place_into(pts, pose, &mut placed);
-        evaluate_with_length(sums, &placed, energy, template.margin, length)
+        let terms = evaluate_with_length(sums, &placed, energy, template.margin, length);
+        if !terms.energy.is_finite() {
+            outside_area.set(true);
+        }
+        terms
     };
     let eval = |pts: &[Point], length: f64, pose: Pose| eval_terms(pts, length, pose).energy;
     let mut pose = start;
@@ -478,6 +488,7 @@ pub fn fit_rigid(
         pose,
         terms,
         evaluations: evaluations + used + polished,
+        outside_area: outside_area.get(),
     }
 }
 
@@ -797,5 +808,48 @@ mod tests {
             );
             assert!(out.pose.theta.abs() < 0.002, "rotation {}", out.pose.theta);
         }
+    }
+    #[test]
+    fn a_fit_that_needs_more_than_the_covered_area_says_so() {
+        let config = SynthConfig {
+            frames: 1,
+            ..SynthConfig::preset(Preset::Clean, Shape::Blob, 3)
+        };
+        let pair = Scene::new(&config).unwrap().render(0);
+        let energy = EnergyParams::default();
+        let (template, true_pose) = RigidTemplate::new(&pair.truth.left.polygon.resampled(120), 48, &energy);
+        // Start 10 px off; fine stage only, as from a confirmed prediction.
+        let start = Pose {
+            x: true_pose.x + 10.0,
+            y: true_pose.y - 1.0,
+            theta: 0.0,
+        };
+        let params = RigidParams {
+            coarse_step_px: 1.0,
+            ..RigidParams::default()
+        };
+        // Tables covering the start's window grown by `reach` on each side.
+        let cover = |reach: f64| {
+            let [x0, y0, x1, y1] = window_of(&place(&template.points, start), template.margin + reach);
+            PixelRect::covering(x0, y0, x1, y1, pair.left.width, pair.left.height).unwrap()
+        };
+        // Reaching 1 px: the way to the object is cut off, and the outcome
+        // says so.
+        let short = PrefixSums::new(&pair.left, cover(1.0), 1);
+        let cut = fit_rigid(&short, &template, start, &energy, &params);
+        assert!(
+            cut.outside_area,
+            "pose {:?} from a 1-px reach, truth {true_pose:?}",
+            cut.pose
+        );
+        // Reaching 16 px: found, and no evaluation left the area.
+        let long = PrefixSums::new(&pair.left, cover(16.0), 1);
+        let out = fit_rigid(&long, &template, start, &energy, &params);
+        let err = (out.pose.x - true_pose.x).hypot(out.pose.y - true_pose.y);
+        assert!(
+            !out.outside_area && err < 0.05,
+            "error {err:.3} px, outside {}",
+            out.outside_area
+        );
     }
 }

@@ -157,6 +157,10 @@ pub struct PrefixSums<'a> {
     offset: f64,
     /// The covered pixels.
     rect: PixelRect,
+    /// Count and sum over the reference area, whose mean scales the energy
+    /// (`m_ref`): the covered area unless set by
+    /// [`PrefixSums::with_reference`].
+    reference: RegionSum,
     /// Row stride of `g` and `sat`: `rect.width + 1`.
     stride: usize,
     /// `g[r * stride + c]`: G, the integral of F over the first `c` pixels
@@ -267,14 +271,32 @@ impl<'a> PrefixSums<'a> {
                 *g_out = twice_g as f64 * 0.5;
             }
         }
-        Self {
+        let mut sums = Self {
             frame,
             offset: f64::from(offset),
             rect,
+            reference: RegionSum::default(),
             stride,
             g,
             sat,
-        }
+        };
+        sums.reference = sums.total();
+        sums
+    }
+
+    /// The same tables with `area` (clipped to the covered area) as the
+    /// reference area: a caller that builds tables of different reaches
+    /// around one object keeps its energies comparable by giving them all
+    /// the same reference.
+    pub fn with_reference(mut self, area: PixelRect) -> Self {
+        let [x0, y0, x1, y1] = area.extent();
+        self.reference = self.rect_sum(x0, y0, x1, y1);
+        self
+    }
+
+    /// Mean intensity of the reference area (`m_ref` of the energy).
+    pub fn reference_mean(&self) -> f64 {
+        self.reference.mean()
     }
 
     /// The covered pixels.
@@ -297,6 +319,18 @@ impl<'a> PrefixSums<'a> {
     pub fn contains_box(&self, [x0, y0, x1, y1]: [f64; 4]) -> bool {
         let [ex0, ey0, ex1, ey1] = self.rect.extent();
         x0 >= ex0 && y0 >= ey0 && x1 <= ex1 && y1 <= ey1
+    }
+
+    /// True when the window `[x0, y0, x1, y1]` lies inside the covered area
+    /// on every side where that area does not end at the image border:
+    /// then [`PrefixSums::rect_sum`] clips it only where the image ends.
+    pub fn covers_window(&self, [x0, y0, x1, y1]: [f64; 4]) -> bool {
+        let [ex0, ey0, ex1, ey1] = self.rect.extent();
+        let r = self.rect;
+        (x0 >= ex0 || r.x == 0)
+            && (y0 >= ey0 || r.y == 0)
+            && (x1 <= ex1 || r.x + r.width == self.frame.width)
+            && (y1 <= ey1 || r.y + r.height == self.frame.height)
     }
 
     /// Signed intensity integral along the edge a -> b: the integral of
