@@ -407,7 +407,7 @@ impl StereoTracker {
         // Settle the left pose on the rigid energy too, so that the left and
         // right views are measured by the same criterion (identical views
         // then give zero disparity).
-        let left_sums = self.sums_around(left, &template, fitted_pose, 4.0);
+        let left_sums = self.sums_around(left, &template, fitted_pose, Self::NEAR_REACH_PX);
         let settle = RigidParams {
             coarse_step_px: 1.0,
             rotate: false,
@@ -420,10 +420,18 @@ impl StereoTracker {
             Some(p) => p,
             None => return lost_result(frame, "object not found in the right image".into()),
         };
-        let right_terms = right_pose.1;
         let sectors = SectorTemplate::new(&template, self.params.occlusion.sectors);
         let left_sector_contrasts = sectors.contrasts(&left_sums, left_pose);
-        let right_sums = self.sums_around(right, &template, right_pose.0, 0.0);
+        let right_sums = self.sums_around(right, &template, right_pose.0, Self::NEAR_REACH_PX);
+        // On the tables every later pair uses, so that the energy is scaled
+        // as it will be then (the search's tables reach along the whole
+        // disparity range).
+        let right_terms = evaluate(
+            &right_sums,
+            &place(&template.points, right_pose.0),
+            energy,
+            template.margin,
+        );
         let right_sector_contrasts = sectors.contrasts(&right_sums, right_pose.0);
         let disparity = [right_pose.0.x - left_pose.x, right_pose.0.y - left_pose.y];
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
@@ -552,9 +560,9 @@ impl StereoTracker {
     /// with tilt), not an occluder: the full fit stands. `coarse_step_px`
     /// sets the first step of the coarse stage (the right view is predicted
     /// well from the left one and needs only a short search).
-    fn fit_view(
+    fn fit_view<'f>(
         &self,
-        frame: &GrayFrame,
+        frame: &'f GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
         reference: &[f64],
         predicted: Pose,
@@ -569,24 +577,32 @@ impl StereoTracker {
             rotate,
             ..self.params.rigid.clone()
         };
-        let sums = self.sums_around(frame, template, predicted, rigid.search_radius_px);
-        let full_fit = |start: Pose, rigid: &RigidParams| {
-            let out = fit_rigid(&sums, template, start, energy, rigid);
+        let full_fit = |sums: &PrefixSums, start: Pose, rigid: &RigidParams| {
+            let out = fit_rigid(sums, template, start, energy, rigid);
             ImageFit::full(out.pose, out.terms)
         };
+        let full_reach =
+            || -> PrefixSums<'f> { self.sums_around(frame, template, predicted, rigid.search_radius_px) };
         if !occlusion.enabled || reference.len() != sectors.len() {
-            return full_fit(predicted, rigid);
+            return full_fit(&full_reach(), predicted, rigid);
         }
-        let judge = |pose: Pose| {
+        let judge = |sums: &PrefixSums, pose: Pose| {
             judge_sectors(
                 reference,
-                &sectors.contrasts(&sums, pose),
+                &sectors.contrasts(sums, pose),
                 occlusion.min_contrast_ratio,
                 occlusion.max_contrast_ratio,
             )
         };
         let widespread = |mask: &[bool]| fraction(mask) > occlusion.max_occluded_fraction;
-        let at_prediction = judge(predicted);
+        // The tables first cover only a short reach around the prediction:
+        // enough to judge it and, when the sectors confirm it, to fit from
+        // it. Every other path, and a fit that reached the edge of the short
+        // reach, gets the full search reach.
+        let near_reach = Self::NEAR_REACH_PX.min(rigid.search_radius_px);
+        let mut sums = self.sums_around(frame, template, predicted, near_reach);
+        let mut widened = near_reach == rigid.search_radius_px;
+        let at_prediction = judge(&sums, predicted);
         let confirmed = at_prediction.confirms_pose();
         let (mut mask, median) = (at_prediction.occluded, at_prediction.median_ratio);
         let mut pose = predicted;
@@ -598,15 +614,22 @@ impl StereoTracker {
             // suites, seeds 100-104 and 200-209, and the occluded seeds
             // 100-119 gave the same figures).
             let fit = if confirmed {
-                full_fit(
-                    predicted,
-                    &RigidParams {
-                        coarse_step_px: 1.0,
-                        ..rigid.clone()
-                    },
-                )
+                let fine_only = RigidParams {
+                    coarse_step_px: 1.0,
+                    ..rigid.clone()
+                };
+                let out = fit_rigid(&sums, template, predicted, energy, &fine_only);
+                if out.outside_area && !widened {
+                    (sums, widened) = (full_reach(), true);
+                    full_fit(&sums, predicted, &fine_only)
+                } else {
+                    ImageFit::full(out.pose, out.terms)
+                }
             } else {
-                full_fit(predicted, rigid)
+                if !widened {
+                    (sums, widened) = (full_reach(), true);
+                }
+                full_fit(&sums, predicted, rigid)
             };
             // A clear prediction that the fit left by less than a pixel is
             // judged already: judging again there changed nothing on the
@@ -616,13 +639,17 @@ impl StereoTracker {
             if median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
                 return fit;
             }
-            mask = judge(fit.pose).occluded;
+            mask = judge(&sums, fit.pose).occluded;
             if !mask.contains(&true) || widespread(&mask) {
                 return fit;
             }
             pose = fit.pose;
         }
-        let m_ref = sums.total().mean();
+        // The masked search starts with 4-px steps.
+        if !widened {
+            sums = full_reach();
+        }
+        let m_ref = sums.reference_mean();
         let search = CompassSearch {
             first_step: 4.0,
             min_step: rigid.min_step_px,
@@ -638,7 +665,7 @@ impl StereoTracker {
             let masked = |p: Pose| sectors.masked_energy(&sums, p, &mask, m_ref);
             let (found, e, _) = search.run(pose, masked);
             pose = newton_polish(found, e, template.radius, search.rotate, masked).0;
-            let new_mask = judge(pose).occluded;
+            let new_mask = judge(&sums, pose).occluded;
             if new_mask == mask || widespread(&new_mask) {
                 break;
             }
@@ -724,7 +751,17 @@ impl StereoTracker {
             .min_by(|a, b| a.1.energy.total_cmp(&b.1.energy))
     }
 
-    /// Prefix sums over what the template can reach from `pose` within `reach`.
+    /// Reach of the tables built first around a prediction (see
+    /// [`StereoTracker::fit_view`]), pixels: a fit from a prediction the
+    /// sectors confirm moves less than this (over seeds 100-104, 1800
+    /// fits, none reached it). Also the reach of the reference area that
+    /// scales the energy, so that the energy of a pose does not depend on
+    /// how far the tables reach.
+    const NEAR_REACH_PX: f64 = 6.0;
+
+    /// Prefix sums over what the template can reach from `pose` within
+    /// `reach` (at least [`StereoTracker::NEAR_REACH_PX`]), with the area it
+    /// reaches within `NEAR_REACH_PX` as the reference area.
     fn sums_around<'f>(
         &self,
         frame: &'f GrayFrame,
@@ -732,10 +769,12 @@ impl StereoTracker {
         pose: Pose,
         reach: f64,
     ) -> PrefixSums<'f> {
-        let [x0, y0, x1, y1] = template.reach(pose, reach);
-        let rect =
-            PixelRect::covering(x0, y0, x1, y1, frame.width, frame.height).unwrap_or(PixelRect::full(frame));
-        PrefixSums::new(frame, rect, INTENSITY_OFFSET)
+        let cover = |reach: f64| {
+            let [x0, y0, x1, y1] = template.reach(pose, reach);
+            PixelRect::covering(x0, y0, x1, y1, frame.width, frame.height).unwrap_or(PixelRect::full(frame))
+        };
+        PrefixSums::new(frame, cover(reach.max(Self::NEAR_REACH_PX)), INTENSITY_OFFSET)
+            .with_reference(cover(Self::NEAR_REACH_PX))
     }
 
     /// Why the measurement cannot be trusted, if it cannot.
