@@ -251,8 +251,10 @@ pub fn place_into(template: &[Point], pose: Pose, placed: &mut Vec<Point>) {
 #[serde(default, deny_unknown_fields)]
 pub struct RigidParams {
     /// Largest motion between two pairs that the search is built to catch,
-    /// pixels; the prefix sums cover the contour's reach plus this. Default
-    /// 24; range 1..=500.
+    /// pixels; the prefix sums cover the contour's reach plus this (the
+    /// tracker first covers 6 px around a prediction and widens to this
+    /// when the sectors do not confirm the prediction or the fit needs
+    /// more). Default 24; range 1..=500.
     pub search_radius_px: f64,
     /// First step of the coarse stage, pixels. Default 8. With occlusion
     /// handling on, the tracker skips the coarse stage when the sectors
