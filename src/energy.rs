@@ -22,9 +22,10 @@
 //!   background.
 //! - Dividing by `m_ref` (the mean of the sums' reference area, constant for
 //!   an image: the area they cover, or for the tracker the object's
-//!   neighbourhood, see [`PrefixSums::with_reference`]) makes D independent of the grey-level scale (8 or 16 bit, dose,
-//!   charging), so `lambda` means the same in every image: D / m_ref is in
-//!   pixels (about 0.25 per pixel of area for a 2:1 contrast).
+//!   neighbourhood, see [`PrefixSums::with_reference`]) makes D independent
+//!   of the grey-level scale (8 or 16 bit, dose, charging), so `lambda`
+//!   means the same in every image: D / m_ref is in pixels (about 0.25 per
+//!   pixel of area for a 2:1 contrast).
 //! - Exponent: k = 2 by default, making L^2/A the scale-free compactness
 //!   (>= 4 pi, a circle); the printed paper's L^3/A is available as k = 3.
 //!   Under rigid motion L and A are constant, so the internal term only

@@ -422,23 +422,23 @@ impl StereoTracker {
         };
         let sectors = SectorTemplate::new(&template, self.params.occlusion.sectors);
         let left_sector_contrasts = sectors.contrasts(&left_sums, left_pose);
-        let right_sums = self.sums_around(right, &template, right_pose.0, Self::NEAR_REACH_PX);
+        let right_sums = self.sums_around(right, &template, right_pose, Self::NEAR_REACH_PX);
         // On the tables every later pair uses, so that the energy is scaled
         // as it will be then (the search's tables reach along the whole
         // disparity range).
         let right_terms = evaluate(
             &right_sums,
-            &place(&template.points, right_pose.0),
+            &place(&template.points, right_pose),
             energy,
             template.margin,
         );
-        let right_sector_contrasts = sectors.contrasts(&right_sums, right_pose.0);
-        let disparity = [right_pose.0.x - left_pose.x, right_pose.0.y - left_pose.y];
+        let right_sector_contrasts = sectors.contrasts(&right_sums, right_pose);
+        let disparity = [right_pose.x - left_pose.x, right_pose.y - left_pose.y];
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
         let state = TrackerState {
             template: template.points.clone(),
             left: left_pose,
-            right: right_pose.0,
+            right: right_pose,
             reference_contrast: left_terms.contrast(),
             first_disparity_axis_px: previous_reference.unwrap_or(axis),
             width: left.width,
@@ -449,7 +449,7 @@ impl StereoTracker {
             right_sector_contrasts,
         };
         let left_fit = ImageFit::full(left_pose, left_terms);
-        let right_fit = ImageFit::full(right_pose.0, right_terms);
+        let right_fit = ImageFit::full(right_pose, right_terms);
         let mut result = self.pair_result(
             frame,
             Status::Initialised,
@@ -583,6 +583,11 @@ impl StereoTracker {
         };
         let full_reach =
             || -> PrefixSums<'f> { self.sums_around(frame, template, predicted, rigid.search_radius_px) };
+        let widen = |sums: &mut PrefixSums<'f>, widened: &mut bool| {
+            if !*widened {
+                (*sums, *widened) = (full_reach(), true);
+            }
+        };
         if !occlusion.enabled || reference.len() != sectors.len() {
             return full_fit(&full_reach(), predicted, rigid);
         }
@@ -620,15 +625,13 @@ impl StereoTracker {
                 };
                 let out = fit_rigid(&sums, template, predicted, energy, &fine_only);
                 if out.outside_area && !widened {
-                    (sums, widened) = (full_reach(), true);
+                    widen(&mut sums, &mut widened);
                     full_fit(&sums, predicted, &fine_only)
                 } else {
                     ImageFit::full(out.pose, out.terms)
                 }
             } else {
-                if !widened {
-                    (sums, widened) = (full_reach(), true);
-                }
+                widen(&mut sums, &mut widened);
                 full_fit(&sums, predicted, rigid)
             };
             // A clear prediction that the fit left by less than a pixel is
@@ -646,9 +649,7 @@ impl StereoTracker {
             pose = fit.pose;
         }
         // The masked search starts with 4-px steps.
-        if !widened {
-            sums = full_reach();
-        }
+        widen(&mut sums, &mut widened);
         let m_ref = sums.reference_mean();
         let search = CompassSearch {
             first_step: 4.0,
@@ -687,13 +688,8 @@ impl StereoTracker {
     /// Searches the right image along the disparity axis for the template
     /// placed at the left pose: a scan in 2-px steps over
     /// +-`max_disparity_px` with the decimated contour, then rigid fits from
-    /// the three best local minima; returns the best pose and its energy.
-    fn search_right(
-        &self,
-        right: &GrayFrame,
-        template: &RigidTemplate,
-        left: Pose,
-    ) -> Option<(Pose, EnergyTerms)> {
+    /// the three best local minima; returns the lowest-energy pose.
+    fn search_right(&self, right: &GrayFrame, template: &RigidTemplate, left: Pose) -> Option<Pose> {
         let energy = &self.params.energy;
         let max_d = self.params.max_disparity_px;
         let t = self.params.tilt_axis_deg.to_radians();
@@ -749,6 +745,7 @@ impl StereoTracker {
             })
             .filter(|(_, terms)| terms.energy.is_finite())
             .min_by(|a, b| a.1.energy.total_cmp(&b.1.energy))
+            .map(|(pose, _)| pose)
     }
 
     /// Reach of the tables built first around a prediction (see
