@@ -125,13 +125,19 @@ impl SectorTemplate {
         let starts = (0..sectors).map(|k| k * n / sectors).collect();
         let thickness = 2.0 * polygon.area() / polygon.length().max(1e-9);
         let inner_width = (thickness / 3.0).clamp(1.5, 8.0);
-        let outer_width = template.margin.clamp(3.0, 12.0);
+        let outer_width = Self::outer_band_width(template);
         Self {
             starts,
             inner: polygon.offset_along_normals(-inner_width).points,
             outer: polygon.offset_along_normals(outer_width).points,
             contour: polygon.points,
         }
+    }
+
+    /// Width of the outer bands for `template`, pixels: its window margin
+    /// within 3..=12.
+    pub fn outer_band_width(template: &RigidTemplate) -> f64 {
+        template.margin.clamp(3.0, 12.0)
     }
 
     /// Number of sectors.

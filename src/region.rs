@@ -53,6 +53,18 @@ impl PixelRect {
         }
     }
 
+    /// This rectangle clipped to `frame`, at least one pixel (a rectangle
+    /// wholly outside keeps the frame's last row or column).
+    pub fn clipped_to(self, frame: &GrayFrame) -> Self {
+        let (x, y) = (self.x.min(frame.width - 1), self.y.min(frame.height - 1));
+        Self {
+            x,
+            y,
+            width: self.width.min(frame.width - x).max(1),
+            height: self.height.min(frame.height - y).max(1),
+        }
+    }
+
     /// The pixels whose boxes meet the continuous box `[x0, x1] x [y0, y1]`,
     /// clipped to a `width` x `height` image; `None` when nothing is left.
     pub fn covering(x0: f64, y0: f64, x1: f64, y1: f64, width: u32, height: u32) -> Option<Self> {
@@ -169,6 +181,30 @@ pub struct PrefixSums<'a> {
     g: Vec<f64>,
     /// `sat[k * stride + c]`: sum of the pixels in rows `< k * SAT_ROW_STEP`,
     /// columns `< c` (a summed-area table kept every `SAT_ROW_STEP` rows).
+    /// Empty when `window` serves the window sums.
+    sat: Vec<f64>,
+    /// Tables built by [`PrefixSums::split`]: the window sums come from
+    /// these rows over a larger area instead of from `sat`.
+    window: Option<WindowRows>,
+    /// How far inside `rect` a polygon must stay to count as contained
+    /// (0 unless built by [`PrefixSums::split`], whose callers also sum
+    /// bands this far outside their contours).
+    guard: f64,
+}
+
+/// Rows of a summed-area table over the area window sums come from, stored
+/// only where a window's top or bottom edge can lie (see
+/// [`PrefixSums::split`]).
+#[derive(Debug)]
+struct WindowRows {
+    /// The covered pixels.
+    rect: PixelRect,
+    /// Row stride of `sat`: `rect.width + 1`.
+    stride: usize,
+    /// `slot[r]` (local rows `0..=height`): where table row `r` (the sums
+    /// over rows `< r`) is stored in `sat`, or [`WindowRows::NOT_STORED`].
+    slot: Vec<u32>,
+    /// The stored rows, `stride` entries each: entry `c` sums columns `< c`.
     sat: Vec<f64>,
 }
 
@@ -178,7 +214,22 @@ impl Clone for PrefixSums<'_> {
         g.copy_from_slice(&self.g);
         let mut sat = TablePool::take(self.sat.len());
         sat.copy_from_slice(&self.sat);
-        Self { g, sat, ..*self }
+        let window = self.window.as_ref().map(|w| {
+            let mut sat = TablePool::take(w.sat.len());
+            sat.copy_from_slice(&w.sat);
+            WindowRows {
+                rect: w.rect,
+                stride: w.stride,
+                slot: w.slot.clone(),
+                sat,
+            }
+        });
+        Self {
+            g,
+            sat,
+            window,
+            ..*self
+        }
     }
 }
 
@@ -186,6 +237,9 @@ impl Drop for PrefixSums<'_> {
     fn drop(&mut self) {
         TablePool::give(std::mem::take(&mut self.g));
         TablePool::give(std::mem::take(&mut self.sat));
+        if let Some(window) = self.window.as_mut() {
+            TablePool::give(std::mem::take(&mut window.sat));
+        }
     }
 }
 
@@ -199,86 +253,56 @@ impl<'a> PrefixSums<'a> {
     /// `offset` is added to every sample. Exact for areas up to 65536
     /// pixels on a side (every decoder limits frames to 8192).
     pub fn new(frame: &'a GrayFrame, rect: PixelRect, offset: u16) -> Self {
-        let rect = PixelRect {
-            x: rect.x.min(frame.width - 1),
-            y: rect.y.min(frame.height - 1),
-            width: rect.width.min(frame.width - rect.x.min(frame.width - 1)).max(1),
-            height: rect
-                .height
-                .min(frame.height - rect.y.min(frame.height - 1))
-                .max(1),
-        };
-        let (w, h) = (rect.width as usize, rect.height as usize);
-        let stride = w + 1;
-        let mut g = TablePool::take(stride * h);
-        let mut sat = TablePool::take(stride * (h / Self::SAT_ROW_STEP + 1));
-        // The sums are accumulated in integers: F and the column sums are
-        // whole numbers and G a multiple of 1/2, all below 2^53 (samples
-        // plus offset < 2^17 and sides <= 2^16 give F < 2^33, 2G < 2^50), so
-        // the f64 tables are exactly those an f64 accumulation gave, and
-        // the integer chains are shorter (measured: 1024x768 step 1.535 ->
-        // 1.47 ms, reference outputs bit-identical).
-        let offset_i = i64::from(offset);
-        // Column sums of F over the rows so far: the summed-area table's
-        // current row, stored every SAT_ROW_STEP rows.
-        let mut column = vec![0i64; stride];
-        let store = |sat: &mut [f64], k: usize, column: &[i64]| {
-            for (out, &c) in sat[k * stride..(k + 1) * stride].iter_mut().zip(column) {
-                *out = c as f64;
-            }
-        };
-        // Four rows at a time (SAT_ROW_STEP = 4): four independent chains,
-        // and the column sums updated once per block with the four rows'
-        // F together (measured: 1024x768 step 1.28 -> 1.19 ms, tables
-        // bit-identical).
-        const STEP: usize = PrefixSums::SAT_ROW_STEP;
-        let src_row = |r: usize| &frame.row(rect.y + r as u32)[rect.x as usize..rect.x as usize + w];
-        let mut blocks = g.chunks_exact_mut(STEP * stride);
-        for (b, block) in (&mut blocks).enumerate() {
-            store(&mut sat, b, &column);
-            let (g0, rest) = block.split_at_mut(stride);
-            let (g1, rest) = rest.split_at_mut(stride);
-            let (g2, g3) = rest.split_at_mut(stride);
-            let r = b * STEP;
-            let (s0, s1, s2, s3) = (src_row(r), src_row(r + 1), src_row(r + 2), src_row(r + 3));
-            // F before and after the pixel, and twice G, per row.
-            let (mut acc, mut twice) = ([0i64; STEP], [0i64; STEP]);
-            for g_row in [&mut *g0, &mut *g1, &mut *g2, &mut *g3] {
-                g_row[0] = 0.0;
-            }
-            for c in 0..w {
-                let v = [s0[c], s1[c], s2[c], s3[c]];
-                for j in 0..STEP {
-                    trapezoid_step(&mut acc[j], &mut twice[j], v[j], offset_i);
-                }
-                g0[c + 1] = twice[0] as f64 * 0.5;
-                g1[c + 1] = twice[1] as f64 * 0.5;
-                g2[c + 1] = twice[2] as f64 * 0.5;
-                g3[c + 1] = twice[3] as f64 * 0.5;
-                column[c + 1] += acc[0] + acc[1] + acc[2] + acc[3];
-            }
-        }
-        // The table row after the last block, then the last rows (fewer
-        // than four), which no stored table row follows.
-        store(&mut sat, h / STEP, &column);
-        let first_left = h - h % STEP;
-        for (i, g_row) in blocks.into_remainder().chunks_exact_mut(stride).enumerate() {
-            let src = src_row(first_left + i);
-            let (mut acc, mut twice_g) = (0i64, 0i64);
-            g_row[0] = 0.0;
-            for (&v, g_out) in src.iter().zip(&mut g_row[1..]) {
-                trapezoid_step(&mut acc, &mut twice_g, v, offset_i);
-                *g_out = twice_g as f64 * 0.5;
-            }
-        }
+        let rect = rect.clipped_to(frame);
+        let (g, sat) = build_tables::<true>(frame, rect, offset);
         let mut sums = Self {
             frame,
             offset: f64::from(offset),
             rect,
             reference: RegionSum::default(),
-            stride,
+            stride: rect.width as usize + 1,
             g,
             sat,
+            window: None,
+            guard: 0.0,
+        };
+        sums.reference = sums.total();
+        sums
+    }
+
+    /// Tables for a fit that moves a known contour a short way: G over
+    /// `polygons` (clipped to the frame), where the contours and the bands
+    /// summed around them can lie, and the window sums over `windows`, from
+    /// a summed-area table stored only at the rows of `edge_rows`, the
+    /// spans of y (image coordinates) where a window's top or bottom edge
+    /// can lie. A polygon counts as contained only `guard` px inside
+    /// `polygons` ([`PrefixSums::contains`]), and a window as covered only
+    /// when its edges lie in those rows ([`PrefixSums::covers_window`]).
+    ///
+    /// A tracker's windows reach far past its contours (margin 0.3 x the
+    /// object's size): G over the window area was most of the table build
+    /// (measured: see `StereoTracker`'s near tables).
+    pub fn split(
+        frame: &'a GrayFrame,
+        polygons: PixelRect,
+        guard: f64,
+        windows: PixelRect,
+        edge_rows: &[[f64; 2]],
+        offset: u16,
+    ) -> Self {
+        let rect = polygons.clipped_to(frame);
+        let (g, _) = build_tables::<false>(frame, rect, offset);
+        let window = WindowRows::new(frame, windows.clipped_to(frame), edge_rows, offset);
+        let mut sums = Self {
+            frame,
+            offset: f64::from(offset),
+            rect,
+            reference: RegionSum::default(),
+            stride: rect.width as usize + 1,
+            g,
+            sat: Vec::new(),
+            window: Some(window),
+            guard: guard.max(0.0),
         };
         sums.reference = sums.total();
         sums
@@ -307,7 +331,7 @@ impl<'a> PrefixSums<'a> {
     /// True when every vertex lies inside the covered area (so the polygon's
     /// sums are exact, not clamped).
     pub fn contains(&self, points: &[Point]) -> bool {
-        let [x0, y0, x1, y1] = self.rect.extent();
+        let [x0, y0, x1, y1] = self.polygon_extent();
         points
             .iter()
             .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
@@ -317,20 +341,25 @@ impl<'a> PrefixSums<'a> {
     /// lies inside the covered area: the same test as [`PrefixSums::contains`]
     /// for a caller that has the bounding box already.
     pub fn contains_box(&self, [x0, y0, x1, y1]: [f64; 4]) -> bool {
-        let [ex0, ey0, ex1, ey1] = self.rect.extent();
+        let [ex0, ey0, ex1, ey1] = self.polygon_extent();
         x0 >= ex0 && y0 >= ey0 && x1 <= ex1 && y1 <= ey1
+    }
+
+    /// Where a contained polygon may lie: the covered area less the guard.
+    fn polygon_extent(&self) -> [f64; 4] {
+        let [x0, y0, x1, y1] = self.rect.extent();
+        let d = self.guard;
+        [x0 + d, y0 + d, x1 - d, y1 - d]
     }
 
     /// True when the window `[x0, y0, x1, y1]` lies inside the covered area
     /// on every side where that area does not end at the image border:
     /// then [`PrefixSums::rect_sum`] clips it only where the image ends.
-    pub fn covers_window(&self, [x0, y0, x1, y1]: [f64; 4]) -> bool {
-        let [ex0, ey0, ex1, ey1] = self.rect.extent();
-        let r = self.rect;
-        (x0 >= ex0 || r.x == 0)
-            && (y0 >= ey0 || r.y == 0)
-            && (x1 <= ex1 || r.x + r.width == self.frame.width)
-            && (y1 <= ey1 || r.y + r.height == self.frame.height)
+    pub fn covers_window(&self, window: [f64; 4]) -> bool {
+        match &self.window {
+            Some(rows) => rows.covers(self.frame, window),
+            None => covers_in(self.rect, self.frame, window),
+        }
     }
 
     /// Signed intensity integral along the edge a -> b: the integral of
@@ -545,6 +574,9 @@ impl<'a> PrefixSums<'a> {
     /// Count and sum over the continuous box `[x0, x1] x [y0, y1]` clipped to
     /// the covered area.
     pub fn rect_sum(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> RegionSum {
+        if let Some(rows) = &self.window {
+            return rows.rect_sum(x0, y0, x1, y1);
+        }
         let [ex0, ey0, ex1, ey1] = self.rect.extent();
         let (x0, x1) = (x0.max(ex0), x1.min(ex1));
         let (y0, y1) = (y0.max(ey0), y1.min(ey1));
@@ -558,8 +590,13 @@ impl<'a> PrefixSums<'a> {
         }
     }
 
-    /// Sum over the whole covered area.
+    /// Sum over the whole covered area (the window area for tables built by
+    /// [`PrefixSums::split`]).
     pub fn total(&self) -> RegionSum {
+        if let Some(rows) = &self.window {
+            let [x0, y0, x1, y1] = rows.rect.extent();
+            return rows.rect_sum(x0, y0, x1, y1);
+        }
         RegionSum {
             count: self.rect.width as f64 * self.rect.height as f64,
             sum: self.sat_at(self.rect.height as usize, self.rect.width as usize),
@@ -593,6 +630,217 @@ impl<'a> PrefixSums<'a> {
         let bottom = bottom_left + fu * (bottom_right - bottom_left);
         top + fv * (bottom - top)
     }
+}
+
+/// True when the window `[x0, y0, x1, y1]` lies inside `rect` on every
+/// side where `rect` does not end at the border of `frame`.
+fn covers_in(rect: PixelRect, frame: &GrayFrame, [x0, y0, x1, y1]: [f64; 4]) -> bool {
+    let [ex0, ey0, ex1, ey1] = rect.extent();
+    (x0 >= ex0 || rect.x == 0)
+        && (y0 >= ey0 || rect.y == 0)
+        && (x1 <= ex1 || rect.x + rect.width == frame.width)
+        && (y1 <= ey1 || rect.y + rect.height == frame.height)
+}
+
+impl WindowRows {
+    /// Marks a table row that is not stored.
+    const NOT_STORED: u32 = u32::MAX;
+
+    /// The table rows over `rect` (clipped to the frame) that window edges
+    /// in the spans `edge_rows` read, and those the whole area's sum reads. Column sums of the pixels are carried down the area and
+    /// summed along at each stored row.
+    fn new(frame: &GrayFrame, rect: PixelRect, edge_rows: &[[f64; 2]], offset: u16) -> Self {
+        let (w, h) = (rect.width as usize, rect.height as usize);
+        let stride = w + 1;
+        let mut slot = vec![Self::NOT_STORED; h + 1];
+        let mut wanted = vec![false; h + 1];
+        // The whole area's sums (the reference, `total`) read the first two
+        // and the last two rows.
+        for r in [0, 1, h - 1, h] {
+            wanted[r] = true;
+        }
+        let top = rect.y as f64 - 0.5;
+        for &[lo, hi] in edge_rows {
+            // An edge at local v reads rows cell(v) and cell(v) + 1 (v
+            // clipped to the area, the last row's cell to h - 1).
+            let row = |y: f64| cell((y - top).clamp(0.0, h as f64)).min(h - 1);
+            let (first, last) = (row(lo.min(hi)), row(lo.max(hi)) + 1);
+            wanted[first..=last].fill(true);
+        }
+        let mut stored = 0;
+        for (s, _) in slot.iter_mut().zip(&wanted).filter(|(_, &w)| w) {
+            *s = stored;
+            stored += 1;
+        }
+        let mut sat = TablePool::take(stored as usize * stride);
+        // Column sums of the samples alone, in u32 (below 2^32 for up to
+        // 65536 rows of 16-bit samples): they vectorise, where i64 sums
+        // with the offset added per sample took 2.5 instructions per pixel.
+        // The offset's share, offset * rows * columns, is added per entry.
+        let mut column = vec![0u32; w];
+        let last_stored = wanted.iter().rposition(|&w| w).unwrap_or(0);
+        for r in 0..=last_stored {
+            if slot[r] != Self::NOT_STORED {
+                let out = &mut sat[slot[r] as usize * stride..][..stride];
+                out[0] = 0.0;
+                let per_column = i64::from(offset) * r as i64;
+                let (mut acc, mut offsets) = (0i64, 0i64);
+                for (o, &c) in out[1..].iter_mut().zip(&column) {
+                    acc += i64::from(c);
+                    offsets += per_column;
+                    *o = (acc + offsets) as f64;
+                }
+            }
+            if r < h {
+                let src = &frame.row(rect.y + r as u32)[rect.x as usize..rect.x as usize + w];
+                for (c, &v) in column.iter_mut().zip(src) {
+                    *c += u32::from(v);
+                }
+            }
+        }
+        Self {
+            rect,
+            stride,
+            slot,
+            sat,
+        }
+    }
+
+    /// True when the window lies inside the area (except across the image
+    /// border) and its top and bottom edges read stored rows.
+    fn covers(&self, frame: &GrayFrame, window: [f64; 4]) -> bool {
+        let [_, y0, _, y1] = window;
+        let [_, ey0, _, ey1] = self.rect.extent();
+        covers_in(self.rect, frame, window)
+            && [y0, y1]
+                .iter()
+                .all(|&y| self.stored_at(y.clamp(ey0, ey1) - ey0).is_some())
+    }
+
+    /// Where the two table rows around local `v` are stored.
+    #[inline]
+    fn stored_at(&self, v: f64) -> Option<(usize, usize)> {
+        let r = cell(v.max(0.0)).min(self.rect.height as usize - 1);
+        let (above, below) = (self.slot[r], self.slot[r + 1]);
+        if above == Self::NOT_STORED || below == Self::NOT_STORED {
+            return None;
+        }
+        Some((above as usize * self.stride, below as usize * self.stride))
+    }
+
+    /// [`PrefixSums::rect_sum`] from the stored rows; the sum is NaN when a
+    /// window edge falls on rows that are not stored.
+    fn rect_sum(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> RegionSum {
+        let [ex0, ey0, ex1, ey1] = self.rect.extent();
+        let (x0, x1) = (x0.max(ex0), x1.min(ex1));
+        let (y0, y1) = (y0.max(ey0), y1.min(ey1));
+        if !(x0 < x1 && y0 < y1) {
+            return RegionSum::default();
+        }
+        let g = |x: f64, y: f64| self.integral_at(x - ex0, y - ey0);
+        RegionSum {
+            count: (x1 - x0) * (y1 - y0),
+            sum: g(x1, y1) - g(x0, y1) - g(x1, y0) + g(x0, y0),
+        }
+    }
+
+    /// Bilinear interpolation of the table at local (u, v): the same
+    /// arithmetic as [`PrefixSums`]' own table, on whole-number entries, so
+    /// the sums are identical.
+    #[inline]
+    fn integral_at(&self, u: f64, v: f64) -> f64 {
+        let Some((above, below)) = self.stored_at(v) else {
+            return f64::NAN;
+        };
+        let (w, h) = (self.rect.width as usize, self.rect.height as usize);
+        let c = cell(u.max(0.0)).min(w - 1);
+        let r = cell(v.max(0.0)).min(h - 1);
+        let (fu, fv) = (u - c as f64, v - r as f64);
+        let (top_left, top_right) = (self.sat[above + c], self.sat[above + c + 1]);
+        let (bottom_left, bottom_right) = (self.sat[below + c], self.sat[below + c + 1]);
+        let top = top_left + fu * (top_right - top_left);
+        let bottom = bottom_left + fu * (bottom_right - bottom_left);
+        top + fv * (bottom - top)
+    }
+}
+
+/// The G table over `rect` (already clipped to the frame), and with `SAT`
+/// the summed-area table every [`PrefixSums::SAT_ROW_STEP`] rows (empty
+/// without), in one pass.
+fn build_tables<const SAT: bool>(frame: &GrayFrame, rect: PixelRect, offset: u16) -> (Vec<f64>, Vec<f64>) {
+    const STEP: usize = PrefixSums::SAT_ROW_STEP;
+    let (w, h) = (rect.width as usize, rect.height as usize);
+    let stride = w + 1;
+    let mut g = TablePool::take(stride * h);
+    let mut sat = if SAT {
+        TablePool::take(stride * (h / STEP + 1))
+    } else {
+        Vec::new()
+    };
+    // The sums are accumulated in integers: F and the column sums are
+    // whole numbers and G a multiple of 1/2, all below 2^53 (samples
+    // plus offset < 2^17 and sides <= 2^16 give F < 2^33, 2G < 2^50), so
+    // the f64 tables are exactly those an f64 accumulation gave, and
+    // the integer chains are shorter (measured: 1024x768 step 1.535 ->
+    // 1.47 ms, reference outputs bit-identical).
+    let offset_i = i64::from(offset);
+    // Column sums of F over the rows so far: the summed-area table's
+    // current row, stored every SAT_ROW_STEP rows.
+    let mut column = vec![0i64; if SAT { stride } else { 0 }];
+    let store = |sat: &mut [f64], k: usize, column: &[i64]| {
+        if !SAT {
+            return;
+        }
+        for (out, &c) in sat[k * stride..(k + 1) * stride].iter_mut().zip(column) {
+            *out = c as f64;
+        }
+    };
+    // Four rows at a time (SAT_ROW_STEP = 4): four independent chains,
+    // and the column sums updated once per block with the four rows'
+    // F together (measured: 1024x768 step 1.28 -> 1.19 ms, tables
+    // bit-identical).
+    let src_row = |r: usize| &frame.row(rect.y + r as u32)[rect.x as usize..rect.x as usize + w];
+    let mut blocks = g.chunks_exact_mut(STEP * stride);
+    for (b, block) in (&mut blocks).enumerate() {
+        store(&mut sat, b, &column);
+        let (g0, rest) = block.split_at_mut(stride);
+        let (g1, rest) = rest.split_at_mut(stride);
+        let (g2, g3) = rest.split_at_mut(stride);
+        let r = b * STEP;
+        let (s0, s1, s2, s3) = (src_row(r), src_row(r + 1), src_row(r + 2), src_row(r + 3));
+        // F before and after the pixel, and twice G, per row.
+        let (mut acc, mut twice) = ([0i64; STEP], [0i64; STEP]);
+        for g_row in [&mut *g0, &mut *g1, &mut *g2, &mut *g3] {
+            g_row[0] = 0.0;
+        }
+        for c in 0..w {
+            let v = [s0[c], s1[c], s2[c], s3[c]];
+            for j in 0..STEP {
+                trapezoid_step(&mut acc[j], &mut twice[j], v[j], offset_i);
+            }
+            g0[c + 1] = twice[0] as f64 * 0.5;
+            g1[c + 1] = twice[1] as f64 * 0.5;
+            g2[c + 1] = twice[2] as f64 * 0.5;
+            g3[c + 1] = twice[3] as f64 * 0.5;
+            if SAT {
+                column[c + 1] += acc[0] + acc[1] + acc[2] + acc[3];
+            }
+        }
+    }
+    // The table row after the last block, then the last rows (fewer
+    // than four), which no stored table row follows.
+    store(&mut sat, h / STEP, &column);
+    let first_left = h - h % STEP;
+    for (i, g_row) in blocks.into_remainder().chunks_exact_mut(stride).enumerate() {
+        let src = src_row(first_left + i);
+        let (mut acc, mut twice_g) = (0i64, 0i64);
+        g_row[0] = 0.0;
+        for (&v, g_out) in src.iter().zip(&mut g_row[1..]) {
+            trapezoid_step(&mut acc, &mut twice_g, v, offset_i);
+            *g_out = twice_g as f64 * 0.5;
+        }
+    }
+    (g, sat)
 }
 
 /// Where a row of the covered area starts: in [`PrefixSums`]' G table and in
@@ -1011,5 +1259,59 @@ mod tests {
             copy.rect_sum(1.0, 1.0, 20.0, 15.0),
             PrefixSums::new(&small, PixelRect::full(&small), 1).rect_sum(1.0, 1.0, 20.0, 15.0)
         );
+    }
+
+    /// Split tables: window sums with their edges in the given spans are
+    /// bit-identical to full tables' (whole-number table entries either
+    /// way); windows with an edge elsewhere are not covered and sum to NaN;
+    /// polygon sums agree to 1e-9; containment keeps the guard; the total
+    /// is the window area's.
+    #[test]
+    fn split_tables_equal_full_tables_where_they_cover() {
+        let frame = random_frame(120, 100, 13);
+        let windows = PixelRect {
+            x: 4,
+            y: 3,
+            width: 110,
+            height: 92,
+        };
+        let polygons = PixelRect {
+            x: 30,
+            y: 28,
+            width: 60,
+            height: 45,
+        };
+        let spans = [[10.0, 14.5], [80.2, 84.0]];
+        let full = PrefixSums::new(&frame, windows, 1);
+        let split = PrefixSums::split(&frame, polygons, 3.0, windows, &spans, 1);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(14);
+        for _ in 0..300 {
+            let (x0, x1) = (rng.gen_range(3.5..40.0), rng.gen_range(70.0..113.5));
+            let (y0, y1) = (rng.gen_range(10.0..14.5), rng.gen_range(80.2..84.0));
+            let window = [x0, y0, x1, y1];
+            assert!(split.covers_window(window), "{window:?}");
+            assert_eq!(
+                split.rect_sum(x0, y0, x1, y1),
+                full.rect_sum(x0, y0, x1, y1),
+                "{window:?}"
+            );
+        }
+        for window in [[10.0, 20.0, 90.0, 82.0], [10.0, 12.0, 90.0, 60.0]] {
+            assert!(!split.covers_window(window), "{window:?}");
+            let [x0, y0, x1, y1] = window;
+            assert!(split.rect_sum(x0, y0, x1, y1).sum.is_nan(), "{window:?}");
+        }
+        assert_eq!(split.total(), full.total());
+        for _ in 0..50 {
+            let poly = random_polygon(&mut rng, [60.0, 50.0], 15.0);
+            assert!(split.contains(&poly));
+            let (a, b) = (full.polygon(&poly), split.polygon(&poly));
+            assert!((a.count - b.count).abs() < 1e-9, "{a:?} {b:?}");
+            assert!((a.sum - b.sum).abs() < 1e-9 * a.sum, "{a:?} {b:?}");
+        }
+        // Inside the G table but within the guard of its edge.
+        let near_edge = [[31.0, 40.0], [50.0, 40.0], [40.0, 55.0]];
+        assert!(full.contains(&near_edge) && !split.contains(&near_edge));
+        assert!(!split.contains_box([31.0, 40.0, 50.0, 55.0]));
     }
 }

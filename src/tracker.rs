@@ -12,7 +12,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::calib::{axis_component, Calibration};
-use crate::energy::{evaluate, michelson, EnergyParams, EnergyTerms};
+use crate::energy::{evaluate, michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
     fit_free, fit_rigid, newton_polish, place, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
@@ -770,9 +770,39 @@ impl StereoTracker {
             let [x0, y0, x1, y1] = template.reach(pose, reach);
             PixelRect::covering(x0, y0, x1, y1, frame.width, frame.height).unwrap_or(PixelRect::full(frame))
         };
-        PrefixSums::new(frame, cover(reach.max(Self::NEAR_REACH_PX)), INTENSITY_OFFSET)
-            .with_reference(cover(Self::NEAR_REACH_PX))
+        let near = cover(Self::NEAR_REACH_PX);
+        if reach > Self::NEAR_REACH_PX {
+            return PrefixSums::new(frame, cover(reach), INTENSITY_OFFSET).with_reference(near);
+        }
+        // G only where the contour and its sector bands can be; the window
+        // sums from table rows where the window's top and bottom edges can
+        // be: within the reach, plus what a rotation of
+        // NEAR_ROTATION_RAD moves the outermost vertex, of where they are
+        // at `pose`. A pose past either is refused (`outside_area`), and
+        // the fit widens to full tables.
+        let guard = SectorTemplate::outer_band_width(template);
+        let r = template.radius + guard + Self::NEAR_REACH_PX + 2.0;
+        let polygons = PixelRect::covering(
+            pose.x - r,
+            pose.y - r,
+            pose.x + r,
+            pose.y + r,
+            frame.width,
+            frame.height,
+        );
+        let Some(polygons) = polygons.filter(|p| p.width * p.height < near.width * near.height) else {
+            return PrefixSums::new(frame, near, INTENSITY_OFFSET);
+        };
+        let [_, top, _, bottom] = window_of(&place(&template.points, pose), template.margin);
+        let slack = Self::NEAR_REACH_PX + 1.0 + template.radius * Self::NEAR_ROTATION_RAD;
+        let edges = [[top - slack, top + slack], [bottom - slack, bottom + slack]];
+        PrefixSums::split(frame, polygons, guard, near, &edges, INTENSITY_OFFSET)
     }
+
+    /// Rotation within a fit on the near tables that their window rows
+    /// allow for (about 3 degrees): the rigid fits from a confirmed
+    /// prediction turn far less.
+    const NEAR_ROTATION_RAD: f64 = 0.05;
 
     /// Why the measurement cannot be trusted, if it cannot.
     fn loss_reason(
@@ -1016,6 +1046,48 @@ mod tests {
         let d = r.disparity_px.unwrap()[0] - moved.truth.disparity_px[0];
         let d0 = first.truth.disparity_px[0];
         assert!(d.abs() < 0.5, "disparity error {d} (first pair's disparity {d0})");
+    }
+
+    /// The near tables (G around the contour, window rows around its
+    /// window's edges) give the full-reach tables' energies, and refuse a
+    /// pose whose window edges leave their rows.
+    #[test]
+    fn near_tables_give_full_table_energies_and_refuse_what_they_do_not_cover() {
+        let pairs = sequence(Preset::Noisy, Shape::Rod, 8, 2);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        let (template, _) = tracker.template.as_ref().unwrap();
+        let pose = tracker.state.as_ref().unwrap().left;
+        let frame = &pairs[1].left;
+        let near = tracker.sums_around(frame, template, pose, StereoTracker::NEAR_REACH_PX);
+        let full = tracker.sums_around(frame, template, pose, 24.0);
+        let energy = |sums: &PrefixSums, (dx, dy, dt): (f64, f64, f64)| {
+            let moved = Pose {
+                x: pose.x + dx,
+                y: pose.y + dy,
+                theta: pose.theta + dt,
+            };
+            let points = place(&template.points, moved);
+            let params = &tracker.params.energy;
+            crate::energy::evaluate_with_length(sums, &points, params, template.margin, template.length)
+                .energy
+        };
+        for shift in [
+            (0.0, 0.0, 0.0),
+            (5.5, -5.5, 0.0),
+            (-4.0, 3.0, 0.03),
+            (2.0, 2.0, -0.04),
+        ] {
+            let (a, b) = (energy(&near, shift), energy(&full, shift));
+            assert!(
+                a.is_finite() && (a - b).abs() < 1e-9 * b.abs(),
+                "{shift:?}: near {a} full {b}"
+            );
+        }
+        for shift in [(0.0, 20.0, 0.0), (0.0, -20.0, 0.0)] {
+            let (a, b) = (energy(&near, shift), energy(&full, shift));
+            assert!(!a.is_finite() && b.is_finite(), "{shift:?}: near {a} full {b}");
+        }
     }
 
     #[test]
