@@ -25,6 +25,9 @@
 //!
 //! Sums are built over a rectangular [`PixelRect`] of the image only (the area
 //! the contour can reach), so a tracking step never touches the whole frame.
+//! [`PrefixSums::split`] goes further for a contour that moves a short way:
+//! G only where the contour can be, and the window sums from table rows only
+//! where the window's top and bottom edges can be.
 
 use crate::geometry::Point;
 use crate::imageio::GrayFrame;
