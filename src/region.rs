@@ -580,17 +580,7 @@ impl<'a> PrefixSums<'a> {
         if let Some(rows) = &self.window {
             return rows.rect_sum(x0, y0, x1, y1);
         }
-        let [ex0, ey0, ex1, ey1] = self.rect.extent();
-        let (x0, x1) = (x0.max(ex0), x1.min(ex1));
-        let (y0, y1) = (y0.max(ey0), y1.min(ey1));
-        if !(x0 < x1 && y0 < y1) {
-            return RegionSum::default();
-        }
-        let g = |x: f64, y: f64| self.integral_at(x - ex0, y - ey0);
-        RegionSum {
-            count: (x1 - x0) * (y1 - y0),
-            sum: g(x1, y1) - g(x0, y1) - g(x1, y0) + g(x0, y0),
-        }
+        box_sum(self.rect, [x0, y0, x1, y1], |u, v| self.integral_at(u, v))
     }
 
     /// Sum over the whole covered area (the window area for tables built by
@@ -632,6 +622,23 @@ impl<'a> PrefixSums<'a> {
         let top = top_left + fu * (top_right - top_left);
         let bottom = bottom_left + fu * (bottom_right - bottom_left);
         top + fv * (bottom - top)
+    }
+}
+
+/// Count and sum over the continuous box `[x0, y0, x1, y1]` clipped to
+/// `rect`, from a summed-area table's interpolation at local (u, v).
+#[inline]
+fn box_sum(rect: PixelRect, [x0, y0, x1, y1]: [f64; 4], integral_at: impl Fn(f64, f64) -> f64) -> RegionSum {
+    let [ex0, ey0, ex1, ey1] = rect.extent();
+    let (x0, x1) = (x0.max(ex0), x1.min(ex1));
+    let (y0, y1) = (y0.max(ey0), y1.min(ey1));
+    if !(x0 < x1 && y0 < y1) {
+        return RegionSum::default();
+    }
+    let g = |x: f64, y: f64| integral_at(x - ex0, y - ey0);
+    RegionSum {
+        count: (x1 - x0) * (y1 - y0),
+        sum: g(x1, y1) - g(x0, y1) - g(x1, y0) + g(x0, y0),
     }
 }
 
@@ -734,17 +741,7 @@ impl WindowRows {
     /// [`PrefixSums::rect_sum`] from the stored rows; the sum is NaN when a
     /// window edge falls on rows that are not stored.
     fn rect_sum(&self, x0: f64, y0: f64, x1: f64, y1: f64) -> RegionSum {
-        let [ex0, ey0, ex1, ey1] = self.rect.extent();
-        let (x0, x1) = (x0.max(ex0), x1.min(ex1));
-        let (y0, y1) = (y0.max(ey0), y1.min(ey1));
-        if !(x0 < x1 && y0 < y1) {
-            return RegionSum::default();
-        }
-        let g = |x: f64, y: f64| self.integral_at(x - ex0, y - ey0);
-        RegionSum {
-            count: (x1 - x0) * (y1 - y0),
-            sum: g(x1, y1) - g(x0, y1) - g(x1, y0) + g(x0, y0),
-        }
+        box_sum(self.rect, [x0, y0, x1, y1], |u, v| self.integral_at(u, v))
     }
 
     /// Bilinear interpolation of the table at local (u, v): the same
