@@ -258,19 +258,7 @@ impl<'a> PrefixSums<'a> {
     pub fn new(frame: &'a GrayFrame, rect: PixelRect, offset: u16) -> Self {
         let rect = rect.clipped_to(frame);
         let (g, sat) = build_tables::<true>(frame, rect, offset);
-        let mut sums = Self {
-            frame,
-            offset: f64::from(offset),
-            rect,
-            reference: RegionSum::default(),
-            stride: rect.width as usize + 1,
-            g,
-            sat,
-            window: None,
-            guard: 0.0,
-        };
-        sums.reference = sums.total();
-        sums
+        Self::assemble(frame, offset, rect, g, sat, None, 0.0)
     }
 
     /// Tables for a fit that moves a known contour a short way: G over
@@ -283,8 +271,9 @@ impl<'a> PrefixSums<'a> {
     /// when its edges lie in those rows ([`PrefixSums::covers_window`]).
     ///
     /// A tracker's windows reach far past its contours (margin 0.3 x the
-    /// object's size): G over the window area was most of the table build
-    /// (measured: see `StereoTracker`'s near tables).
+    /// object's size): for the 1024x768 benchmark blob, G over the window
+    /// area took 417 px a side, against 310 for the contour's reach, and
+    /// the step went from 0.83 to 0.74 ms (minimum, alternated).
     pub fn split(
         frame: &'a GrayFrame,
         polygons: PixelRect,
@@ -296,6 +285,19 @@ impl<'a> PrefixSums<'a> {
         let rect = polygons.clipped_to(frame);
         let (g, _) = build_tables::<false>(frame, rect, offset);
         let window = WindowRows::new(frame, windows.clipped_to(frame), edge_rows, offset);
+        Self::assemble(frame, offset, rect, g, Vec::new(), Some(window), guard.max(0.0))
+    }
+
+    /// The tables with the whole covered area as the reference area.
+    fn assemble(
+        frame: &'a GrayFrame,
+        offset: u16,
+        rect: PixelRect,
+        g: Vec<f64>,
+        sat: Vec<f64>,
+        window: Option<WindowRows>,
+        guard: f64,
+    ) -> Self {
         let mut sums = Self {
             frame,
             offset: f64::from(offset),
@@ -303,9 +305,9 @@ impl<'a> PrefixSums<'a> {
             reference: RegionSum::default(),
             stride: rect.width as usize + 1,
             g,
-            sat: Vec::new(),
-            window: Some(window),
-            guard: guard.max(0.0),
+            sat,
+            window,
+            guard,
         };
         sums.reference = sums.total();
         sums
