@@ -213,23 +213,15 @@ struct WindowRows {
 
 impl Clone for PrefixSums<'_> {
     fn clone(&self) -> Self {
-        let mut g = TablePool::take(self.g.len());
-        g.copy_from_slice(&self.g);
-        let mut sat = TablePool::take(self.sat.len());
-        sat.copy_from_slice(&self.sat);
-        let window = self.window.as_ref().map(|w| {
-            let mut sat = TablePool::take(w.sat.len());
-            sat.copy_from_slice(&w.sat);
-            WindowRows {
-                rect: w.rect,
-                stride: w.stride,
-                slot: w.slot.clone(),
-                sat,
-            }
+        let window = self.window.as_ref().map(|w| WindowRows {
+            rect: w.rect,
+            stride: w.stride,
+            slot: w.slot.clone(),
+            sat: TablePool::copy(&w.sat),
         });
         Self {
-            g,
-            sat,
+            g: TablePool::copy(&self.g),
+            sat: TablePool::copy(&self.sat),
             window,
             ..*self
         }
@@ -659,8 +651,9 @@ impl WindowRows {
     const NOT_STORED: u32 = u32::MAX;
 
     /// The table rows over `rect` (clipped to the frame) that window edges
-    /// in the spans `edge_rows` read, and those the whole area's sum reads. Column sums of the pixels are carried down the area and
-    /// summed along at each stored row.
+    /// in the spans `edge_rows` read, and those the whole area's sum reads.
+    /// Column sums of the pixels are carried down the area and summed along
+    /// at each stored row.
     fn new(frame: &GrayFrame, rect: PixelRect, edge_rows: &[[f64; 2]], offset: u16) -> Self {
         let (w, h) = (rect.width as usize, rect.height as usize);
         let stride = w + 1;
@@ -690,8 +683,8 @@ impl WindowRows {
         // with the offset added per sample took 2.5 instructions per pixel.
         // The offset's share, offset * rows * columns, is added per entry.
         let mut column = vec![0u32; w];
-        let last_stored = wanted.iter().rposition(|&w| w).unwrap_or(0);
-        for r in 0..=last_stored {
+        // Row h is always stored, so every row is carried down.
+        for r in 0..=h {
             if slot[r] != Self::NOT_STORED {
                 let out = &mut sat[slot[r] as usize * stride..][..stride];
                 out[0] = 0.0;
@@ -726,18 +719,19 @@ impl WindowRows {
         covers_in(self.rect, frame, window)
             && [y0, y1]
                 .iter()
-                .all(|&y| self.stored_at(y.clamp(ey0, ey1) - ey0).is_some())
+                .all(|&y| self.rows_at(y.clamp(ey0, ey1) - ey0).is_some())
     }
 
-    /// Where the two table rows around local `v` are stored.
+    /// The pixel row local `v` lies in (clamped to the area), and where the
+    /// table rows above and below it start in `sat`, when both are stored.
     #[inline]
-    fn stored_at(&self, v: f64) -> Option<(usize, usize)> {
+    fn rows_at(&self, v: f64) -> Option<(usize, usize, usize)> {
         let r = cell(v.max(0.0)).min(self.rect.height as usize - 1);
         let (above, below) = (self.slot[r], self.slot[r + 1]);
         if above == Self::NOT_STORED || below == Self::NOT_STORED {
             return None;
         }
-        Some((above as usize * self.stride, below as usize * self.stride))
+        Some((r, above as usize * self.stride, below as usize * self.stride))
     }
 
     /// [`PrefixSums::rect_sum`] from the stored rows; the sum is NaN when a
@@ -751,12 +745,10 @@ impl WindowRows {
     /// the sums are identical.
     #[inline]
     fn integral_at(&self, u: f64, v: f64) -> f64 {
-        let Some((above, below)) = self.stored_at(v) else {
+        let Some((r, above, below)) = self.rows_at(v) else {
             return f64::NAN;
         };
-        let (w, h) = (self.rect.width as usize, self.rect.height as usize);
-        let c = cell(u.max(0.0)).min(w - 1);
-        let r = cell(v.max(0.0)).min(h - 1);
+        let c = cell(u.max(0.0)).min(self.rect.width as usize - 1);
         let (fu, fv) = (u - c as f64, v - r as f64);
         let (top_left, top_right) = (self.sat[above + c], self.sat[above + c + 1]);
         let (bottom_left, bottom_right) = (self.sat[below + c], self.sat[below + c + 1]);
@@ -916,6 +908,13 @@ impl TablePool {
         let mut buffer = reused.unwrap_or_default();
         // Shrinking or keeping the length writes nothing; only growth fills.
         buffer.resize(n, 0.0);
+        buffer
+    }
+
+    /// A pooled copy of `table`.
+    fn copy(table: &[f64]) -> Vec<f64> {
+        let mut buffer = Self::take(table.len());
+        buffer.copy_from_slice(table);
         buffer
     }
 

@@ -758,7 +758,8 @@ impl StereoTracker {
 
     /// Prefix sums over what the template can reach from `pose` within
     /// `reach` (at least [`StereoTracker::NEAR_REACH_PX`]), with the area it
-    /// reaches within `NEAR_REACH_PX` as the reference area.
+    /// reaches within `NEAR_REACH_PX` as the reference area. Within
+    /// `NEAR_REACH_PX` they are split tables ([`PrefixSums::split`]).
     fn sums_around<'f>(
         &self,
         frame: &'f GrayFrame,
@@ -776,10 +777,10 @@ impl StereoTracker {
         }
         // G only where the contour and its sector bands can be; the window
         // sums from table rows where the window's top and bottom edges can
-        // be: within the reach, plus what a rotation of
-        // NEAR_ROTATION_RAD moves the outermost vertex, of where they are
-        // at `pose`. A pose past either is refused (`outside_area`), and
-        // the fit widens to full tables.
+        // be: where they are at `pose`, plus the reach and what a rotation
+        // of NEAR_ROTATION_RAD moves the outermost vertex. A pose past
+        // either is refused (`outside_area`), and the fit widens to full
+        // tables. Split tables that would not be smaller are not built.
         let guard = SectorTemplate::outer_band_width(template);
         let r = template.radius + guard + Self::NEAR_REACH_PX + 2.0;
         let polygons = PixelRect::covering(
