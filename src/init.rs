@@ -27,6 +27,58 @@ use crate::imageio::GrayFrame;
 /// A single-channel f32 image (values in 0..=1 after normalisation).
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 
+/// Which way the object differs from its surroundings.
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    Hash,
+    Serialize,
+    Deserialize,
+    utoipa::ToSchema,
+    clap::ValueEnum,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum Polarity {
+    /// Brighter than its surroundings (most particles and tools in SE images).
+    Brighter,
+    /// Darker than its surroundings.
+    Darker,
+    /// Either (the default).
+    #[default]
+    Any,
+}
+
+impl Polarity {
+    /// The snake_case name used in JSON and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Polarity::Brighter => "brighter",
+            Polarity::Darker => "darker",
+            Polarity::Any => "any",
+        }
+    }
+
+    /// Whether an object of Michelson `contrast` against its surroundings
+    /// (positive: brighter) fits this polarity.
+    pub fn admits(self, contrast: f64) -> bool {
+        match self {
+            Polarity::Brighter => contrast > 0.0,
+            Polarity::Darker => contrast < 0.0,
+            Polarity::Any => contrast != 0.0,
+        }
+    }
+}
+
+/// Largest magnitude of a hint coordinate or size, pixels (2^31).
+pub const MAX_HINT_COORDINATE: i64 = 1 << 31;
+
+/// Smallest width and height of a `roi` hint, pixels.
+pub const MIN_ROI_SIDE: i64 = 16;
+
 /// Parameters of the initialisation. Every field has a default that works
 /// without tuning on 640x480 to 4096x4096 SEM frames; `None` means "derive
 /// from the image".
@@ -62,18 +114,27 @@ pub struct InitParams {
     /// of the searched area.
     #[schema(minimum = 0.0)]
     pub max_area_px: Option<f64>,
-    /// Region of interest `[x, y, width, height]` in pixels: only objects
-    /// entirely inside it are considered.
+    /// Hint: the box `[x, y, width, height]` (pixels) the object lies in.
+    /// Clipped to the image, so a box around a tool that enters from the
+    /// image border may run past it; width and height >= 16, and the box
+    /// must overlap the image.
     #[schema(schema_with = roi_schema)]
-    pub roi: Option<[u32; 4]>,
+    pub roi: Option<[i64; 4]>,
+    /// Hint: a point `[x, y]` (pixels) on the object, as a person clicks it.
+    /// Must lie inside the image (and inside `roi` when both are given).
+    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
+    pub point: Option<[f64; 2]>,
+    /// Hint: is the object brighter or darker than its surroundings?
+    /// Default `any`.
+    pub polarity: Polarity,
     /// Vertex spacing of the returned contour in full-resolution pixels
     /// (default 2.0; range 0.5..=50).
     #[schema(minimum = 0.5, maximum = 50.0)]
     pub contour_spacing_px: f64,
 }
 
-/// OpenAPI schema of [`InitParams::roi`]: null or four integers in
-/// 0..=u32::MAX (the derived one would say int32).
+/// OpenAPI schema of [`InitParams::roi`]: null or four 64-bit integers
+/// (the derived one would say int32).
 fn roi_schema() -> utoipa::openapi::schema::Array {
     use utoipa::openapi::schema::{ArrayBuilder, KnownFormat, ObjectBuilder, SchemaFormat, SchemaType, Type};
     ArrayBuilder::new()
@@ -82,13 +143,14 @@ fn roi_schema() -> utoipa::openapi::schema::Array {
             ObjectBuilder::new()
                 .schema_type(Type::Integer)
                 .format(Some(SchemaFormat::KnownFormat(KnownFormat::Int64)))
-                .minimum(Some(0))
-                .maximum(Some(u32::MAX)),
+                .minimum(Some(-MAX_HINT_COORDINATE))
+                .maximum(Some(MAX_HINT_COORDINATE)),
         )
         .min_items(Some(4))
         .max_items(Some(4))
         .description(Some(
-            "Region of interest `[x, y, width, height]` in pixels: only objects entirely inside it are considered.",
+            "Hint: the box `[x, y, width, height]` (pixels) the object lies in, clipped to the image \
+             (it may run past the image border); width and height >= 16; it must overlap the image.",
         ))
         .build()
 }
@@ -104,6 +166,8 @@ impl Default for InitParams {
             min_area_px: None,
             max_area_px: None,
             roi: None,
+            point: None,
+            polarity: Polarity::Any,
             contour_spacing_px: 2.0,
         }
     }
@@ -151,6 +215,14 @@ pub enum InitError {
     /// A parameter is out of range.
     #[error("invalid parameter: {0}")]
     InvalidParams(String),
+    /// A hint (`roi`, `point`) is malformed or does not fit the image.
+    #[error("invalid {field}: {message}")]
+    InvalidHint {
+        /// The hint's field name (`roi` or `point`).
+        field: String,
+        /// The value and what was expected.
+        message: String,
+    },
     /// The image has no edges above the thresholds (e.g. a blank frame).
     #[error("no edges found (high threshold {high_threshold:.4}): the image looks featureless")]
     NoEdges { high_threshold: f32 },
@@ -172,6 +244,7 @@ impl InitError {
     pub fn code(&self) -> &'static str {
         match self {
             Self::InvalidParams(_) => "invalid_init_params",
+            Self::InvalidHint { .. } => "invalid_hint",
             Self::NoEdges { .. } => "no_edges",
             Self::NothingInSizeRange { .. } => "nothing_in_size_range",
             Self::TouchesBorder { .. } => "object_touches_border",
@@ -183,6 +256,12 @@ impl InitParams {
     /// Checks ranges; the message says what was expected.
     pub fn validate(&self) -> Result<(), InitError> {
         let bad = |m: String| Err(InitError::InvalidParams(m));
+        let hint = |field: &str, message: String| {
+            Err(InitError::InvalidHint {
+                field: field.into(),
+                message,
+            })
+        };
         if !(64..=8192).contains(&self.working_max_side) {
             return bad(format!(
                 "working_max_side {} (expected 64..=8192)",
@@ -233,6 +312,33 @@ impl InitParams {
                 ));
             }
         }
+        if let Some([x, y, w, h]) = self.roi {
+            let limit = MAX_HINT_COORDINATE;
+            if [x, y].iter().any(|v| v.abs() > limit) || w > limit || h > limit {
+                return hint(
+                    "roi",
+                    format!("[{x}, {y}, {w}, {h}] (expected coordinates within +-{limit})"),
+                );
+            }
+            if w < MIN_ROI_SIDE || h < MIN_ROI_SIDE {
+                return hint(
+                    "roi",
+                    format!("[{x}, {y}, {w}, {h}]: a box of {w}x{h} px (expected width and height >= {MIN_ROI_SIDE})"),
+                );
+            }
+        }
+        if let Some([x, y]) = self.point {
+            if !(x.is_finite()
+                && y.is_finite()
+                && x.abs() <= MAX_HINT_COORDINATE as f64
+                && y.abs() <= MAX_HINT_COORDINATE as f64)
+            {
+                return hint(
+                    "point",
+                    format!("[{x}, {y}] (expected two finite pixel coordinates)"),
+                );
+            }
+        }
         if !(self.contour_spacing_px.is_finite() && (0.5..=50.0).contains(&self.contour_spacing_px)) {
             return bad(format!(
                 "contour_spacing_px {} (expected 0.5..=50)",
@@ -240,6 +346,80 @@ impl InitParams {
             ));
         }
         Ok(())
+    }
+}
+
+/// The hints of [`InitParams`] checked against an image's size.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hints {
+    /// The `roi` clipped to the image, `[x, y, width, height]`; the whole
+    /// image without one.
+    pub roi: [u32; 4],
+    /// True when a `roi` was given.
+    pub has_roi: bool,
+    /// The `point`, inside `roi`.
+    pub point: Option<[f64; 2]>,
+    /// The polarity.
+    pub polarity: Polarity,
+}
+
+impl InitParams {
+    /// The hints checked against a `width` x `height` image: the `roi`
+    /// clipped to it (an error only when nothing of at least
+    /// [`MIN_ROI_SIDE`] px a side is left), the `point` inside both.
+    pub fn hints_for(&self, width: u32, height: u32) -> Result<Hints, InitError> {
+        let hint = |field: &str, message: String| InitError::InvalidHint {
+            field: field.into(),
+            message,
+        };
+        let (wi, hi) = (i64::from(width), i64::from(height));
+        let roi = match self.roi {
+            None => [0, 0, width, height],
+            Some([x, y, w, h]) => {
+                let (x0, y0) = (x.max(0), y.max(0));
+                let (x1, y1) = ((x + w).min(wi), (y + h).min(hi));
+                if x1 <= x0 || y1 <= y0 {
+                    return Err(hint(
+                        "roi",
+                        format!("[{x}, {y}, {w}, {h}] lies outside the {width}x{height} image (expected a box that overlaps it)"),
+                    ));
+                }
+                let (cw, ch) = (x1 - x0, y1 - y0);
+                if cw < MIN_ROI_SIDE.min(wi) || ch < MIN_ROI_SIDE.min(hi) {
+                    return Err(hint(
+                        "roi",
+                        format!(
+                            "[{x}, {y}, {w}, {h}] overlaps the {width}x{height} image by only {cw}x{ch} px (expected at least {MIN_ROI_SIDE}x{MIN_ROI_SIDE})"
+                        ),
+                    ));
+                }
+                [x0 as u32, y0 as u32, cw as u32, ch as u32]
+            }
+        };
+        if let Some([px, py]) = self.point {
+            let (lx, ly) = (width as f64 - 0.5, height as f64 - 0.5);
+            if !(px >= -0.5 && px <= lx && py >= -0.5 && py <= ly) {
+                return Err(hint(
+                    "point",
+                    format!("[{px}, {py}] lies outside the {width}x{height} image (expected -0.5 <= x <= {lx} and -0.5 <= y <= {ly})"),
+                ));
+            }
+            let [rx, ry, rw, rh] = roi.map(f64::from);
+            if self.roi.is_some()
+                && !(px >= rx - 0.5 && px <= rx + rw - 0.5 && py >= ry - 0.5 && py <= ry + rh - 0.5)
+            {
+                return Err(hint(
+                    "point",
+                    format!("[{px}, {py}] lies outside the roi (expected a point on the object, inside the box it lies in)"),
+                ));
+            }
+        }
+        Ok(Hints {
+            roi,
+            has_roi: self.roi.is_some(),
+            point: self.point,
+            polarity: self.polarity,
+        })
     }
 }
 
@@ -347,7 +527,7 @@ struct EdgeStage {
 
 /// Downsamples, blurs and runs Canny as [`initialise`] does.
 fn edge_stage(frame: &GrayFrame, params: &InitParams) -> Result<EdgeStage, InitError> {
-    let roi = resolve_roi(frame, params.roi)?;
+    let roi = resolve_roi(frame, params)?;
     let scale = roi[2].max(roi[3]).div_ceil(params.working_max_side).max(1);
     let work = downsample(frame, roi, scale);
     let (w, h) = work.dimensions();
@@ -898,22 +1078,10 @@ fn to_full_resolution(border: &[[i32; 2]], scale: u32, roi: [u32; 4], spacing: f
     full.resampled(n)
 }
 
-/// The region of interest as `[x, y, w, h]`, checked against the frame.
-fn resolve_roi(frame: &GrayFrame, roi: Option<[u32; 4]>) -> Result<[u32; 4], InitError> {
-    let Some([x, y, w, h]) = roi else {
-        return Ok([0, 0, frame.width, frame.height]);
-    };
-    if w < 16
-        || h < 16
-        || x.checked_add(w).is_none_or(|e| e > frame.width)
-        || y.checked_add(h).is_none_or(|e| e > frame.height)
-    {
-        return Err(InitError::InvalidParams(format!(
-            "roi [{x}, {y}, {w}, {h}] (expected width and height >= 16, inside the {}x{} image)",
-            frame.width, frame.height
-        )));
-    }
-    Ok([x, y, w, h])
+/// The searched area `[x, y, w, h]` of the frame: the `roi` hint clipped
+/// to it, or the whole frame.
+fn resolve_roi(frame: &GrayFrame, params: &InitParams) -> Result<[u32; 4], InitError> {
+    Ok(params.hints_for(frame.width, frame.height)?.roi)
 }
 
 /// Box-averages the `roi` of a frame by an integer `factor`, normalised to
@@ -1160,7 +1328,11 @@ mod tests {
             roi: Some([390, 0, 20, 20]),
             ..InitParams::default()
         };
-        assert!(matches!(initialise(&f, &bad), Err(InitError::InvalidParams(_))));
+        let e = initialise(&f, &bad).unwrap_err();
+        assert!(
+            matches!(&e, InitError::InvalidHint { field, message } if field == "roi" && message.contains("10x20")),
+            "{e}"
+        );
     }
 
     #[test]

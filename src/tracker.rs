@@ -236,6 +236,10 @@ pub enum TrackError {
     /// The two images differ in size (or another input problem).
     #[error(transparent)]
     Input(#[from] ImageInputError),
+    /// A hint of the initialisation (`init.roi`, `init.point`) does not fit
+    /// the pair's images; the pair is not counted.
+    #[error("{0}")]
+    Hint(crate::init::InitError),
     /// The pair's size differs from the session's earlier pairs.
     #[error("pair is {width}x{height} but the session's pairs are {expected_width}x{expected_height} (expected the same size throughout; reset the session to change it)")]
     SizeChanged {
@@ -353,6 +357,13 @@ impl StereoTracker {
                     expected_height: s.height,
                 });
             }
+        }
+        let initialising = self.state.as_ref().is_none_or(|s| s.lost);
+        if initialising {
+            self.params
+                .init
+                .hints_for(left.width, left.height)
+                .map_err(TrackError::Hint)?;
         }
         let frame = self.frames;
         self.frames += 1;

@@ -7,7 +7,7 @@ use clap::Args;
 
 use super::CliError;
 use crate::imageio::{read_file, DecodeLimits};
-use crate::init::{initialise, InitParams};
+use crate::init::{initialise, InitParams, Polarity};
 
 /// Arguments of `semdepth init`.
 #[derive(Debug, Args)]
@@ -20,9 +20,16 @@ pub struct InitArgs {
     /// Largest expected object area in pixels.
     #[arg(long)]
     pub max_area: Option<f64>,
-    /// Region of interest as X,Y,WIDTH,HEIGHT in pixels.
-    #[arg(long, value_delimiter = ',', num_args = 4)]
-    pub roi: Option<Vec<u32>>,
+    /// Hint: the box the object lies in, X Y WIDTH HEIGHT in pixels (clipped
+    /// to the image: it may run past the border, for a tool entering there).
+    #[arg(long, num_args = 4, value_names = ["X", "Y", "WIDTH", "HEIGHT"], allow_negative_numbers = true)]
+    pub roi: Option<Vec<i64>>,
+    /// Hint: a point on the object, X Y in pixels.
+    #[arg(long, num_args = 2, value_names = ["X", "Y"], allow_negative_numbers = true)]
+    pub point: Option<Vec<f64>>,
+    /// Hint: the object is brighter or darker than its surroundings.
+    #[arg(long, value_enum, default_value_t = Polarity::Any)]
+    pub polarity: Polarity,
     /// Gaussian sigma in working pixels (default: adapts to the noise).
     #[arg(long)]
     pub sigma: Option<f32>,
@@ -61,10 +68,14 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         min_area_px: args.min_area,
         max_area_px: args.max_area,
         roi: args.roi.map(|r| [r[0], r[1], r[2], r[3]]),
+        point: args.point.map(|p| [p[0], p[1]]),
+        polarity: args.polarity,
         contour_spacing_px: args.contour_spacing,
     };
     let result = initialise(&frame, &params).map_err(|e| match e {
-        crate::init::InitError::InvalidParams(_) => CliError::input(format!("error[{}]: {e}", e.code())),
+        crate::init::InitError::InvalidParams(_) | crate::init::InitError::InvalidHint { .. } => {
+            CliError::input(format!("error[{}]: {e}", e.code()))
+        }
         _ => CliError::with_code(
             3,
             format!(

@@ -278,6 +278,7 @@ fn track_error_code(e: &TrackError) -> &'static str {
     match e {
         TrackError::Input(e) => e.code(),
         TrackError::SizeChanged { .. } => "pair_size_changed",
+        TrackError::Hint(e) => e.code(),
     }
 }
 

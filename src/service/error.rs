@@ -131,6 +131,16 @@ impl From<TrackError> for ApiError {
         match e {
             TrackError::Input(e) => e.into(),
             e @ TrackError::SizeChanged { .. } => Self::bad_request("pair_size_changed", e.to_string()),
+            // The session's hints do not fit the uploaded images.
+            TrackError::Hint(e) => {
+                let message = match &e {
+                    crate::init::InitError::InvalidHint { field, message } => {
+                        format!("invalid init.{field}: {message}")
+                    }
+                    other => other.to_string(),
+                };
+                Self::new(StatusCode::UNPROCESSABLE_ENTITY, e.code(), message)
+            }
         }
     }
 }
