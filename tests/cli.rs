@@ -2,6 +2,8 @@
 //! `init` finds the object in it; bad input gives a message and exit code.
 
 mod common;
+#[path = "common/discs.rs"]
+mod discs;
 
 use std::process::{Command, Output};
 
@@ -113,4 +115,83 @@ fn synth_rejects_bad_options() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(!String::from_utf8_lossy(&out.stderr).is_empty());
+}
+
+/// Asserts exit code 2 and that stderr mentions each of `needles`.
+fn assert_input_error(out: &Output, needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "stderr: {err}");
+    for needle in needles {
+        assert!(err.contains(needle), "stderr should mention {needle:?}: {err}");
+    }
+}
+
+#[test]
+fn init_hints_pick_the_object_and_bad_hints_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let image = dir.path().join("two_discs.png");
+    let (left, _) = discs::scene_pair([0.0, 0.0]);
+    left.to_gray8().save(&image).unwrap();
+    let image = image.to_str().unwrap();
+    let [ax, ay, _] = discs::DISC_A;
+    let [bx, by, _] = discs::DISC_B;
+    let roi = |r: [i64; 4]| r.map(|v| v.to_string());
+
+    // A box around each disc finds that disc.
+    for (r, (cx, cy)) in [(discs::ROI_A, (ax, ay)), (discs::ROI_B, (bx, by))] {
+        let r = roi(r);
+        let found = stdout_json(&semdepth(&[
+            "init",
+            image,
+            "--roi",
+            &r[0],
+            &r[1],
+            &r[2],
+            &r[3],
+            "--no-contour",
+        ]));
+        let d = discs::distance(&found["centroid"], cx, cy);
+        assert!(
+            d < 1.5,
+            "--roi {r:?}: centroid {} is {d:.2} px from ({cx}, {cy})",
+            found["centroid"]
+        );
+    }
+    // A box running past the top and right borders (clipped to
+    // [190, 0, 130, 200]) around B, with a point on it and its polarity.
+    let found = stdout_json(&semdepth(&[
+        "init",
+        image,
+        "--roi",
+        "190",
+        "-30",
+        "200",
+        "230",
+        "--point",
+        "235",
+        "110",
+        "--polarity",
+        "brighter",
+        "--no-contour",
+    ]));
+    let d = discs::distance(&found["centroid"], bx, by);
+    assert!(
+        d < 1.5,
+        "box past the border: centroid {} is {d:.2} px from B",
+        found["centroid"]
+    );
+
+    // Bad hints: exit 2 naming the flag and what was wrong.
+    let out = semdepth(&["init", image, "--roi", "400", "10", "50", "50"]);
+    assert_input_error(&out, &["invalid_hint", "--roi", "outside the 320x240 image"]);
+    let out = semdepth(&["init", image, "--roi", "-100", "-100", "50", "50"]);
+    assert_input_error(&out, &["invalid_hint", "--roi", "outside"]);
+    let out = semdepth(&["init", image, "--point", "10", "250"]);
+    assert_input_error(&out, &["invalid_hint", "--point", "outside the 320x240 image"]);
+    let out = semdepth(&["init", image, "--roi", "200", "75", "12", "70"]);
+    assert_input_error(&out, &["invalid_hint", "--roi", "12x70", ">= 16"]);
+    let out = semdepth(&["init", image, "--polarity", "up"]);
+    assert_input_error(&out, &["--polarity", "'up'", "brighter", "darker", "any"]);
+    let out = semdepth(&["init", image, "--point", "10"]);
+    assert_input_error(&out, &["--point"]);
 }

@@ -43,6 +43,7 @@ fn every_operation_has_an_id_and_every_v1_error_is_described() {
         "/v1/sessions/{id}",
         "/v1/sessions/{id}/frames",
         "/v1/sessions/{id}/reset",
+        "/v1/sessions/{id}/reinit",
         "/v1/sessions/{id}/results",
         "/v1/sessions/{id}/calibration-samples",
         "/v1/sessions/{id}/stream",

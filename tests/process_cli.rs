@@ -3,6 +3,8 @@
 //! calibration, bad input, and the real quartz images as a fixture folder.
 
 mod common;
+#[path = "common/discs.rs"]
+mod discs;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -391,4 +393,172 @@ fn process_runs_on_the_real_quartz_images() {
             r["name"]
         );
     }
+}
+
+/// Three pairs of the two-disc scene (both discs moving by 1.5 px in x and
+/// -1 px in y per pair) in `dir/discs`; returns the folder and each pair's
+/// motion.
+fn two_disc_folder(dir: &Path) -> (PathBuf, Vec<[f64; 2]>) {
+    let folder = dir.join("discs");
+    std::fs::create_dir(&folder).unwrap();
+    let motions: Vec<[f64; 2]> = (0..3).map(|k| [1.5 * k as f64, -(k as f64)]).collect();
+    for (k, &motion) in motions.iter().enumerate() {
+        let (left, right) = discs::scene_pair(motion);
+        left.to_gray8()
+            .save(folder.join(format!("{k:04}_left.png")))
+            .unwrap();
+        right
+            .to_gray8()
+            .save(folder.join(format!("{k:04}_right.png")))
+            .unwrap();
+    }
+    (folder, motions)
+}
+
+/// Asserts that `process` succeeded and tracked `disc` through every pair:
+/// the first initialised, the others tracked, the left centroid on the disc
+/// and the disparity the scene's.
+fn assert_tracks_disc(out: &Output, disc: [f64; 3], motions: &[[f64; 2]], what: &str) {
+    assert_success(out);
+    let records = jsonl(out);
+    assert_eq!(records.len(), motions.len(), "{what}");
+    for (k, (r, m)) in records.iter().zip(motions).enumerate() {
+        assert_eq!(
+            r["status"],
+            if k == 0 { "initialised" } else { "tracked" },
+            "{what}: {r}"
+        );
+        let d = discs::distance(&r["left"]["centroid"], disc[0] + m[0], disc[1] + m[1]);
+        assert!(
+            d < 1.0,
+            "{what}: pair {k} left centroid {} is {d:.2} px off the disc",
+            r["left"]["centroid"]
+        );
+        let disparity = f(&r["disparity_axis_px"]);
+        assert!(
+            (disparity - discs::DISPARITY_PX).abs() < 0.3,
+            "{what}: pair {k} disparity {disparity:.3} px, expected {}",
+            discs::DISPARITY_PX
+        );
+    }
+}
+
+#[test]
+fn process_hints_name_the_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let (folder, motions) = two_disc_folder(dir.path());
+    let folder = path_str(&folder);
+    let args = |r: [i64; 4]| r.map(|v| v.to_string());
+
+    // A box around either disc tracks that disc.
+    for (roi, disc, what) in [
+        (discs::ROI_A, discs::DISC_A, "--roi around A"),
+        (discs::ROI_B, discs::DISC_B, "--roi around B"),
+    ] {
+        let r = args(roi);
+        let out = semdepth(&[
+            "process",
+            folder,
+            "--no-contour",
+            "--roi",
+            &r[0],
+            &r[1],
+            &r[2],
+            &r[3],
+        ]);
+        assert_tracks_disc(&out, disc, &motions, what);
+    }
+    // A box running past the image's top and right borders, with a point
+    // and the polarity.
+    let out = semdepth(&[
+        "process",
+        folder,
+        "--no-contour",
+        "--roi",
+        "190",
+        "-30",
+        "200",
+        "230",
+        "--point",
+        "235",
+        "110",
+        "--polarity",
+        "brighter",
+    ]);
+    assert_tracks_disc(&out, discs::DISC_B, &motions, "--roi past the border around B");
+
+    // The params file's init.roi still works, and the flags override it.
+    let params = dir.path().join("params.json");
+    std::fs::write(
+        &params,
+        serde_json::json!({"init": {"roi": discs::ROI_A}}).to_string(),
+    )
+    .unwrap();
+    let out = semdepth(&["process", folder, "--no-contour", "--params", path_str(&params)]);
+    assert_tracks_disc(&out, discs::DISC_A, &motions, "init.roi around A in --params");
+    let r = args(discs::ROI_B);
+    let out = semdepth(&[
+        "process",
+        folder,
+        "--no-contour",
+        "--params",
+        path_str(&params),
+        "--roi",
+        &r[0],
+        &r[1],
+        &r[2],
+        &r[3],
+    ]);
+    assert_tracks_disc(&out, discs::DISC_B, &motions, "--roi around B over the file's A");
+}
+
+#[test]
+fn process_refuses_bad_hints_naming_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let (folder, _) = two_disc_folder(dir.path());
+    let folder = path_str(&folder);
+    let params = dir.path().join("params.json");
+    let with_params = |json: serde_json::Value| {
+        std::fs::write(&params, json.to_string()).unwrap();
+        semdepth(&["process", folder, "--params", path_str(&params)])
+    };
+
+    // Out of the image: found at the first pair, before any record.
+    let out = semdepth(&["process", folder, "--roi", "400", "10", "50", "50"]);
+    assert_input_error(
+        &out,
+        &[
+            "error[invalid_hint]",
+            "--roi",
+            "outside the 320x240 image",
+            "0000",
+        ],
+    );
+    assert!(out.stdout.is_empty(), "nothing printed before the error");
+    let out = semdepth(&["process", folder, "--point", "10", "250", "--format", "csv"]);
+    assert_input_error(
+        &out,
+        &["error[invalid_hint]", "--point", "outside the 320x240 image"],
+    );
+    assert!(out.stdout.is_empty(), "no CSV header before the error");
+    let out = with_params(serde_json::json!({"init": {"roi": [-500, 0, 100, 100]}}));
+    assert_input_error(
+        &out,
+        &["error[invalid_hint]", "init.roi in", "params.json", "outside"],
+    );
+    // Out of range whatever the images.
+    let out = semdepth(&["process", folder, "--roi", "200", "75", "8", "70"]);
+    assert_input_error(&out, &["error[invalid_hint]", "--roi", "8x70", ">= 16"]);
+    let out = with_params(serde_json::json!({"init": {"roi": [200, 75, 70, 10]}}));
+    assert_input_error(&out, &["error[invalid_hint]", "init.roi in", "70x10"]);
+    // Unknown polarity, from the flag and from the file.
+    let out = semdepth(&["process", folder, "--polarity", "up"]);
+    assert_input_error(&out, &["--polarity", "'up'", "brighter", "darker", "any"]);
+    let out = with_params(serde_json::json!({"init": {"polarity": "up"}}));
+    assert_input_error(&out, &["invalid_params", "init.polarity", "`up`", "brighter"]);
+    // A point that is not two numbers.
+    let out = semdepth(&["process", folder, "--point", "10", "x"]);
+    assert_input_error(&out, &["--point", "'x'"]);
+    let out = with_params(serde_json::json!({"init": {"point": [10]}}));
+    assert_input_error(&out, &["invalid_params", "init.point"]);
 }

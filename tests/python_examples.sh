@@ -20,7 +20,10 @@
 #     z_um is the calibration applied to the printed disparity;
 #   - the results CSV has one row per pair with the same z_um;
 #   - policy latest answers every seq once and measures the last pair;
-#   - a wrong token makes both scripts exit 1 with the server's message.
+#   - a wrong token makes both scripts exit 1 with the server's message;
+#   - the client's other calls, among them reinit() with a box around the
+#     object (answered 200, the next pair `initialised` on it as frame 6) and
+#     depth() with hints.
 # Exits non-zero if anything is off; ends with "python examples: N passed, M failed".
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -245,6 +248,22 @@ try:
     fit = api.add_session_calibration_sample(upload_sid, fit["id"], frames[-1]["z_um"])
     check(len(fit["samples"]) == 3 and abs(fit["samples"][-1]["disparity_px"] - upload[-1][3]) < 0.001,
           f"client: add_session_calibration_sample paired disparity {fit['samples'][-1]['disparity_px']:.3f} px with z")
+    # New hints: a box around the object of pair 0000 (its true outline, 40 px
+    # margin); the next pair initialises on it and the frames count on.
+    outline = frames[0]["left"]["polygon"]
+    xs, ys = [p[0] for p in outline], [p[1] for p in outline]
+    roi = [int(min(xs)) - 40, int(min(ys)) - 40, int(max(xs) - min(xs)) + 80, int(max(ys) - min(ys)) + 80]
+    session = api.reinit(upload_sid, roi=roi, polarity="any")
+    check(session["state"] == "awaiting_first_pair" and session["init"]["roi"] == roi and session["frames"] == 6,
+          f"client: reinit(roi={roi}) answers the session awaiting its next first pair")
+    again = api.upload_pair(upload_sid, pairs / "0000_left.png", pairs / "0000_right.png")
+    cx, cy = frames[0]["left"]["centroid"]
+    off = math.hypot(again["left"]["centroid"][0] - cx, again["left"]["centroid"][1] - cy)
+    check(again["frame"] == 6 and again["status"] == "initialised" and off < 1.5,
+          f"client: after reinit() frame {again['frame']} is {again['status']}, {off:.2f} px from the true centroid")
+    hinted = api.depth(pairs / "0000_left.png", pairs / "0000_right.png", roi=roi, point=[cx, cy], polarity="brighter")
+    off = math.hypot(hinted["left"]["centroid"][0] - cx, hinted["left"]["centroid"][1] - cy)
+    check(hinted["status"] == "initialised" and off < 1.5, f"client: depth() with hints, {off:.2f} px from the true centroid")
     check(api.reset(upload_sid)["state"] == "awaiting_first_pair", "client: reset()")
     api.delete_session(upload_sid)
     try:

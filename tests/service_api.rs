@@ -2,12 +2,14 @@
 //! 0 with a temporary SQLite file, driven by a real HTTP client, on
 //! synthetic sequences whose true disparities are known.
 
+#[path = "common/discs.rs"]
+mod discs;
 #[path = "common/server.rs"]
 mod server;
 
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{offset_free_rms, pair_form, synth_pairs, test_config, TestServer};
+use server::{frames_form, offset_free_rms, pair_form, synth_pairs, test_config, TestServer};
 
 /// Disparity RMS limit (px, offset removed) for a clean sequence uploaded
 /// over REST: the tracker reaches about 0.04 px on clean data (issue #3);
@@ -410,5 +412,197 @@ async fn token_is_required_on_v1_when_configured() {
     // Operations endpoints stay open for probes.
     let r = http.get(format!("{base}/healthz")).send().await.unwrap();
     assert_eq!(r.status(), 200);
+    server.stop().await.unwrap();
+}
+
+/// Uploads the two-disc scene moved by `motion` to a session; returns the
+/// status and the answer.
+async fn upload_scene(http: &reqwest::Client, base: &str, sid: &str, motion: [f64; 2]) -> (u16, Value) {
+    let (left, right) = discs::scene_pair(motion);
+    json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(frames_form(&left, &right))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await
+}
+
+/// Asserts a measured result of the two-disc scene: its frame and status,
+/// the left centroid on `disc` (moved by `motion`) and the scene's disparity.
+fn assert_on_disc(r: &Value, frame: u64, status: &str, disc: [f64; 3], motion: [f64; 2]) {
+    assert_eq!(
+        (r["frame"].as_u64(), r["status"].as_str()),
+        (Some(frame), Some(status)),
+        "{r}"
+    );
+    let d = discs::distance(&r["left"]["centroid"], disc[0] + motion[0], disc[1] + motion[1]);
+    assert!(
+        d < 1.0,
+        "frame {frame}: left centroid {} is {d:.2} px off the disc",
+        r["left"]["centroid"]
+    );
+    let disparity = r["disparity_axis_px"].as_f64().unwrap();
+    assert!(
+        (disparity - discs::DISPARITY_PX).abs() < 0.3,
+        "frame {frame}: disparity {disparity:.3} px, expected {}",
+        discs::DISPARITY_PX
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hints_name_the_object_and_reinit_switches_to_the_other() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let http = reqwest::Client::new();
+    let base = &server.base;
+
+    // A session told to follow the smaller disc B.
+    let (status, s) = json_of(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"name": "two discs", "init": {"roi": discs::ROI_B, "polarity": "brighter", "contour_spacing_px": 3.0}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 201, "{s}");
+    assert_eq!(
+        (s["init"]["roi"].clone(), s["init"]["polarity"].clone()),
+        (json!(discs::ROI_B), json!("brighter"))
+    );
+    let sid = s["id"].as_str().unwrap().to_string();
+    let motions = [[0.0, 0.0], [1.5, -1.0], [3.0, -2.0], [4.5, -3.0]];
+    let (status, r) = upload_scene(&http, base, &sid, motions[0]).await;
+    assert_eq!(status, 200, "{r}");
+    assert_on_disc(&r, 0, "initialised", discs::DISC_B, motions[0]);
+    let (_, r) = upload_scene(&http, base, &sid, motions[1]).await;
+    assert_on_disc(&r, 1, "tracked", discs::DISC_B, motions[1]);
+    let (_, before) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}/results"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+
+    // New hints name disc A. The hints are replaced as a set (polarity
+    // back to `any`), a tuning parameter given overrides the session's and
+    // one left out keeps it.
+    let (status, s) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
+            .json(&json!({"init": {"roi": discs::ROI_A, "working_max_side": 320}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 200, "{s}");
+    assert_eq!(
+        (s["state"].as_str(), s["frames"].as_u64()),
+        (Some("awaiting_first_pair"), Some(2)),
+        "{s}"
+    );
+    assert_eq!(s["init"]["roi"], json!(discs::ROI_A));
+    assert_eq!(s["init"]["polarity"], "any");
+    assert_eq!(s["init"]["point"], Value::Null);
+    assert_eq!(s["init"]["working_max_side"], 320);
+    assert_eq!(s["init"]["contour_spacing_px"], 3.0);
+    assert_eq!(s["tracker"]["init"], s["init"]);
+    let (_, got) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(got, s, "GET answers what reinit answered");
+
+    // The next pair initialises on A; the frame counter goes on.
+    let (status, r) = upload_scene(&http, base, &sid, motions[2]).await;
+    assert_eq!(status, 200, "{r}");
+    assert_on_disc(&r, 2, "initialised", discs::DISC_A, motions[2]);
+    let (_, r) = upload_scene(&http, base, &sid, motions[3]).await;
+    assert_on_disc(&r, 3, "tracked", discs::DISC_A, motions[3]);
+
+    // The earlier results are untouched.
+    let (_, after) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}/results"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    let after = after["results"].as_array().unwrap();
+    assert_eq!(after.len(), 4);
+    assert_eq!(
+        after[..2],
+        before["results"].as_array().unwrap()[..],
+        "results before the reinit changed"
+    );
+
+    // A reinit with a point only clears the roi; an empty one clears all hints.
+    let (status, s) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
+            .json(&json!({"init": {"point": [95.5, 127.0], "min_area_px": 500.0}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 200, "{s}");
+    assert_eq!(
+        (s["init"]["roi"].clone(), s["init"]["point"].clone()),
+        (Value::Null, json!([95.5, 127.0]))
+    );
+    assert_eq!(
+        (
+            s["init"]["min_area_px"].as_f64(),
+            s["init"]["working_max_side"].as_u64()
+        ),
+        (Some(500.0), Some(320))
+    );
+    let (status, s) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
+            .json(&json!({}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 200, "{s}");
+    assert_eq!(
+        (s["init"]["point"].clone(), s["init"]["min_area_px"].clone()),
+        (Value::Null, Value::Null)
+    );
+    assert_eq!(s["frames"], 4);
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_shot_depth_takes_hints_as_query_parameters() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let http = reqwest::Client::new();
+    let (left, right) = discs::scene_pair([0.0, 0.0]);
+    for (query, disc) in [
+        ("roi=200,75,70,70&polarity=brighter", discs::DISC_B),
+        ("roi=40,80,100,100&polarity=any", discs::DISC_A),
+        // A box past the top and right borders, and a point on B.
+        ("roi=190,-30,200,230&point=235,110", discs::DISC_B),
+    ] {
+        let (status, r) = json_of(
+            http.post(format!("{}/v1/depth?{query}", server.base))
+                .multipart(frames_form(&left, &right))
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(status, 200, "{query}: {r}");
+        assert_eq!(r["session_id"], Value::Null);
+        assert_on_disc(&r, 0, "initialised", disc, [0.0, 0.0]);
+    }
     server.stop().await.unwrap();
 }

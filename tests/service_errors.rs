@@ -1,13 +1,15 @@
 //! Every bad input gets a 4xx with a JSON body naming the problem (issue #4,
 //! "Security and limits"), and the server keeps working afterwards.
 
+#[path = "common/discs.rs"]
+mod discs;
 #[path = "common/server.rs"]
 mod server;
 
 use reqwest::multipart::{Form, Part};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{new_session, pair_form, png, synth_pairs, test_config, upload, TestServer};
+use server::{frames_form, new_session, pair_form, png, synth_pairs, test_config, upload, TestServer};
 
 /// Checks status and error code, and that the message is not empty.
 async fn expect_error(r: reqwest::Response, status: u16, code: &str) -> String {
@@ -404,4 +406,235 @@ async fn raw_upload(addr: std::net::SocketAddr, path: &str, declared: Option<u64
         }
     }
     String::from_utf8_lossy(&reply).into_owned()
+}
+
+/// Asserts an error and that its message mentions each of `needles`.
+async fn expect_error_naming(r: reqwest::Response, status: u16, code: &str, needles: &[&str]) {
+    let m = expect_error(r, status, code).await;
+    for needle in needles {
+        assert!(m.contains(needle), "message should mention {needle:?}: {m}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_hints_get_4xx_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let http = reqwest::Client::new();
+    let base = &server.base;
+    let create = |init: Value| {
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"init": init}))
+            .send()
+    };
+
+    // Hints out of range, at creation: 422 invalid_hint naming the field.
+    let r = create(json!({"roi": [200, 75, 8, 70]})).await.unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.roi", "8x70", ">= 16"]).await;
+    let r = create(json!({"point": [1e300, 5.0]})).await.unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.point", "finite"]).await;
+    let r = http
+        .post(format!("{base}/v1/sessions"))
+        .json(&json!({"tracker": {"init": {"roi": [0, 0, 4, 4]}}}))
+        .send()
+        .await
+        .unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.roi"]).await;
+    // Hints that are not JSON of the right shape: 400 invalid_json naming
+    // the field (and for the polarity the allowed values).
+    let r = create(json!({"polarity": "up"})).await.unwrap();
+    expect_error_naming(
+        r,
+        400,
+        "invalid_json",
+        &["init.polarity", "`up`", "brighter", "darker", "any"],
+    )
+    .await;
+    let r = create(json!({"point": [5.0, null]})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["init.point"]).await;
+    let r = create(json!({"point": [5.0]})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["init.point"]).await;
+    let r = create(json!({"roi": [1, 2, 30]})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["init.roi"]).await;
+    // None of that made a session.
+    let list: Value = http
+        .get(format!("{base}/v1/sessions"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(list["sessions"], json!([]));
+
+    // PATCH and reinit refuse the same, and change nothing.
+    let sid = new_session(base).await;
+    let r = http
+        .patch(format!("{base}/v1/sessions/{sid}"))
+        .json(&json!({"init": {"roi": [0, 0, 15, 100]}}))
+        .send()
+        .await
+        .unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.roi", "15x100"]).await;
+    let reinit = |body: Value| {
+        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
+            .json(&body)
+            .send()
+    };
+    let r = reinit(json!({"init": {"roi": [10, 10, 100, 0]}})).await.unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.roi", "100x0"]).await;
+    let r = reinit(json!({"init": {"polarity": "sideways"}})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["init.polarity", "brighter"]).await;
+    let r = reinit(json!({"init": {"point": ["a", 3]}})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["init.point"]).await;
+    let r = reinit(json!({"roi": [10, 10, 100, 100]})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["unknown field", "roi"]).await;
+    let r = reinit(json!({"init": {"working_max_side": 10}})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_parameter", &["working_max_side"]).await;
+    let r = http
+        .post(format!("{base}/v1/sessions/s_missing/reinit"))
+        .json(&json!({}))
+        .send()
+        .await
+        .unwrap();
+    expect_error(r, 404, "session_not_found").await;
+    let s: Value = http
+        .get(format!("{base}/v1/sessions/{sid}"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(
+        (
+            s["init"]["roi"].clone(),
+            s["init"]["working_max_side"].clone(),
+            s["updated_at"].clone()
+        ),
+        (Value::Null, json!(640), s["created_at"].clone()),
+        "{s}"
+    );
+
+    // Hints that do not fit the uploaded images: 422 at upload, the pair
+    // not counted and nothing stored.
+    let (left, right) = discs::scene_pair([0.0, 0.0]);
+    let upload_scene = |sid: String| {
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(frames_form(&left, &right))
+            .send()
+    };
+    for (hints, needles) in [
+        (
+            json!({"roi": [1000, 1000, 50, 50]}),
+            ["init.roi", "outside the 320x240 image"],
+        ),
+        (
+            json!({"roi": [-100, 20, 90, 90]}),
+            ["init.roi", "outside the 320x240 image"],
+        ),
+        (
+            json!({"point": [10.0, 250.0]}),
+            ["init.point", "outside the 320x240 image"],
+        ),
+        (
+            json!({"roi": discs::ROI_A, "point": [235.0, 110.0]}),
+            ["init.point", "outside the roi"],
+        ),
+    ] {
+        let r = create(hints.clone()).await.unwrap();
+        assert_eq!(
+            r.status(),
+            201,
+            "{hints}: the hints are checked against the images at upload"
+        );
+        let bad: Value = r.json().await.unwrap();
+        let bad_sid = bad["id"].as_str().unwrap().to_string();
+        for _ in 0..2 {
+            let r = upload_scene(bad_sid.clone()).await.unwrap();
+            expect_error_naming(r, 422, "invalid_hint", &needles).await;
+        }
+        let s: Value = http
+            .get(format!("{base}/v1/sessions/{bad_sid}"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        assert_eq!(
+            (s["frames"].as_u64(), s["state"].as_str()),
+            (Some(0), Some("awaiting_first_pair")),
+            "{hints}: {s}"
+        );
+        let page: Value = http
+            .get(format!("{base}/v1/sessions/{bad_sid}/results"))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap();
+        assert_eq!(page["results"], json!([]), "{hints}");
+        // New hints that fit: the next pair is frame 0.
+        let r = http
+            .post(format!("{base}/v1/sessions/{bad_sid}/reinit"))
+            .json(&json!({"init": {"roi": discs::ROI_B}}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+        let r: Value = upload_scene(bad_sid.clone()).await.unwrap().json().await.unwrap();
+        assert_eq!(
+            (r["frame"].as_u64(), r["status"].as_str()),
+            (Some(0), Some("initialised")),
+            "{r}"
+        );
+        let d = discs::distance(&r["left"]["centroid"], discs::DISC_B[0], discs::DISC_B[1]);
+        assert!(
+            d < 1.0,
+            "{hints}: after the reinit, left centroid {d:.2} px off B"
+        );
+        http.delete(format!("{base}/v1/sessions/{bad_sid}"))
+            .send()
+            .await
+            .unwrap();
+    }
+
+    // The one-shot's query hints: 400 when they do not parse, 422 when out
+    // of range or outside the image.
+    let depth = |query: &str| {
+        http.post(format!("{base}/v1/depth?{query}"))
+            .multipart(frames_form(&left, &right))
+            .send()
+    };
+    for (query, status, code, needles) in [
+        ("roi=1,2,30", 400, "invalid_query", &["roi", "four integers"][..]),
+        ("roi=a,b,c,d", 400, "invalid_query", &["roi"][..]),
+        ("point=5", 400, "invalid_query", &["point", "two numbers"][..]),
+        (
+            "polarity=up",
+            400,
+            "invalid_query",
+            &["polarity", "\"up\"", "brighter, darker or any"][..],
+        ),
+        ("roi=0,0,8,8", 422, "invalid_hint", &["init.roi", ">= 16"][..]),
+        ("point=nan,5", 422, "invalid_hint", &["init.point", "finite"][..]),
+        (
+            "roi=1000,1000,50,50",
+            422,
+            "invalid_hint",
+            &["init.roi", "outside the 320x240 image"][..],
+        ),
+        (
+            "point=10,250",
+            422,
+            "invalid_hint",
+            &["init.point", "outside the 320x240 image"][..],
+        ),
+    ] {
+        let r = depth(query).await.unwrap();
+        expect_error_naming(r, status, code, needles).await;
+    }
+    server.stop().await.unwrap();
 }

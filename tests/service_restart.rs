@@ -6,6 +6,8 @@
 //! disparity matches the ground truth), and nothing acknowledged before the
 //! kill is lost.
 
+#[path = "common/discs.rs"]
+mod discs;
 #[path = "common/server.rs"]
 mod server;
 
@@ -17,7 +19,8 @@ use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape, SynthPair};
 use serde_json::{json, Value};
 use server::{
-    get_json, next_reply, offset_free_rms, post_json, sdp1_raw, synth_pairs, test_config, upload, TestServer,
+    frames_form, get_json, next_reply, offset_free_rms, post_json, sdp1_raw, synth_pairs, test_config,
+    upload, TestServer,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -118,6 +121,72 @@ async fn graceful_restart_continues_the_stream_where_it_stopped() {
     ws.close(None).await.unwrap();
     let page = get_json(&format!("{}/v1/sessions/{sid}/results", server.base)).await;
     check_results(page["results"].as_array().unwrap(), &pairs);
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hints_from_a_reinit_survive_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("db.sqlite3");
+    let http = reqwest::Client::new();
+    let upload_scene = |base: String, sid: String, motion: [f64; 2]| {
+        let (left, right) = discs::scene_pair(motion);
+        let request = http
+            .post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(frames_form(&left, &right));
+        async move {
+            let r = request.send().await.unwrap();
+            assert_eq!(r.status(), 200);
+            r.json::<Value>().await.unwrap()
+        }
+    };
+    let on = |r: &Value, disc: [f64; 3], motion: [f64; 2]| {
+        discs::distance(&r["left"]["centroid"], disc[0] + motion[0], disc[1] + motion[1])
+    };
+
+    let server = TestServer::start(test_config(&db)).await;
+    let session = post_json(
+        &format!("{}/v1/sessions", server.base),
+        json!({"init": {"roi": discs::ROI_B, "polarity": "brighter"}}),
+    )
+    .await;
+    let sid = session["id"].as_str().unwrap().to_string();
+    let first = upload_scene(server.base.clone(), sid.clone(), [0.0, 0.0]).await;
+    assert_eq!(first["status"], "initialised", "{first}");
+    assert!(on(&first, discs::DISC_B, [0.0, 0.0]) < 1.0, "{first}");
+    let reinit = post_json(
+        &format!("{}/v1/sessions/{sid}/reinit", server.base),
+        json!({"init": {"roi": discs::ROI_A, "point": [90.0, 130.0]}}),
+    )
+    .await;
+    server.stop().await.unwrap();
+
+    // Same database, new server: the new hints and the reset are there.
+    let server = TestServer::start(test_config(&db)).await;
+    let s = get_json(&format!("{}/v1/sessions/{sid}", server.base)).await;
+    assert_eq!(s, reinit, "the session changed across the restart");
+    assert_eq!(
+        (
+            s["state"].as_str(),
+            s["frames"].as_u64(),
+            s["init"]["polarity"].as_str()
+        ),
+        (Some("awaiting_first_pair"), Some(1), Some("any")),
+        "{s}"
+    );
+    assert_eq!(
+        (s["init"]["roi"].clone(), s["init"]["point"].clone()),
+        (json!(discs::ROI_A), json!([90.0, 130.0]))
+    );
+    let next = upload_scene(server.base.clone(), sid.clone(), [1.5, -1.0]).await;
+    assert_eq!(
+        (next["frame"].as_u64(), next["status"].as_str()),
+        (Some(1), Some("initialised")),
+        "{next}"
+    );
+    assert!(on(&next, discs::DISC_A, [1.5, -1.0]) < 1.0, "{next}");
+    let page = get_json(&format!("{}/v1/sessions/{sid}/results", server.base)).await;
+    assert_eq!(page["results"][0], first, "the result before the reinit changed");
     server.stop().await.unwrap();
 }
 

@@ -3,6 +3,8 @@
 //! `all` policy answering every pair in order, malformed messages answered
 //! without closing, ping answered while pairs are processed.
 
+#[path = "common/discs.rs"]
+mod discs;
 #[path = "common/server.rs"]
 mod server;
 
@@ -12,7 +14,8 @@ use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
 use server::{
-    new_session, next_reply, offset_free_rms, png, sdp1, sdp1_raw, synth_pairs, test_config, TestServer,
+    new_session, next_reply, offset_free_rms, png, post_json, sdp1, sdp1_raw, sdp1_raw_frames, synth_pairs,
+    test_config, TestServer,
 };
 use tokio_tungstenite::tungstenite::Message;
 
@@ -417,6 +420,71 @@ async fn a_4096x3072_16_bit_pair_fits_over_rest_and_websocket() {
     );
     let d = reply["disparity_px"][0].as_f64().unwrap();
     assert!((d - pair.truth.disparity_px[0]).abs() < 1.0);
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pair_the_hints_do_not_fit_gets_an_error_and_the_socket_stays_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let base = &server.base;
+    let session = post_json(
+        &format!("{base}/v1/sessions"),
+        json!({"init": {"roi": [1000, 1000, 50, 50]}}),
+    )
+    .await;
+    let sid = session["id"].as_str().unwrap().to_string();
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let (left, right) = discs::scene_pair([0.0, 0.0]);
+    for seq in [0, 1] {
+        ws.send(Message::Binary(sdp1_raw_frames(seq, &left, &right).into()))
+            .await
+            .unwrap();
+        let r = next_reply(&mut ws).await;
+        assert_eq!(
+            (r["seq"].as_u64(), r["error"]["code"].as_str()),
+            (Some(seq), Some("invalid_hint")),
+            "{r}"
+        );
+        let m = r["error"]["message"].as_str().unwrap();
+        assert!(
+            m.contains("init.roi") && m.contains("outside the 320x240 image"),
+            "{m}"
+        );
+    }
+    let s = server::get_json(&format!("{base}/v1/sessions/{sid}")).await;
+    assert_eq!(
+        (s["frames"].as_u64(), s["state"].as_str()),
+        (Some(0), Some("awaiting_first_pair")),
+        "{s}"
+    );
+
+    // New hints over REST while the socket stays open: the next pair on it
+    // initialises on the named disc, as frame 0.
+    let s = post_json(
+        &format!("{base}/v1/sessions/{sid}/reinit"),
+        json!({"init": {"roi": discs::ROI_B}}),
+    )
+    .await;
+    assert_eq!(s["init"]["roi"], json!(discs::ROI_B));
+    ws.send(Message::Binary(sdp1_raw_frames(2, &left, &right).into()))
+        .await
+        .unwrap();
+    let r = next_reply(&mut ws).await;
+    assert_eq!(
+        (r["seq"].as_u64(), r["frame"].as_u64(), r["status"].as_str()),
+        (Some(2), Some(0), Some("initialised")),
+        "{r}"
+    );
+    let d = discs::distance(&r["left"]["centroid"], discs::DISC_B[0], discs::DISC_B[1]);
+    assert!(
+        d < 1.0,
+        "left centroid {} is {d:.2} px off B",
+        r["left"]["centroid"]
+    );
     ws.close(None).await.unwrap();
     server.stop().await.unwrap();
 }

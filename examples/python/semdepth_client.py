@@ -30,7 +30,7 @@ import urllib.parse
 import urllib.request
 import uuid
 from pathlib import Path
-from typing import Any, AsyncIterator, Dict, Iterable, List, Optional, Tuple, Union
+from typing import Any, AsyncIterator, Dict, Iterable, List, Optional, Sequence, Tuple, Union
 
 __all__ = [
     "SemdepthClient",
@@ -282,9 +282,18 @@ class SemdepthClient:
     # sessions
 
     def create_session(self, name: Optional[str] = None, calibration_id: Optional[str] = None,
-                       **params: Any) -> Dict[str, Any]:
-        """``POST /v1/sessions``; ``params`` may hold ``init`` and ``tracker``."""
+                       roi: Optional[Sequence[int]] = None, point: Optional[Sequence[float]] = None,
+                       polarity: Optional[str] = None, **params: Any) -> Dict[str, Any]:
+        """``POST /v1/sessions``; ``params`` may hold ``init`` and ``tracker``.
+
+        ``roi`` ``[x, y, width, height]`` (the box the object lies in, pixels,
+        clipped to the image), ``point`` ``[x, y]`` (a point on the object) and
+        ``polarity`` (``"brighter"``, ``"darker"`` or ``"any"``) name the object
+        the first pair initialises on; they go into ``init``."""
         body: Dict[str, Any] = dict(params)
+        hints = _hints(roi=roi, point=point, polarity=polarity)
+        if hints:
+            body["init"] = {**body.get("init", {}), **hints}
         if name is not None:
             body["name"] = name
         if calibration_id is not None:
@@ -311,6 +320,21 @@ class SemdepthClient:
     def reset(self, session_id: str) -> Dict[str, Any]:
         """``POST /v1/sessions/{id}/reset``: the next pair initialises again."""
         return self.request("POST", f"/v1/sessions/{self._id(session_id)}/reset")
+
+    def reinit(self, session_id: str, roi: Optional[Sequence[int]] = None,
+               point: Optional[Sequence[float]] = None, polarity: Optional[str] = None,
+               min_area_px: Optional[float] = None, max_area_px: Optional[float] = None,
+               **init: Any) -> Dict[str, Any]:
+        """``POST /v1/sessions/{id}/reinit``: the next pair initialises on the
+        object these hints name; earlier results stay and frames keep counting.
+
+        The hints (``roi``, ``point``, ``polarity``, ``min_area_px``,
+        ``max_area_px``) replace the session's as a set: those left as None are
+        cleared. Other ``init`` parameters given as keywords (e.g.
+        ``working_max_side=1024``) replace the session's. Returns the session."""
+        body = {**init, **_hints(roi=roi, point=point, polarity=polarity,
+                                 min_area_px=min_area_px, max_area_px=max_area_px)}
+        return self.request("POST", f"/v1/sessions/{self._id(session_id)}/reinit", {"init": body})
 
     def upload_pair(self, session_id: str, left: ImageInput, right: ImageInput) -> Dict[str, Any]:
         """``POST /v1/sessions/{id}/frames``: uploads one pair (paths or
@@ -345,9 +369,22 @@ class SemdepthClient:
         return self.request("POST", f"/v1/sessions/{self._id(session_id)}/calibration-samples",
                             {"calibration_id": calibration_id, "z_um": z_um})
 
-    def depth(self, left: ImageInput, right: ImageInput, calibration_id: Optional[str] = None) -> Dict[str, Any]:
-        """``POST /v1/depth``: measures one pair without a session."""
-        return self._multipart("POST", "/v1/depth", left, right, query={"calibration_id": calibration_id})
+    def depth(self, left: ImageInput, right: ImageInput, calibration_id: Optional[str] = None,
+              roi: Optional[Sequence[int]] = None, point: Optional[Sequence[float]] = None,
+              polarity: Optional[str] = None) -> Dict[str, Any]:
+        """``POST /v1/depth``: measures one pair without a session; ``roi``,
+        ``point`` and ``polarity`` are hints as in :meth:`create_session`."""
+        query: Dict[str, Any] = {"calibration_id": calibration_id, "polarity": polarity}
+        if roi is not None:
+            query["roi"] = ",".join(str(int(v)) for v in roi)
+        if point is not None:
+            query["point"] = ",".join(repr(float(v)) for v in point)
+        return self._multipart("POST", "/v1/depth", left, right, query=query)
+
+
+def _hints(**hints: Any) -> Dict[str, Any]:
+    """The hints given (not None) as ``init`` fields, lists for sequences."""
+    return {k: (list(v) if isinstance(v, (tuple, list)) else v) for k, v in hints.items() if v is not None}
 
 
 # -- streaming ----------------------------------------------------------------

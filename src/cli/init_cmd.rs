@@ -73,9 +73,8 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         contour_spacing_px: args.contour_spacing,
     };
     let result = initialise(&frame, &params).map_err(|e| match e {
-        crate::init::InitError::InvalidParams(_) | crate::init::InitError::InvalidHint { .. } => {
-            CliError::input(format!("error[{}]: {e}", e.code()))
-        }
+        crate::init::InitError::InvalidParams(_) => CliError::input(format!("error[{}]: {e}", e.code())),
+        crate::init::InitError::InvalidHint { .. } => super::hint_error(&e, |field| format!("--{field}")),
         _ => CliError::with_code(
             3,
             format!(

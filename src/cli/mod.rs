@@ -80,6 +80,20 @@ impl From<crate::imageio::ImageInputError> for CliError {
     }
 }
 
+/// An invalid hint (`roi`, `point`) as an input error (exit 2),
+/// `error[invalid_hint]: invalid SOURCE: ...`, where `source` names where
+/// the hint came from: the flag (`--roi`) or the params file's field.
+pub fn hint_error(e: &crate::init::InitError, source: impl Fn(&str) -> String) -> CliError {
+    match e {
+        crate::init::InitError::InvalidHint { field, message } => CliError::input(format!(
+            "error[{}]: invalid {}: {message}",
+            e.code(),
+            source(field)
+        )),
+        other => CliError::input(format!("error[{}]: {other}", other.code())),
+    }
+}
+
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> Result<(), CliError> {
     match cli.command {

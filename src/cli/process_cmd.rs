@@ -9,9 +9,10 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use super::CliError;
+use super::{hint_error, CliError};
 use crate::calib::{from_json, Calibration};
 use crate::imageio::{read_file, DecodeLimits, GrayFrame};
+use crate::init::{InitError, Polarity};
 use crate::report::{csv_record, CSV_HEADER};
 use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
 
@@ -58,6 +59,19 @@ pub struct ProcessArgs {
     /// Largest expected object area in pixels.
     #[arg(long)]
     pub max_area: Option<f64>,
+    /// Hint: the box the object lies in on the first pair, X Y WIDTH HEIGHT
+    /// in pixels (clipped to the image: it may run past the border, for a
+    /// tool entering there) [default: the params file's init.roi].
+    #[arg(long, num_args = 4, value_names = ["X", "Y", "WIDTH", "HEIGHT"], allow_negative_numbers = true)]
+    pub roi: Option<Vec<i64>>,
+    /// Hint: a point on the object on the first pair, X Y in pixels
+    /// [default: the params file's init.point].
+    #[arg(long, num_args = 2, value_names = ["X", "Y"], allow_negative_numbers = true)]
+    pub point: Option<Vec<f64>>,
+    /// Hint: the object is brighter or darker than its surroundings
+    /// [default: the params file's init.polarity, else any].
+    #[arg(long, value_enum)]
+    pub polarity: Option<Polarity>,
     /// Leave out the contour points.
     #[arg(long)]
     pub no_contour: bool,
@@ -161,12 +175,15 @@ impl ProcessArgs {
             Some(path) => {
                 let text = std::fs::read_to_string(path)
                     .map_err(|e| CliError::input(format!("error[io_error]: {}: {e}", path.display())))?;
-                let params: TrackerParams = serde_json::from_str(&text).map_err(|e| {
-                    CliError::input(format!(
-                        "error[invalid_params]: {}: not valid tracker parameters: {e}",
-                        path.display()
-                    ))
-                })?;
+                // The path names the field of a bad value (e.g. `init.polarity`).
+                let params: TrackerParams =
+                    serde_path_to_error::deserialize(&mut serde_json::Deserializer::from_str(&text))
+                        .map_err(|e| {
+                            CliError::input(format!(
+                                "error[invalid_params]: {}: not valid tracker parameters: {e}",
+                                path.display()
+                            ))
+                        })?;
                 let sets_axis = serde_json::from_str::<serde_json::Value>(&text)
                     .ok()
                     .and_then(|v| v.get("tilt_axis_deg").cloned())
@@ -190,6 +207,18 @@ impl ProcessArgs {
         if let Some(v) = self.max_area {
             params.init.max_area_px = Some(v);
         }
+        if let Some(r) = &self.roi {
+            params.init.roi = Some([r[0], r[1], r[2], r[3]]);
+        }
+        if let Some(p) = &self.point {
+            params.init.point = Some([p[0], p[1]]);
+        }
+        if let Some(p) = self.polarity {
+            params.init.polarity = p;
+        }
+        if let Err(e @ InitError::InvalidHint { .. }) = params.init.validate() {
+            return Err(hint_error(&e, |field| self.hint_source(field)));
+        }
         if let Some(cal) = calibration {
             let explicit = self.tilt_axis_deg.is_some() || file_sets_axis;
             let (a, b) = (params.tilt_axis_deg, cal.tilt_axis_deg());
@@ -206,6 +235,20 @@ impl ProcessArgs {
             .validate()
             .map_err(|e| CliError::input(format!("error[invalid_params]: {e}")))?;
         Ok(params)
+    }
+
+    /// Where the hint `field` (`roi`, `point`) came from, for messages: its
+    /// flag, or the params file's `init` field.
+    fn hint_source(&self, field: &str) -> String {
+        let flag = match field {
+            "roi" => self.roi.is_some(),
+            "point" => self.point.is_some(),
+            _ => false,
+        };
+        match &self.params {
+            Some(path) if !flag => format!("init.{field} in {}", path.display()),
+            _ => format!("--{field}"),
+        }
     }
 }
 
@@ -230,22 +273,28 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     let mut progress = Progress::new(pairs.len(), args.progress || std::io::stderr().is_terminal());
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
-    if args.format == Format::Csv && !emit(&mut out, CSV_HEADER)? {
-        return Ok(());
-    }
+    // The CSV header goes out with the first record, so that an error on
+    // the first pair (e.g. hints that do not fit the images) prints nothing.
+    let mut header_due = args.format == Format::Csv;
     for pair in &pairs {
         let started = Instant::now();
         let left = read_image(&pair.left, &limits)?;
         let right = read_image(&pair.right, &limits)?;
         let decoded = Instant::now();
-        let mut result = tracker.process(&left, &right).map_err(|e| {
-            CliError::input(format!(
+        let mut result = tracker.process(&left, &right).map_err(|e| match &e {
+            // The hints do not fit the images: name the flag or field.
+            TrackError::Hint(hint) => {
+                let mut err = hint_error(hint, |field| args.hint_source(field));
+                err.message = format!("{} (pair {:?}, {})", err.message, pair.name, pair.left.display());
+                err
+            }
+            _ => CliError::input(format!(
                 "error[{}]: pair {:?} ({}, {}): {e}",
                 track_error_code(&e),
                 pair.name,
                 pair.left.display(),
                 pair.right.display()
-            ))
+            )),
         })?;
         let tracked = Instant::now();
         result.apply_calibration(calibration.as_ref());
@@ -257,6 +306,9 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
             Format::Jsonl => json_record(&result, &pair.name, timing, !args.no_contour)?,
             Format::Csv => csv_record(&result, &pair.name),
         };
+        if std::mem::take(&mut header_due) && !emit(&mut out, CSV_HEADER)? {
+            return Ok(());
+        }
         if !emit(&mut out, &line)? {
             return Ok(()); // stdout closed (e.g. `| head`): stop quietly
         }

@@ -15,6 +15,7 @@ use utoipa::ToSchema;
 
 use crate::calib::CalibError;
 use crate::imageio::ImageInputError;
+use crate::init::InitError;
 use crate::tracker::TrackError;
 
 use super::storage::StorageError;
@@ -82,6 +83,20 @@ impl ApiError {
         Self::new(StatusCode::INTERNAL_SERVER_ERROR, "internal_error", message)
     }
 
+    /// 422 `invalid_hint` for a hint (`init.roi`, `init.point`) that is
+    /// out of range or does not fit the images, the message naming the
+    /// field; other initialisation errors are 400 `invalid_parameter`.
+    pub fn hint(e: InitError) -> Self {
+        match &e {
+            InitError::InvalidHint { field, message } => Self::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                e.code(),
+                format!("invalid init.{field}: {message}"),
+            ),
+            other => Self::bad_request("invalid_parameter", format!("init: {other}")),
+        }
+    }
+
     /// The JSON body.
     pub fn body(&self) -> ErrorBody {
         ErrorBody {
@@ -132,15 +147,7 @@ impl From<TrackError> for ApiError {
             TrackError::Input(e) => e.into(),
             e @ TrackError::SizeChanged { .. } => Self::bad_request("pair_size_changed", e.to_string()),
             // The session's hints do not fit the uploaded images.
-            TrackError::Hint(e) => {
-                let message = match &e {
-                    crate::init::InitError::InvalidHint { field, message } => {
-                        format!("invalid init.{field}: {message}")
-                    }
-                    other => other.to_string(),
-                };
-                Self::new(StatusCode::UNPROCESSABLE_ENTITY, e.code(), message)
-            }
+            TrackError::Hint(e) => Self::hint(e),
         }
     }
 }
@@ -191,23 +198,51 @@ where
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        if !has_json_content_type(req.headers()) {
-            return Err(unsupported_json_media_type());
-        }
-        let bytes = Bytes::from_request(req, state)
-            .await
-            .map_err(|e| body_rejection(e.status(), e.body_text()))?;
-        match bytes.iter().find(|b| !b.is_ascii_whitespace()) {
-            Some(b'{') | None => {}
-            Some(_) => {
-                return Err(Self::Rejection::bad_request(
-                    "invalid_json",
-                    "expected a JSON object ({...}) as the request body",
-                ))
-            }
-        }
+        let bytes = json_object_bytes(req, state).await?;
         let axum::Json(value) = axum::Json::<T>::from_bytes(&bytes)?;
         Ok(Self(value))
+    }
+}
+
+/// [`ApiJson`] that also hands over the body's top-level object as JSON,
+/// for a handler that must tell a field left out from one given with its
+/// default value.
+#[derive(Debug, Clone)]
+pub struct ApiJsonFields<T>(pub T, pub serde_json::Map<String, serde_json::Value>);
+
+impl<T, S> FromRequest<S> for ApiJsonFields<T>
+where
+    T: DeserializeOwned,
+    S: Send + Sync,
+{
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
+        let bytes = json_object_bytes(req, state).await?;
+        // Typed first: its errors name the offending field.
+        let axum::Json(value) = axum::Json::<T>::from_bytes(&bytes)?;
+        let axum::Json(fields) =
+            axum::Json::<serde_json::Map<String, serde_json::Value>>::from_bytes(&bytes)?;
+        Ok(Self(value, fields))
+    }
+}
+
+/// The body of a request that must be a JSON object: 415 without a JSON
+/// content type, 400 for anything but an object (an empty body passes, for
+/// serde to refuse or default).
+async fn json_object_bytes<S: Send + Sync>(req: Request, state: &S) -> Result<Bytes, ApiError> {
+    if !has_json_content_type(req.headers()) {
+        return Err(unsupported_json_media_type());
+    }
+    let bytes = Bytes::from_request(req, state)
+        .await
+        .map_err(|e| body_rejection(e.status(), e.body_text()))?;
+    match bytes.iter().find(|b| !b.is_ascii_whitespace()) {
+        Some(b'{') | None => Ok(bytes),
+        Some(_) => Err(ApiError::bad_request(
+            "invalid_json",
+            "expected a JSON object ({...}) as the request body",
+        )),
     }
 }
 

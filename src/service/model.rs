@@ -228,6 +228,51 @@ pub struct SessionPatch {
     pub retention: Option<u64>,
 }
 
+/// The `init` fields that name the object: `POST /v1/sessions/{id}/reinit`
+/// replaces them as a set.
+pub const HINT_FIELDS: [&str; 5] = ["roi", "point", "polarity", "min_area_px", "max_area_px"];
+
+/// Body of `POST /v1/sessions/{id}/reinit`: new hints for the next
+/// initialisation.
+#[derive(Clone, Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"init": {"roi": [120, 80, 200, 160], "polarity": "brighter"}}))]
+pub struct SessionReinit {
+    /// The hints `roi`, `point`, `polarity`, `min_area_px` and `max_area_px`
+    /// replace the session's as a set (a new hint names a new object, so
+    /// those left out are cleared); other initialisation parameters given
+    /// here replace the session's, those left out keep it.
+    #[serde(default)]
+    pub init: InitParams,
+}
+
+impl SessionReinit {
+    /// The session's `current` initialisation parameters with this body's
+    /// applied; `fields` is the body as JSON, which tells the parameters
+    /// given from those left out.
+    pub fn apply(
+        &self,
+        current: &InitParams,
+        fields: &serde_json::Map<String, serde_json::Value>,
+    ) -> Result<InitParams, serde_json::Error> {
+        let given = fields.get("init").and_then(serde_json::Value::as_object);
+        let object = |p: &InitParams| match serde_json::to_value(p) {
+            Ok(serde_json::Value::Object(map)) => Ok(map),
+            Ok(other) => Err(serde::ser::Error::custom(format!(
+                "initialisation parameters serialise to {other}, not an object"
+            ))),
+            Err(e) => Err(e),
+        };
+        let mut merged = object(current)?;
+        for (key, value) in object(&self.init)? {
+            if HINT_FIELDS.contains(&key.as_str()) || given.is_some_and(|g| g.contains_key(&key)) {
+                merged.insert(key, value);
+            }
+        }
+        serde_json::from_value(serde_json::Value::Object(merged))
+    }
+}
+
 /// Distinguishes an absent field (None) from an explicit null (Some(None)).
 fn present<'de, D, T>(d: D) -> Result<Option<Option<T>>, D::Error>
 where

@@ -1,6 +1,7 @@
 //! `/v1/sessions` and `/v1/depth`: sessions (create, list, get, patch,
-//! delete, reset), pair uploads, results (JSON or CSV), calibration samples
-//! from the latest disparity, and the one-shot measurement.
+//! delete, reset, reinit with new hints), pair uploads, results (JSON or
+//! CSV), calibration samples from the latest disparity, and the one-shot
+//! measurement (hints as query parameters).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -15,14 +16,15 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use crate::calib::{axis_component, Sample};
+use crate::init::{InitError, InitParams, Polarity};
 use crate::report::{csv_record, CSV_HEADER};
 use crate::tracker::TrackerParams;
 
 use super::calibrations::{add_sample, check_name};
-use super::error::{ApiError, ApiJson, ApiPath, ApiQuery, ErrorBody};
+use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
 use super::model::{
     CalibrationView, FrameResult, PairUpload, ResultsPage, SessionCreate, SessionList, SessionPatch,
-    SessionSampleCreate, SessionView,
+    SessionReinit, SessionSampleCreate, SessionView,
 };
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
 use super::state::{new_id, now_rfc3339, AppState, Session, SessionCore};
@@ -37,6 +39,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(get_session, patch_session, delete_session))
         .routes(routes!(upload_pair))
         .routes(routes!(reset_session))
+        .routes(routes!(reinit_session))
         .routes(routes!(session_results))
         .routes(routes!(add_session_calibration_sample))
         .routes(routes!(one_shot_depth))
@@ -58,6 +61,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         (status = 409, description = "Session limit reached", body = ErrorBody),
         (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): init.roi under 16 px a side, init.point not finite", body = ErrorBody),
         (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
@@ -182,6 +186,7 @@ pub async fn get_session(
         (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
         (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): init.roi under 16 px a side, init.point not finite", body = ErrorBody),
         (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
@@ -273,6 +278,7 @@ pub async fn delete_session(
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
+        (status = 422, description = "The session's hints do not fit the pair's images (`invalid_hint`: init.roi outside the image, init.point outside the image or the roi); the pair is not counted", body = ErrorBody),
         (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
@@ -312,9 +318,51 @@ pub async fn reset_session(
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
-    core.tracker.reset();
-    core.state = "awaiting_first_pair".into();
-    core.updated_at = now_rfc3339();
+    core.restart(None, now_rfc3339());
+    state.storage.upsert_session(core.record(&id)).await?;
+    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
+/// Name the object anew: the next pair initialises with these hints.
+///
+/// The hints (`roi`, `point`, `polarity`, `min_area_px`, `max_area_px`)
+/// replace the session's as a set; other `init` parameters given override
+/// the session's. Earlier results stay and frames keep counting.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/reinit",
+    operation_id = "reinit_session",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    request_body = SessionReinit,
+    responses(
+        (status = 200, description = "The session with its new hints, awaiting its next first pair", body = SessionView),
+        (status = 400, description = "Malformed JSON, unknown field, invalid parameter (e.g. an unknown init.polarity, an init.point that is not two numbers), or an id that is not UTF-8", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): init.roi under 16 px a side, init.point not finite", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn reinit_session(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
+) -> Result<ApiJson<SessionView>, ApiError> {
+    let session = state.session(&id)?;
+    let mut core = session.core.lock().await;
+    if core.deleted {
+        return Err(ApiError::not_found("session", &id));
+    }
+    let mut params = core.tracker.params().clone();
+    params.init = body
+        .apply(&params.init, &fields)
+        .map_err(|e| ApiError::internal(format!("merging initialisation parameters: {e}")))?;
+    let params = checked(params)?;
+    core.restart(Some(params), now_rfc3339());
     state.storage.upsert_session(core.record(&id)).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
 }
@@ -477,6 +525,59 @@ pub struct DepthQuery {
     /// calibration's, else 90).
     #[param(minimum = -360.0, maximum = 360.0)]
     pub tilt_axis_deg: Option<f64>,
+    /// Hint: the box `x,y,width,height` (pixels) the object lies in, clipped
+    /// to the image; width and height >= 16 (a session's `init.roi`).
+    #[param(example = "120,80,200,160")]
+    pub roi: Option<String>,
+    /// Hint: a point `x,y` (pixels) on the object (a session's `init.point`).
+    #[param(example = "210.5,160")]
+    pub point: Option<String>,
+    /// Hint: `brighter`, `darker` or `any` (default; a session's `init.polarity`).
+    #[param(value_type = Option<Polarity>)]
+    pub polarity: Option<String>,
+}
+
+impl DepthQuery {
+    /// The hints of the query applied to `init`; 400 `invalid_query` for a
+    /// value that does not parse, naming the parameter.
+    fn apply_hints(&self, init: &mut InitParams) -> Result<(), ApiError> {
+        if let Some(text) = &self.roi {
+            let values: Option<Vec<i64>> = text.split(',').map(|v| v.trim().parse().ok()).collect();
+            match values.as_deref() {
+                Some(&[x, y, w, h]) => init.roi = Some([x, y, w, h]),
+                _ => {
+                    return Err(ApiError::bad_request(
+                        "invalid_query",
+                        format!("invalid roi {text:?} (expected four integers x,y,width,height in pixels, e.g. roi=120,80,200,160)"),
+                    ))
+                }
+            }
+        }
+        if let Some(text) = &self.point {
+            let values: Option<Vec<f64>> = text.split(',').map(|v| v.trim().parse().ok()).collect();
+            match values.as_deref() {
+                Some(&[x, y]) => init.point = Some([x, y]),
+                _ => {
+                    return Err(ApiError::bad_request(
+                        "invalid_query",
+                        format!(
+                        "invalid point {text:?} (expected two numbers x,y in pixels, e.g. point=210.5,160)"
+                    ),
+                    ))
+                }
+            }
+        }
+        if let Some(text) = &self.polarity {
+            let all = [Polarity::Brighter, Polarity::Darker, Polarity::Any];
+            init.polarity = all.into_iter().find(|p| p.name() == text).ok_or_else(|| {
+                ApiError::bad_request(
+                    "invalid_query",
+                    format!("invalid polarity {text:?} (expected brighter, darker or any)"),
+                )
+            })?;
+        }
+        Ok(())
+    }
 }
 
 /// Initialise and measure one pair without a session.
@@ -489,12 +590,13 @@ pub struct DepthQuery {
     request_body(content = PairUpload, content_type = "multipart/form-data", description = "Parts `left` and `right`"),
     responses(
         (status = 200, description = "The pair's result (status initialised or lost)", body = FrameResult),
-        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes, invalid query", body = ErrorBody),
+        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes, invalid query (e.g. a roi that is not four integers, an unknown polarity)", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "Unknown calibration", body = ErrorBody),
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): roi under 16 px a side or outside the image, point not finite or outside the image or the roi", body = ErrorBody),
         (status = 503, description = "The server is shutting down", body = ErrorBody),
     )
 )]
@@ -511,9 +613,8 @@ pub async fn one_shot_depth(
     if let Some(axis) = query.tilt_axis_deg {
         params.tilt_axis_deg = axis;
     }
-    params
-        .validate()
-        .map_err(|e| ApiError::bad_request("invalid_parameter", e))?;
+    query.apply_hints(&mut params.init)?;
+    let params = checked(params)?;
     let input = read_pair_upload(request).await?;
     let result = process_one_shot(&state, params, query.calibration_id, input, received).await?;
     Ok(ApiJson(result))
@@ -539,6 +640,15 @@ fn merge_params(
     };
     if let Some(init) = init {
         params.init = init;
+    }
+    checked(params)
+}
+
+/// Validated parameters: 422 `invalid_hint` for a hint out of range (the
+/// message names the field, e.g. `init.roi`), else 400 `invalid_parameter`.
+fn checked(params: TrackerParams) -> Result<TrackerParams, ApiError> {
+    if let Err(e @ InitError::InvalidHint { .. }) = params.init.validate() {
+        return Err(ApiError::hint(e));
     }
     params
         .validate()

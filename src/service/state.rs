@@ -222,6 +222,17 @@ impl SessionCore {
         }
     }
 
+    /// Forgets the object so that the next pair initialises again, with
+    /// `params` when given (new hints); the frame count and the results stay.
+    pub fn restart(&mut self, params: Option<TrackerParams>, now: String) {
+        if let Some(params) = params {
+            self.tracker.set_params(params);
+        }
+        self.tracker.reset();
+        self.state = "awaiting_first_pair".into();
+        self.updated_at = now;
+    }
+
     /// The durable form.
     pub fn record(&self, id: &str) -> SessionRecord {
         SessionRecord {

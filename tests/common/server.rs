@@ -123,14 +123,19 @@ pub fn raw8(frame: &GrayFrame) -> Vec<u8> {
 
 /// A multipart form with `left` and `right` PNG parts.
 pub fn pair_form(pair: &SynthPair) -> reqwest::multipart::Form {
+    frames_form(&pair.left, &pair.right)
+}
+
+/// A multipart form with two frames as `left` and `right` PNG parts.
+pub fn frames_form(left: &GrayFrame, right: &GrayFrame) -> reqwest::multipart::Form {
     reqwest::multipart::Form::new()
         .part(
             "left",
-            reqwest::multipart::Part::bytes(png(&pair.left)).file_name("left.png"),
+            reqwest::multipart::Part::bytes(png(left)).file_name("left.png"),
         )
         .part(
             "right",
-            reqwest::multipart::Part::bytes(png(&pair.right)).file_name("right.png"),
+            reqwest::multipart::Part::bytes(png(right)).file_name("right.png"),
         )
 }
 
@@ -141,10 +146,15 @@ pub fn sdp1(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Vec<u8> {
 
 /// A raw 8-bit stream message for a synthetic pair.
 pub fn sdp1_raw(seq: u64, pair: &SynthPair) -> Vec<u8> {
-    let (l, r) = (raw8(&pair.left), raw8(&pair.right));
+    sdp1_raw_frames(seq, &pair.left, &pair.right)
+}
+
+/// A raw 8-bit stream message for two frames of equal size.
+pub fn sdp1_raw_frames(seq: u64, left: &GrayFrame, right: &GrayFrame) -> Vec<u8> {
+    let (l, r) = (raw8(left), raw8(right));
     sdp1(
-        &serde_json::json!({"seq": seq, "encoding": "raw", "width": pair.left.width,
-            "height": pair.left.height, "bit_depth": 8, "left_len": l.len(), "right_len": r.len()}),
+        &serde_json::json!({"seq": seq, "encoding": "raw", "width": left.width,
+            "height": left.height, "bit_depth": 8, "left_len": l.len(), "right_len": r.len()}),
         &l,
         &r,
     )
