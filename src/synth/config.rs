@@ -94,6 +94,7 @@ impl BorderSide {
 /// Named scene recipes; the seed varies motion, stereo and noise within each.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
+#[value(rename_all = "snake_case")]
 pub enum Preset {
     /// No noise, mild texture, no clutter, no occlusion, no flicker.
     #[default]
@@ -108,6 +109,7 @@ pub enum Preset {
     Flicker,
     /// A long tool entering from an image border (its base outside the
     /// frame), moving in and out along its axis, moderate noise.
+    #[value(alias = "border-tool")]
     BorderTool,
     /// Long scratches and fibres on the substrate, several running under
     /// the object, moderate noise.
