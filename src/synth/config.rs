@@ -47,9 +47,54 @@ impl Shape {
     }
 }
 
+/// An image border (the side an object enters from or crosses).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BorderSide {
+    /// x = -0.5.
+    Left,
+    /// y = -0.5.
+    Top,
+    /// x = width - 0.5.
+    Right,
+    /// y = height - 0.5.
+    Bottom,
+}
+
+impl BorderSide {
+    /// Every side, in declaration order.
+    pub const ALL: [BorderSide; 4] = [
+        BorderSide::Left,
+        BorderSide::Top,
+        BorderSide::Right,
+        BorderSide::Bottom,
+    ];
+
+    /// The snake_case name used in JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            BorderSide::Left => "left",
+            BorderSide::Top => "top",
+            BorderSide::Right => "right",
+            BorderSide::Bottom => "bottom",
+        }
+    }
+
+    /// Unit normal of this border pointing into the image.
+    pub fn inward_normal(self) -> [f64; 2] {
+        match self {
+            BorderSide::Left => [1.0, 0.0],
+            BorderSide::Top => [0.0, 1.0],
+            BorderSide::Right => [-1.0, 0.0],
+            BorderSide::Bottom => [0.0, -1.0],
+        }
+    }
+}
+
 /// Named scene recipes; the seed varies motion, stereo and noise within each.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "snake_case")]
+#[value(rename_all = "snake_case")]
 pub enum Preset {
     /// No noise, mild texture, no clutter, no occlusion, no flicker.
     #[default]
@@ -62,16 +107,57 @@ pub enum Preset {
     Occluded,
     /// +-20% grey-level gain/offset changes between images (charging), moderate noise.
     Flicker,
+    /// A long tool entering from an image border (its base outside the
+    /// frame), moving in and out along its axis, moderate noise.
+    #[value(alias = "border-tool")]
+    BorderTool,
+    /// Long scratches and fibres on the substrate, several running under
+    /// the object, moderate noise.
+    Scratched,
+    /// A dark object with a bright edge rim on a brighter substrate, moderate noise.
+    Dark,
+    /// Defocus blur (Gaussian sigma 1.5-2.5 px) at low dose.
+    Blurred,
+    /// A substrate with multi-scale relief texture (undulations, grains
+    /// with bright boundaries, ridges, speckle), moderate noise.
+    Relief,
 }
 
 impl Preset {
     /// Every preset, in declaration order.
-    pub const ALL: [Preset; 5] = [
+    pub const ALL: [Preset; 10] = [
         Preset::Clean,
         Preset::Noisy,
         Preset::Cluttered,
         Preset::Occluded,
         Preset::Flicker,
+        Preset::BorderTool,
+        Preset::Scratched,
+        Preset::Dark,
+        Preset::Blurred,
+        Preset::Relief,
+    ];
+
+    /// The original five presets: a bright object fully inside the frame
+    /// (with margin) on a smooth substrate, the scenes initialisation and
+    /// tracker were developed on.
+    pub const BASIC: [Preset; 5] = [
+        Preset::Clean,
+        Preset::Noisy,
+        Preset::Cluttered,
+        Preset::Occluded,
+        Preset::Flicker,
+    ];
+
+    /// The scene classes unlike the basic ones (border-crossing tool,
+    /// scratches and fibres under the object, dark object, defocus blur,
+    /// relief substrate), each a test of robustness.
+    pub const HARD: [Preset; 5] = [
+        Preset::BorderTool,
+        Preset::Scratched,
+        Preset::Dark,
+        Preset::Blurred,
+        Preset::Relief,
     ];
 
     /// The snake_case name used in JSON and on the command line.
@@ -82,6 +168,11 @@ impl Preset {
             Preset::Cluttered => "cluttered",
             Preset::Occluded => "occluded",
             Preset::Flicker => "flicker",
+            Preset::BorderTool => "border_tool",
+            Preset::Scratched => "scratched",
+            Preset::Dark => "dark",
+            Preset::Blurred => "blurred",
+            Preset::Relief => "relief",
         }
     }
 }
@@ -242,6 +333,127 @@ impl Default for Occlusion {
     }
 }
 
+/// The object enters the frame from an image border, like a manipulator
+/// tool whose base is outside the field of view. The object is oriented
+/// with its +x end (the tip of [`Shape::Tip`]) pointing into the image along
+/// the border's inward normal turned by `angle_rad`, and moves along that
+/// axis; `motion.drift_px_per_frame`, `motion.start_px` and
+/// `motion.start_angle_rad` are not used (rotation per frame and heights are).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BorderEntry {
+    /// The border the object crosses; `None` picks one from the seed.
+    pub side: Option<BorderSide>,
+    /// Angle between the object's axis and the border's inward normal,
+    /// radians (|angle| <= 1.0); `None` picks one in +-0.52 (30 degrees).
+    pub angle_rad: Option<f64>,
+    /// Movement along the axis per frame, pixels (positive: further in
+    /// first), reflected at the ends of the range where every constraint
+    /// below holds.
+    pub insertion_px_per_frame: f64,
+    /// Smallest fraction of the object's area inside the frame, in every
+    /// frame and both images (0.05..=0.95).
+    pub min_visible_fraction: f64,
+    /// Smallest distance by which the outline reaches past the border, in
+    /// every frame and both images, pixels (0.5..=1000): the object always
+    /// crosses the border.
+    pub min_outside_px: f64,
+    /// Scale of the outline across its axis (0.1..=1): below 1 the tool is
+    /// more slender than the shape's usual proportions (a needle).
+    pub width_scale: f64,
+}
+
+impl Default for BorderEntry {
+    fn default() -> Self {
+        Self {
+            side: None,
+            angle_rad: None,
+            insertion_px_per_frame: 10.0,
+            min_visible_fraction: 0.45,
+            min_outside_px: 4.0,
+            width_scale: 1.0,
+        }
+    }
+}
+
+/// Long thin lines on the substrate: straight scratches and curved fibres,
+/// brighter or darker than the substrate. They are static (they move with
+/// the background's disparity) and the object is painted over them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Fibres {
+    /// Lines placed anywhere on the substrate.
+    pub count: usize,
+    /// Further lines that cross the object's outline at frame 0 (each runs
+    /// through a point inside the object and leaves it on both sides).
+    pub under_object: usize,
+    /// Range [min, max] of the line widths, pixels (0.5..=20).
+    pub width_px: [f64; 2],
+    /// Range [min, max] of the grey-level change of a line (magnitude,
+    /// fraction of full scale, 0..=1).
+    pub contrast: [f64; 2],
+    /// Probability that a line is darker than the substrate (0..=1).
+    pub dark_fraction: f64,
+    /// Probability that a line is a curved fibre rather than a straight
+    /// scratch (0..=1).
+    pub curved_fraction: f64,
+}
+
+impl Default for Fibres {
+    fn default() -> Self {
+        Self {
+            count: 5,
+            under_object: 3,
+            width_px: [1.0, 4.0],
+            contrast: [0.06, 0.2],
+            dark_fraction: 0.5,
+            curved_fraction: 0.4,
+        }
+    }
+}
+
+/// Multi-scale relief of the substrate, as on a milled or sputtered
+/// surface in a FIB-SEM: large brightness undulations, grains whose tilted
+/// flanks and boundaries light up (SEM topographic and edge contrast),
+/// streaky ridges and fine speckle. Added to the smooth texture of
+/// [`Clutter`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Relief {
+    /// Amplitude of the large-scale brightness undulations (fraction of
+    /// full scale, 0..=1).
+    pub undulation: f64,
+    /// Lattice spacing of the undulations, pixels (4..=100000).
+    pub undulation_scale_px: f64,
+    /// Mean grain diameter, pixels (3..=10000).
+    pub grain_px: f64,
+    /// Brightness of the grains' topographic contrast: flanks, shadowing
+    /// and bright boundaries (fraction of full scale, 0..=1).
+    pub grain_contrast: f64,
+    /// Amplitude of the ridges (streaks along `ridge_angle_rad`, fraction
+    /// of full scale, 0..=1).
+    pub ridges: f64,
+    /// Direction of the ridges, radians (-10..=10; pi/2: vertical, like
+    /// FIB curtaining).
+    pub ridge_angle_rad: f64,
+    /// Amplitude of the fine speckle (fraction of full scale, 0..=1).
+    pub speckle: f64,
+}
+
+impl Default for Relief {
+    fn default() -> Self {
+        Self {
+            undulation: 0.06,
+            undulation_scale_px: 160.0,
+            grain_px: 16.0,
+            grain_contrast: 0.15,
+            ridges: 0.05,
+            ridge_angle_rad: std::f64::consts::FRAC_PI_2,
+            speckle: 0.03,
+        }
+    }
+}
+
 /// Everything that defines a synthetic sequence. Together with the seed it
 /// determines every pixel: the same config renders the same bytes.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -290,6 +502,26 @@ pub struct SynthConfig {
     /// Amplitude of the detector-side shading across the object (the
     /// sphere also gets a centre-bright spherical term).
     pub shading: f64,
+    /// The object crosses an image border (a tool entering the frame);
+    /// `None`: it stays inside with margin.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub border_entry: Option<BorderEntry>,
+    /// Long scratches and fibres on the substrate, some under the object.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fibres: Option<Fibres>,
+    /// Standard deviation of the Gaussian defocus blur applied to the
+    /// rendered scene before noise, pixels (0: sharp, up to 20).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub blur_sigma_px: f64,
+    /// Multi-scale relief texture of the substrate.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub relief: Option<Relief>,
+}
+
+/// For `skip_serializing_if`: fields at their default 0 are left out, so
+/// configs of the basic presets serialise as before.
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 impl Default for SynthConfig {
@@ -315,6 +547,10 @@ impl Default for SynthConfig {
             rim_width_px: 2.0,
             object_texture: 0.03,
             shading: 0.08,
+            border_entry: None,
+            fibres: None,
+            blur_sigma_px: 0.0,
+            relief: None,
         }
     }
 }
@@ -424,8 +660,88 @@ impl SynthConfig {
                 cfg.noise = moderate_noise(&mut rng);
                 cfg.flicker = 0.2;
             }
+            Preset::BorderTool => cfg.make_border_tool(&mut rng),
+            Preset::Scratched => {
+                cfg.noise = moderate_noise(&mut rng);
+                cfg.clutter.texture_amplitude = 0.03;
+                cfg.fibres = Some(Fibres {
+                    count: rng.gen_range(4..9),
+                    under_object: rng.gen_range(3..6),
+                    width_px: [1.0, 4.0],
+                    contrast: [0.06, q(rng.gen_range(0.15..0.25))],
+                    dark_fraction: 0.5,
+                    curved_fraction: q(rng.gen_range(0.3..0.6)),
+                });
+            }
+            Preset::Dark => {
+                cfg.noise = moderate_noise(&mut rng);
+                cfg.background_level = q(rng.gen_range(0.5..0.62));
+                cfg.object_contrast = -q(rng.gen_range(0.28..0.38));
+                cfg.rim_width_px = q(rng.gen_range(1.8..2.6));
+                // Where the object fully covers a pixel (0.75 px inside the
+                // outline) the rim is 0.08-0.18 brighter than the substrate.
+                let peak = -cfg.object_contrast + rng.gen_range(0.08..0.18);
+                cfg.rim_strength = q((peak / (-0.75 / cfg.rim_width_px).exp()).min(1.0));
+                cfg.object_texture = 0.03;
+                cfg.clutter.texture_amplitude = 0.03;
+                if shape != Shape::Sphere {
+                    cfg.shading = 0.05;
+                }
+            }
+            Preset::Blurred => {
+                // 15-30 electrons at the object's grey level: milder than `noisy`.
+                let object_level = cfg.background_level + cfg.object_contrast;
+                cfg.noise = Noise {
+                    dose: Some(q(rng.gen_range(15.0..30.0) / object_level)),
+                    read_noise: 0.015,
+                    line_jitter_px: q(rng.gen_range(0.1..0.25)),
+                    line_gain: 0.02,
+                };
+                cfg.blur_sigma_px = q(rng.gen_range(1.5..2.5));
+            }
+            Preset::Relief => {
+                cfg.noise = moderate_noise(&mut rng);
+                cfg.clutter.texture_amplitude = 0.015;
+                cfg.relief = Some(Relief {
+                    undulation: q(rng.gen_range(0.04..0.09)),
+                    undulation_scale_px: q(rng.gen_range(110.0..220.0)),
+                    grain_px: q(rng.gen_range(10.0..24.0)),
+                    grain_contrast: q(rng.gen_range(0.12..0.2)),
+                    ridges: q(rng.gen_range(0.03..0.08)),
+                    ridge_angle_rad: q(std::f64::consts::FRAC_PI_2 + rng.gen_range(-0.3..0.3)),
+                    speckle: q(rng.gen_range(0.02..0.04)),
+                });
+            }
         }
         cfg
+    }
+
+    /// The border_tool recipe: a long tool (tip and rod 0.5-0.8 of the
+    /// smaller image side, slender) or a large blob/sphere (0.3-0.45) cut
+    /// by a seed-chosen border, entering within +-30 degrees of the
+    /// border's normal and moving 5-20 px per frame along its axis.
+    fn make_border_tool(&mut self, rng: &mut ChaCha8Rng) {
+        let side_px = self.width.min(self.height) as f64;
+        let tool = matches!(self.shape, Shape::Tip | Shape::Rod);
+        let size = if tool {
+            rng.gen_range(0.5..0.8)
+        } else {
+            rng.gen_range(0.3..0.45)
+        };
+        self.object_size_px = Some(q(size * side_px));
+        self.noise = moderate_noise(rng);
+        self.clutter.texture_amplitude = 0.03;
+        self.motion.rotation_rad_per_frame = q(rng.gen_range(-0.004..0.004));
+        let speed = rng.gen_range(5.0..20.0);
+        let sign = if rng.gen_bool(0.5) { 1.0 } else { -1.0 };
+        self.border_entry = Some(BorderEntry {
+            side: Some(BorderSide::ALL[rng.gen_range(0..4)]),
+            angle_rad: Some(q(rng.gen_range(-0.52..0.52))),
+            insertion_px_per_frame: q(sign * speed),
+            min_visible_fraction: 0.45,
+            min_outside_px: 4.0,
+            width_scale: if tool { q(rng.gen_range(0.45..0.75)) } else { 1.0 },
+        });
     }
 
     /// The same scene at another image size; an explicit object size scales
@@ -477,7 +793,64 @@ impl SynthConfig {
         self.validate_numbers()?;
         self.validate_motion()?;
         self.validate_noise()?;
-        self.validate_occlusion()
+        self.validate_occlusion()?;
+        self.validate_scene_classes()
+    }
+
+    /// Border entry, fibres, blur and relief.
+    fn validate_scene_classes(&self) -> Result<(), SynthError> {
+        check_range("blur_sigma_px", self.blur_sigma_px, 0.0, 20.0)?;
+        if let Some(b) = &self.border_entry {
+            if let Some(a) = b.angle_rad {
+                check_range("border_entry.angle_rad", a, -1.0, 1.0)?;
+            }
+            check_range(
+                "border_entry.insertion_px_per_frame",
+                b.insertion_px_per_frame,
+                -1000.0,
+                1000.0,
+            )?;
+            check_range(
+                "border_entry.min_visible_fraction",
+                b.min_visible_fraction,
+                0.05,
+                0.95,
+            )?;
+            check_range("border_entry.min_outside_px", b.min_outside_px, 0.5, 1000.0)?;
+            check_range("border_entry.width_scale", b.width_scale, 0.1, 1.0)?;
+        }
+        if let Some(f) = &self.fibres {
+            if f.count > 10_000 || f.under_object > 10_000 {
+                return Err(SynthError::InvalidConfig {
+                    field: "fibres",
+                    message: format!(
+                        "count {} and under_object {} (expected at most 10000 each)",
+                        f.count, f.under_object
+                    ),
+                });
+            }
+            check_range("fibres.width_px[0]", f.width_px[0], 0.5, 20.0)?;
+            check_range("fibres.width_px[1]", f.width_px[1], f.width_px[0], 20.0)?;
+            check_range("fibres.contrast[0]", f.contrast[0], 0.0, 1.0)?;
+            check_range("fibres.contrast[1]", f.contrast[1], f.contrast[0], 1.0)?;
+            check_range("fibres.dark_fraction", f.dark_fraction, 0.0, 1.0)?;
+            check_range("fibres.curved_fraction", f.curved_fraction, 0.0, 1.0)?;
+        }
+        if let Some(r) = &self.relief {
+            check_range("relief.undulation", r.undulation, 0.0, 1.0)?;
+            check_range(
+                "relief.undulation_scale_px",
+                r.undulation_scale_px,
+                4.0,
+                100_000.0,
+            )?;
+            check_range("relief.grain_px", r.grain_px, 3.0, 10_000.0)?;
+            check_range("relief.grain_contrast", r.grain_contrast, 0.0, 1.0)?;
+            check_range("relief.ridges", r.ridges, 0.0, 1.0)?;
+            check_range("relief.ridge_angle_rad", r.ridge_angle_rad, -10.0, 10.0)?;
+            check_range("relief.speckle", r.speckle, 0.0, 1.0)?;
+        }
+        Ok(())
     }
 
     fn validate_numbers(&self) -> Result<(), SynthError> {

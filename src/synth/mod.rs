@@ -25,19 +25,21 @@ mod output;
 mod raster;
 mod scene;
 mod shapes;
+mod substrate;
 mod truth;
 
 #[cfg(test)]
 mod tests;
 
 pub use config::{
-    Clutter, Disparity, Motion, Noise, Occlusion, Preset, Shape, SynthConfig, ZPattern, BORDER_MARGIN,
-    MAX_SIDE, MIN_OBJECT_PX, MIN_SIDE,
+    BorderEntry, BorderSide, Clutter, Disparity, Fibres, Motion, Noise, Occlusion, Preset, Relief, Shape,
+    SynthConfig, ZPattern, BORDER_MARGIN, MAX_SIDE, MIN_OBJECT_PX, MIN_SIDE,
 };
 pub use output::{write_sequence, SequenceSummary};
 pub use scene::Scene;
 pub use shapes::MIN_VERTICES;
-pub use truth::{FrameTruth, ObjectTruth, OccluderTruth, SynthPair};
+pub use substrate::SubstrateLine;
+pub use truth::{clip_to_frame, FrameTruth, ObjectTruth, OccluderTruth, SynthPair};
 
 /// Why a sequence could not be generated or written.
 #[derive(Debug, thiserror::Error)]

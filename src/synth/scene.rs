@@ -6,12 +6,13 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::config::{Shape, SynthConfig, ZPattern, BORDER_MARGIN};
+use super::config::{BorderEntry, BorderSide, Shape, SynthConfig, ZPattern, BORDER_MARGIN};
 use super::noise;
 use super::raster::{band_field, blend_capsule, coverage, mix64, ValueNoise};
 use super::shapes::{
     self, area_of, clip_half_plane, max_radius, object_outline, overlap_with_convex, particle_outline,
 };
+use super::substrate::{self, ReliefField, SubstrateLine};
 use super::truth::{FrameTruth, ObjectTruth, OccluderTruth, SynthPair};
 use super::SynthError;
 use crate::geometry::{Point, Polygon};
@@ -25,6 +26,9 @@ mod stream {
     pub const LOOK: u64 = 4;
     pub const OCCLUDER: u64 = 5;
     pub const IMAGE: u64 = 6;
+    pub const BORDER: u64 = 7;
+    pub const FIBRES: u64 = 8;
+    pub const RELIEF: u64 = 9;
 }
 
 /// A random generator for one purpose (and index) of a seed.
@@ -169,6 +173,7 @@ pub struct Scene {
     pad: usize,
     layers: [Vec<f32>; 2],
     particles: Vec<Polygon>,
+    lines: Vec<SubstrateLine>,
     light: Point,
     texture: TextureGrid,
     rim: Rim,
@@ -182,7 +187,18 @@ impl Scene {
         config.validate()?;
         let cfg = config.clone();
         let size = cfg.object_size();
-        let outline = object_outline(cfg.shape, size, &mut rng_for(cfg.seed, stream::SHAPE, 0));
+        let mut outline = object_outline(cfg.shape, size, &mut rng_for(cfg.seed, stream::SHAPE, 0));
+        if let Some(b) = cfg.border_entry.as_ref().filter(|b| b.width_scale != 1.0) {
+            // Slender tool: squeeze across the axis (the centroid stays at
+            // the origin, the outline stays dense).
+            outline = Polygon::new(
+                outline
+                    .points
+                    .iter()
+                    .map(|p| [p[0], p[1] * b.width_scale])
+                    .collect(),
+            );
+        }
         let area = outline.area();
         let poses = trajectory(&cfg, &outline)?;
         let mut look = rng_for(cfg.seed, stream::LOOK, 0);
@@ -204,6 +220,7 @@ impl Scene {
             pad,
             layers: [Vec::new(), Vec::new()],
             particles: Vec::new(),
+            lines: Vec::new(),
             light: [light_angle.cos(), light_angle.sin()],
             texture,
         };
@@ -236,15 +253,27 @@ impl Scene {
         &self.particles
     }
 
+    /// The long scratches and fibres of the substrate (left-image
+    /// coordinates; the right image shows them shifted by the background's
+    /// disparity). Empty unless `fibres` is configured.
+    pub fn lines(&self) -> &[SubstrateLine] {
+        &self.lines
+    }
+
     /// Ground truth of frame `k` (panics if `k >= len()`).
     pub fn truth(&self, k: usize) -> FrameTruth {
         let pose = self.poses[k];
         let d = self.cfg.disparity.at(pose.z);
         let rotation = pose.angle;
-        let left = ObjectTruth::from_polygon(pose.polygon(&self.outline, 0.0), rotation);
-        let right = ObjectTruth::from_polygon(pose.polygon(&self.outline, d), rotation);
+        let (w, h) = (self.cfg.width, self.cfg.height);
+        let left = ObjectTruth::in_frame(pose.polygon(&self.outline, 0.0), rotation, w, h);
+        let right = ObjectTruth::in_frame(pose.polygon(&self.outline, d), rotation, w, h);
         // Exact by construction: the right outline is the left one moved by d.
         let disparity_px = [d, 0.0];
+        let visible_disparity_px = [
+            right.visible_centroid[0] - left.visible_centroid[0],
+            right.visible_centroid[1] - left.visible_centroid[1],
+        ];
         let occluder = self.occluder_truth(k, &left.polygon, &right.polygon);
         let (occluded_fraction, occluded_fraction_right) = occluder
             .as_ref()
@@ -253,6 +282,7 @@ impl Scene {
             frame: k,
             z_um: pose.z,
             disparity_px,
+            visible_disparity_px,
             background_disparity_px: self.background_disparity,
             left,
             right,
@@ -310,6 +340,10 @@ impl Scene {
             paint_polygon(&mut img, [w, h], &pts, &jitter, self.rim.scaled(0.5), |_, _| {
                 brightness
             });
+        }
+        if self.cfg.blur_sigma_px > 0.0 {
+            // Defocus acts on the scene before the detector adds noise.
+            substrate::gaussian_blur(&mut img, w, self.cfg.blur_sigma_px);
         }
         let (gain, offset) = noise::flicker_gain_offset(self.cfg.flicker, &mut rng);
         let data = noise::finish(
@@ -400,6 +434,17 @@ impl Scene {
         let mut clutter_rng = rng_for(cfg.seed, stream::CLUTTER, 0);
         let (particles, looks) = self.place_particles(&mut clutter_rng);
         let scratches = self.place_scratches(&mut clutter_rng);
+        // The scene classes draw from their own streams: the basic presets'
+        // backgrounds stay exactly as they were.
+        let lines = cfg.fibres.as_ref().map_or_else(Vec::new, |f| {
+            let object = self.poses[0].polygon(&self.outline, 0.0);
+            let mut rng = rng_for(cfg.seed, stream::FIBRES, 0);
+            substrate::place_lines(f, cfg.width as f64, cfg.height as f64, &object, &mut rng)
+        });
+        let relief = cfg
+            .relief
+            .as_ref()
+            .map(|r| ReliefField::new(r, &mut rng_for(cfg.seed, stream::RELIEF, 0)));
         let (w, h) = (cfg.width as usize, cfg.height as usize);
         let lw = w + 2 * self.pad;
         let mut layers = [Vec::new(), Vec::new()];
@@ -416,6 +461,9 @@ impl Scene {
                 }
                 texture.add_row(x0, y as f64, row);
             }
+            if let Some(relief) = &relief {
+                relief.add_to_layer(layer, lw, x0);
+            }
             let offset = [self.pad as f64 + shift, 0.0];
             let zeros = vec![0.0f32; h];
             for (p, &value) in particles.iter().zip(&looks) {
@@ -427,8 +475,12 @@ impl Scene {
                 let b = [b[0] + offset[0], b[1]];
                 blend_capsule(layer, lw, a, b, width, delta);
             }
+            for line in &lines {
+                substrate::blend_line(layer, lw, line, offset);
+            }
         }
         self.layers = layers;
+        self.lines = lines;
         self.particles = particles;
     }
 
@@ -601,6 +653,9 @@ fn rotation_extents(outline: &Polygon, angle0: f64, span: f64) -> [f64; 4] {
 /// Poses of all frames: heights, rotation and a drift reflected inside the
 /// region where the object (both images) keeps the border margin.
 fn trajectory(cfg: &SynthConfig, outline: &Polygon) -> Result<Vec<Pose>, SynthError> {
+    if let Some(entry) = &cfg.border_entry {
+        return border_trajectory(cfg, entry, outline);
+    }
     let m = &cfg.motion;
     let mut rng = rng_for(cfg.seed, stream::MOTION, 0);
     let angle0 = m
@@ -657,6 +712,182 @@ fn trajectory(cfg: &SynthConfig, outline: &Polygon) -> Result<Vec<Pose>, SynthEr
                 center: [
                     fold(start[0] + t * m.drift_px_per_frame[0], lo[0], hi[0]),
                     fold(start[1] + t * m.drift_px_per_frame[1], lo[1], hi[1]),
+                ],
+                angle: angle0 + t * m.rotation_rad_per_frame,
+                z,
+            }
+        })
+        .collect())
+}
+
+/// The frame in the coordinates of one border: the corner `origin` and the
+/// unit vectors `n` (inward normal) and `t` (along the border) such that
+/// the frame is {origin + s n + u t : 0 <= s <= depth, 0 <= u <= length}.
+struct BorderFrame {
+    origin: Point,
+    n: Point,
+    t: Point,
+    depth: f64,
+    length: f64,
+}
+
+impl BorderFrame {
+    fn new(side: BorderSide, width: f64, height: f64) -> Self {
+        let n = side.inward_normal();
+        let t = [-n[1], n[0]];
+        let (x1, y1) = (width - 0.5, height - 0.5);
+        let (origin, depth, length) = match side {
+            BorderSide::Left => ([-0.5, -0.5], width, height),
+            BorderSide::Top => ([x1, -0.5], height, width),
+            BorderSide::Right => ([x1, y1], width, height),
+            BorderSide::Bottom => ([-0.5, y1], height, width),
+        };
+        Self {
+            origin,
+            n,
+            t,
+            depth,
+            length,
+        }
+    }
+
+    /// Range [min, max] of the projections onto `dir` (a unit axis vector)
+    /// of a bounding box [min x, min y, max x, max y].
+    fn project(bbox: [f64; 4], dir: Point) -> [f64; 2] {
+        let (a, b) = if dir[0] != 0.0 {
+            (bbox[0] * dir[0], bbox[2] * dir[0])
+        } else {
+            (bbox[1] * dir[1], bbox[3] * dir[1])
+        };
+        [a.min(b), a.max(b)]
+    }
+}
+
+/// Fraction of `outline` (turned by `angle`, centroid at depth `s` from the
+/// border along `n`) on the inner side of the border line.
+fn inside_fraction(outline: &Polygon, angle: f64, n: Point, s: f64) -> f64 {
+    let (sn, cs) = angle.sin_cos();
+    let pts: Vec<Point> = outline
+        .points
+        .iter()
+        .map(|q| [cs * q[0] - sn * q[1], sn * q[0] + cs * q[1]])
+        .collect();
+    area_of(&clip_half_plane(&pts, n, -s)) / area_of(&pts).max(1e-12)
+}
+
+/// Poses of a border-crossing object. Its axis points into the frame along
+/// the border's normal turned by the entry angle, and the centroid moves on
+/// the line `origin + u0 t + q dir`; the insertion q runs in steps of
+/// `insertion_px_per_frame`, reflected at the ends of the range where, in
+/// every frame and both images, the outline reaches past the border by
+/// `min_outside_px`, its far end (the tip) keeps the border margin from the
+/// opposite side, its sides keep the margin from the two lateral borders
+/// and at least `min_visible_fraction` of its area is inside.
+fn border_trajectory(
+    cfg: &SynthConfig,
+    entry: &BorderEntry,
+    outline: &Polygon,
+) -> Result<Vec<Pose>, SynthError> {
+    let m = &cfg.motion;
+    let zs = heights(cfg, &mut rng_for(cfg.seed, stream::MOTION, 0));
+    let mut rng = rng_for(cfg.seed, stream::BORDER, 0);
+    let side = entry.side.unwrap_or_else(|| BorderSide::ALL[rng.gen_range(0..4)]);
+    let alpha = entry.angle_rad.unwrap_or_else(|| rng.gen_range(-0.52..0.52));
+    let f = BorderFrame::new(side, cfg.width as f64, cfg.height as f64);
+    let (sa, ca) = alpha.sin_cos();
+    let dir = [ca * f.n[0] + sa * f.t[0], ca * f.n[1] + sa * f.t[1]];
+    let angle0 = dir[1].atan2(dir[0]);
+    let span = m.rotation_rad_per_frame * (cfg.frames - 1) as f64;
+    let ext = rotation_extents(outline, angle0, span);
+    let a_ext = BorderFrame::project(ext, f.n);
+    let b_ext = BorderFrame::project(ext, f.t);
+    let (dmin, dmax) = zs
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &z| {
+            let d = cfg.disparity.at(z);
+            (lo.min(d), hi.max(d))
+        });
+    // Depth of the centroid at which the inside fraction is just reached,
+    // worst case over the rotations of the sequence (sampled).
+    let samples = if span == 0.0 {
+        1
+    } else {
+        ((span.abs() / 0.01).ceil() as usize).clamp(2, 64)
+    };
+    let mut s_fraction = f64::NEG_INFINITY;
+    for i in 0..samples {
+        let angle = angle0 + span * i as f64 / (samples - 1).max(1) as f64;
+        let (mut lo, mut hi) = (-a_ext[1], -a_ext[0]);
+        for _ in 0..50 {
+            let mid = 0.5 * (lo + hi);
+            if inside_fraction(outline, angle, f.n, mid) >= entry.min_visible_fraction {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        // Slack for the outline between the sampled angles.
+        s_fraction = s_fraction.max(hi + span.abs() / (samples - 1).max(1) as f64 * max_radius(outline));
+    }
+    let margin = BORDER_MARGIN * cfg.object_size();
+    // Insertion range [q_lo, q_hi] over both images (the right one is
+    // shifted by the disparity along x).
+    let (mut q_lo, mut q_hi) = (f64::NEG_INFINITY, f64::INFINITY);
+    let (mut b_lo, mut b_hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for e in [0.0, dmin, dmax] {
+        let ds = e * f.n[0];
+        let du = e * f.t[0];
+        q_hi = q_hi
+            .min((-entry.min_outside_px - a_ext[0] - ds) / ca)
+            .min((f.depth - margin - a_ext[1] - ds) / ca);
+        q_lo = q_lo.max((s_fraction - ds) / ca);
+        b_lo = b_lo.min(b_ext[0] + du);
+        b_hi = b_hi.max(b_ext[1] + du);
+    }
+    let does_not_fit = |why: String| {
+        SynthError::DoesNotFit(format!(
+            "an object of {:.0}x{:.0} px entering from the {} border at {alpha:.2} rad {why} (expected a smaller object_size_px, min_visible_fraction or min_outside_px, or a larger image)",
+            ext[2] - ext[0],
+            ext[3] - ext[1],
+            side.name(),
+        ))
+    };
+    if q_lo > q_hi {
+        return Err(does_not_fit(format!(
+            "cannot keep {:.0}% of its area inside, reach {:.1} px past the border and keep a margin of {margin:.1} px from the opposite border",
+            100.0 * entry.min_visible_fraction,
+            entry.min_outside_px
+        )));
+    }
+    // Lateral room: the centroid's position along the border moves by
+    // q sin(alpha); shrink the insertion range about its middle if needed.
+    let room = f.length - 2.0 * margin - (b_hi - b_lo);
+    if room < 0.0 {
+        return Err(does_not_fit(format!(
+            "is wider than the {:.0} px border minus margins of {margin:.1} px",
+            f.length
+        )));
+    }
+    if sa.abs() * (q_hi - q_lo) > room {
+        let mid = 0.5 * (q_lo + q_hi);
+        let half = 0.5 * room / sa.abs();
+        (q_lo, q_hi) = (mid - half, mid + half);
+    }
+    let u_lo = margin - b_lo - (q_lo * sa).min(q_hi * sa);
+    let u_hi = f.length - margin - b_hi - (q_lo * sa).max(q_hi * sa);
+    let u0 = rng.gen_range(u_lo..=u_hi.max(u_lo));
+    let q0 = rng.gen_range(q_lo..=q_hi);
+    Ok(zs
+        .iter()
+        .enumerate()
+        .map(|(k, &z)| {
+            let t = k as f64;
+            let q = fold(q0 + t * entry.insertion_px_per_frame, q_lo, q_hi);
+            let (s, u) = (q * ca, u0 + q * sa);
+            Pose {
+                center: [
+                    f.origin[0] + s * f.n[0] + u * f.t[0],
+                    f.origin[1] + s * f.n[1] + u * f.t[1],
                 ],
                 angle: angle0 + t * m.rotation_rad_per_frame,
                 z,

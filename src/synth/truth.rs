@@ -1,8 +1,11 @@
 //! Ground truth of synthetic frames: the object's outline, centroid,
-//! orientation and area in both images, height, disparity and occlusion.
+//! orientation and area in both images (also the part inside the frame, for
+//! objects that cross an image border), height, disparity and occlusion.
 
 use serde::{Deserialize, Serialize};
 
+use super::config::BorderSide;
+use super::shapes::clip_half_plane;
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 
@@ -23,24 +26,114 @@ pub struct ObjectTruth {
     pub polygon: Polygon,
     /// Area of `polygon` in square pixels.
     pub area_px: f64,
+    /// `polygon` clipped to the image rectangle [-0.5, -0.5, w - 0.5,
+    /// h - 0.5]: the part a tracker can see (equal to `polygon` when the
+    /// object lies inside the frame). May have zero-width edges along the
+    /// border where the outline leaves and re-enters the frame.
+    pub visible_polygon: Polygon,
+    /// Area centroid of `visible_polygon` (pixels): where a tracker of the
+    /// visible part should put its centroid.
+    pub visible_centroid: Point,
+    /// Area of `visible_polygon` in square pixels.
+    pub visible_area_px: f64,
+    /// The image borders the full outline crosses (empty when the object is
+    /// inside the frame), in the order left, top, right, bottom.
+    pub border: Vec<BorderSide>,
 }
 
 impl ObjectTruth {
-    /// Truth for an outline: centroid, orientation and area of the polygon.
+    /// Truth for an outline, taking it to lie inside the frame (the
+    /// visible part is the whole polygon, no border is crossed).
     pub fn from_polygon(polygon: Polygon, rotation_rad: f64) -> Self {
+        let centroid = polygon.centroid();
+        let area_px = polygon.area();
         Self {
-            centroid: polygon.centroid(),
+            centroid,
             angle_rad: polygon.orientation(),
             rotation_rad,
-            area_px: polygon.area(),
+            area_px,
+            visible_polygon: polygon.clone(),
+            visible_centroid: centroid,
+            visible_area_px: area_px,
+            border: Vec::new(),
             polygon,
         }
     }
 
-    /// Row-major mask of the pixels whose centres lie inside the object.
+    /// Truth for an outline in a `width x height` image: centroid,
+    /// orientation and area of the polygon and of its part inside the frame,
+    /// and the borders it crosses.
+    pub fn in_frame(polygon: Polygon, rotation_rad: f64, width: u32, height: u32) -> Self {
+        let visible_polygon = clip_to_frame(&polygon, width, height);
+        let visible_area_px = visible_polygon.area();
+        let b = polygon.bounds();
+        let (xmax, ymax) = (width as f64 - 0.5, height as f64 - 0.5);
+        let border = [
+            (b[0] < -0.5, BorderSide::Left),
+            (b[1] < -0.5, BorderSide::Top),
+            (b[2] > xmax, BorderSide::Right),
+            (b[3] > ymax, BorderSide::Bottom),
+        ]
+        .into_iter()
+        .filter_map(|(crossed, side)| crossed.then_some(side))
+        .collect();
+        let centroid = polygon.centroid();
+        Self {
+            centroid,
+            angle_rad: polygon.orientation(),
+            rotation_rad,
+            area_px: polygon.area(),
+            // An object entirely outside has no visible centroid: keep a
+            // finite value (JSON has no NaN).
+            visible_centroid: if visible_area_px > 1e-9 {
+                visible_polygon.centroid()
+            } else {
+                centroid
+            },
+            visible_area_px,
+            visible_polygon,
+            border,
+            polygon,
+        }
+    }
+
+    /// Row-major mask of the pixels whose centres lie inside the object
+    /// (only pixels of the `width x height` frame exist, so this is also
+    /// the mask of `visible_polygon`).
     pub fn mask(&self, width: u32, height: u32) -> Vec<bool> {
         self.polygon.rasterize(width, height)
     }
+
+    /// Fraction of the object's area inside the frame (1 when it does not
+    /// cross a border).
+    pub fn visible_fraction(&self) -> f64 {
+        if self.area_px > 0.0 {
+            self.visible_area_px / self.area_px
+        } else {
+            0.0
+        }
+    }
+}
+
+/// `polygon` clipped to the image rectangle [-0.5, -0.5, w - 0.5, h - 0.5]
+/// (Sutherland-Hodgman against its four sides: exact area for any simple
+/// outline, since the rectangle is convex). Unchanged when inside.
+pub fn clip_to_frame(polygon: &Polygon, width: u32, height: u32) -> Polygon {
+    let (xmax, ymax) = (width as f64 - 0.5, height as f64 - 0.5);
+    let b = polygon.bounds();
+    if b[0] >= -0.5 && b[1] >= -0.5 && b[2] <= xmax && b[3] <= ymax {
+        return polygon.clone();
+    }
+    let mut pts = polygon.points.clone();
+    for (n, s) in [
+        ([1.0, 0.0], -0.5),
+        ([0.0, 1.0], -0.5),
+        ([-1.0, 0.0], -xmax),
+        ([0.0, -1.0], -ymax),
+    ] {
+        pts = clip_half_plane(&pts, n, s);
+    }
+    Polygon::new(pts)
 }
 
 /// The occluder of one frame (present from `Occlusion::enter_frame` on).
@@ -70,6 +163,10 @@ pub struct FrameTruth {
     /// Right centroid minus left centroid of the full object, pixels
     /// (y is always 0: the tilt axis is the image y axis).
     pub disparity_px: Point,
+    /// Right minus left `visible_centroid`: what a tracker of the visible
+    /// part measures; differs from `disparity_px` when the object crosses a
+    /// border (the two images clip it differently).
+    pub visible_disparity_px: Point,
     /// Disparity of the background (substrate), pixels.
     pub background_disparity_px: f64,
     /// The object in the left image.
