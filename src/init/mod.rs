@@ -23,17 +23,14 @@ use serde::{Deserialize, Serialize};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 
-mod candidates;
 mod edges;
 mod morphology;
 
-use candidates::{finalists, traced_border, Candidate, Rejections, SummedArea, WorkArea};
-pub use candidates::{Score, Source};
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
 };
 pub use morphology::{dilate_disk, erode_disk, fill_region, outer_regions, Region};
-use morphology::{largest_component_border, shifted};
+use morphology::{largest_component_border, shifted, without_tails};
 
 /// A single-channel f32 image (values in 0..=1 after normalisation).
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
@@ -195,15 +192,6 @@ pub struct InitResult {
     pub area_px: f64,
     /// Bounding box of the contour as `[min_x, min_y, max_x, max_y]`.
     pub bbox: [f64; 4],
-    /// Why this region won: its score (the region energy's gain per pixel of
-    /// outline, higher is better) and contrast (see [`candidates`]).
-    pub score: Score,
-    /// Where the region came from.
-    pub source: Source,
-    /// The image borders the object touches (`left`, `top`, `right`,
-    /// `bottom`): its outline runs along them there, which is no edge of
-    /// the object.
-    pub border: Vec<String>,
     /// What the pipeline used and saw, for diagnosis.
     pub diagnostics: InitDiagnostics,
 }
@@ -224,21 +212,8 @@ pub struct InitDiagnostics {
     pub dilation_radius: u8,
     /// Number of edge pixels after hysteresis.
     pub edge_pixels: usize,
-    /// Number of candidate regions scored.
+    /// Number of top-level outer contours (candidate objects).
     pub candidates: usize,
-    /// The next best candidates, best first (at most four).
-    pub runners_up: Vec<RunnerUp>,
-}
-
-/// A candidate that lost, for diagnosis.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RunnerUp {
-    /// Its score.
-    pub score: Score,
-    /// Where it came from.
-    pub source: Source,
-    /// Its bounding box `[x0, y0, x1, y1]`, pixels.
-    pub bbox: [f64; 4],
 }
 
 /// Why no object was found, or why the request was refused.
@@ -266,9 +241,10 @@ pub enum InitError {
         max_area_px: f64,
         largest_area_px: f64,
     },
-    /// Regions exist, but none is a plausible object with these hints.
-    #[error("no plausible object: {message} (point at the object or draw a box around it)")]
-    NoPlausibleRegion { message: String },
+    /// The only plausible object touches the image (or region-of-interest)
+    /// border, so its outline is incomplete.
+    #[error("the object touches the {edge} border of the searched area; move it into view or widen the region of interest")]
+    TouchesBorder { edge: String },
 }
 
 impl InitError {
@@ -279,7 +255,7 @@ impl InitError {
             Self::InvalidHint { .. } => "invalid_hint",
             Self::NoEdges { .. } => "no_edges",
             Self::NothingInSizeRange { .. } => "nothing_in_size_range",
-            Self::NoPlausibleRegion { .. } => "no_plausible_region",
+            Self::TouchesBorder { .. } => "object_touches_border",
         }
     }
 }
@@ -458,202 +434,88 @@ impl InitParams {
 /// Finds the object in `frame` (see the module docs for the steps).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
-    let hints = params.hints_for(frame.width, frame.height)?;
-    let stage = edge_stage(frame, params, &hints)?;
     let EdgeStage {
-        area,
+        roi,
         scale,
-        ref work,
         noise_work,
         sigma,
-        ref blurred,
         low,
         high,
-        ref edges,
-    } = stage;
+        edges,
+        ..
+    } = edge_stage(frame, params)?;
     let (w, h) = edges.dimensions();
+    let noise_full = noise_work * scale as f32;
     let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
-    let searched_area = hints.roi[2] as f64 * hints.roi[3] as f64;
+    if edge_pixels == 0 {
+        return Err(InitError::NoEdges { high_threshold: high });
+    }
+
+    let searched_area = roi[2] as f64 * roi[3] as f64;
     let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
     let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
     let px_per_work = (scale * scale) as f64;
-    let image_sides = [
-        area[0] == 0,
-        area[1] == 0,
-        area[0] + area[2] == frame.width,
-        area[1] + area[3] == frame.height,
-    ];
-    let work_area = WorkArea {
-        work,
-        blurred,
-        scale,
-        image_sides,
-        domain: working_domain(&hints, area, scale, [w, h]),
-        point: hints.point.map(|[px, py]| {
-            let s = scale as f64;
-            [
-                (((px + 0.5 - area[0] as f64) / s).floor().max(0.0) as u32).min(w - 1),
-                (((py + 0.5 - area[1] as f64) / s).floor().max(0.0) as u32).min(h - 1),
-            ]
-        }),
-        polarity: hints.polarity,
-        min_area: min_area / px_per_work,
-        max_area: max_area / px_per_work,
-        offset: 1.0 / frame.max_value() as f64,
-        table: SummedArea::new(work),
-    };
-
-    let mut rejected = Rejections::default();
-    let mut candidates = Vec::new();
     let auto_radius = auto_dilation_radius(w, h);
     let radii: Vec<u8> = match params.dilation_radius {
         Some(r) => vec![r],
         None => vec![auto_radius, auto_radius * 2],
     };
-    let mut dilation_radius = radii[0];
-    if edge_pixels > 0 {
-        for &radius in &radii {
-            let closed = dilate_disk(edges, radius);
-            let regions = outer_regions(&closed);
-            let found: Vec<Candidate> = closed_regions(&regions, radius, work_area.min_area)
-                .iter()
-                .filter_map(|border| work_area.edge_candidate(border, radius, &mut rejected))
-                .collect();
-            dilation_radius = radius;
-            // The wider radius only when the first closes no outline.
-            if !found.is_empty() {
-                candidates.extend(found);
-                break;
+
+    let mut last_error = None;
+    for &radius in &radii {
+        let closed = dilate_disk(&edges, radius);
+        let regions = outer_regions(&closed);
+        let candidates = regions.len();
+        match select_object(
+            &regions,
+            w,
+            h,
+            radius,
+            min_area / px_per_work,
+            max_area / px_per_work,
+        ) {
+            Ok(object) => {
+                let contour = to_full_resolution(&object, scale, roi, params.contour_spacing_px);
+                let centroid = contour.centroid();
+                return Ok(InitResult {
+                    area_px: contour.area(),
+                    bbox: contour.bounds(),
+                    centroid,
+                    contour,
+                    diagnostics: InitDiagnostics {
+                        scale,
+                        noise_sigma: noise_full,
+                        sigma,
+                        low_threshold: low,
+                        high_threshold: high,
+                        dilation_radius: radius,
+                        edge_pixels,
+                        candidates,
+                    },
+                });
+            }
+            Err(SelectError::Border(edge)) => last_error = Some(InitError::TouchesBorder { edge }),
+            Err(SelectError::Size(largest)) => {
+                // A touching-border verdict from a smaller radius is more
+                // telling than "nothing in range" from a larger one.
+                if !matches!(last_error, Some(InitError::TouchesBorder { .. })) {
+                    last_error = Some(InitError::NothingInSizeRange {
+                        min_area_px: min_area,
+                        max_area_px: max_area,
+                        largest_area_px: largest * px_per_work,
+                    })
+                }
             }
         }
     }
-    candidates.extend(work_area.threshold_candidates(&mut rejected));
-    let mut candidates: Vec<Candidate> = finalists(candidates, |c| (c.bbox(), c.score.score))
-        .iter()
-        .filter_map(|c| work_area.finish(c, &mut rejected))
-        .collect();
-    candidates.sort_by(|a, b| b.score.score.total_cmp(&a.score.score));
-    let Some(best) = candidates.first() else {
-        return Err(no_candidate(high, &rejected, min_area, max_area, px_per_work));
-    };
-    let border =
-        traced_border(best).ok_or_else(|| no_candidate(high, &rejected, min_area, max_area, px_per_work))?;
-    let contour = to_full_resolution(
-        &border,
-        scale,
-        area,
-        [frame.width, frame.height],
-        work_area.border_sides(best),
-        [w, h],
-        params.contour_spacing_px,
-    );
-    let centroid = contour.centroid();
-    let sides = work_area.border_sides(best);
-    Ok(InitResult {
-        area_px: contour.area(),
-        bbox: contour.bounds(),
-        centroid,
-        contour,
-        score: best.score,
-        source: best.source,
-        border: ["left", "top", "right", "bottom"]
-            .iter()
-            .zip(sides)
-            .filter(|(_, on)| *on)
-            .map(|(name, _)| name.to_string())
-            .collect(),
-        diagnostics: InitDiagnostics {
-            scale,
-            noise_sigma: noise_work * scale as f32,
-            sigma,
-            low_threshold: low,
-            high_threshold: high,
-            dilation_radius,
-            edge_pixels,
-            candidates: candidates.len(),
-            runners_up: candidates
-                .iter()
-                .skip(1)
-                .take(4)
-                .map(|c| RunnerUp {
-                    score: c.score,
-                    source: c.source,
-                    bbox: working_box_to_full(c, scale, area),
-                })
-                .collect(),
-        },
-    })
-}
-
-/// The error when no candidate is left, saying why.
-fn no_candidate(
-    high: f32,
-    rejected: &Rejections,
-    min_area: f64,
-    max_area: f64,
-    px_per_work: f64,
-) -> InitError {
-    // Background regions that span the frame are always turned down; they
-    // say why only when nothing else was found.
-    let hinted = rejected.polarity + rejected.point;
-    if hinted == 0 && rejected.size > 0 {
-        return InitError::NothingInSizeRange {
-            min_area_px: min_area,
-            max_area_px: max_area,
-            largest_area_px: rejected.largest_out_of_range * px_per_work,
-        };
-    }
-    if hinted == 0 && rejected.spanning == 0 {
-        return InitError::NoEdges { high_threshold: high };
-    }
-    InitError::NoPlausibleRegion {
-        message: format!(
-            "{} regions span the frame or fill the box, {} have the wrong polarity or no contrast, {} miss the point, {} are outside the size range {min_area:.0}..={max_area:.0} px",
-            rejected.spanning, rejected.polarity, rejected.point, rejected.size
-        ),
-    }
-}
-
-/// The working pixels `[x0, y0, x1, y1)` an object may cover: those meeting
-/// the roi grown by a little slack (a box drawn tight around the object
-/// leaves it room), or all.
-fn working_domain(hints: &Hints, area: [u32; 4], scale: u32, [w, h]: [u32; 2]) -> [u32; 4] {
-    if !hints.has_roi {
-        return [0, 0, w, h];
-    }
-    let s = scale as f64;
-    let [rx, ry, rw, rh] = hints.roi.map(f64::from);
-    let slack = (0.04 * rw.max(rh)).max(2.0 * s);
-    let to_work = |v: f64, origin: u32| (v - origin as f64) / s;
-    let x0 = to_work(rx - slack, area[0]).floor().max(0.0) as u32;
-    let y0 = to_work(ry - slack, area[1]).floor().max(0.0) as u32;
-    let x1 = (to_work(rx + rw + slack, area[0]).ceil().max(0.0) as u32).min(w);
-    let y1 = (to_work(ry + rh + slack, area[1]).ceil().max(0.0) as u32).min(h);
-    [
-        x0.min(x1.saturating_sub(1)),
-        y0.min(y1.saturating_sub(1)),
-        x1.max(1),
-        y1.max(1),
-    ]
-}
-
-/// A candidate's bounding box in full-resolution pixels `[x0, y0, x1, y1]`.
-fn working_box_to_full(c: &Candidate, scale: u32, area: [u32; 4]) -> [f64; 4] {
-    let s = scale as f64;
-    [
-        area[0] as f64 + c.origin[0] as f64 * s - 0.5,
-        area[1] as f64 + c.origin[1] as f64 * s - 0.5,
-        area[0] as f64 + (c.origin[0] + c.width) as f64 * s - 0.5,
-        area[1] as f64 + (c.origin[1] + c.height) as f64 * s - 0.5,
-    ]
+    Err(last_error.expect("at least one radius tried"))
 }
 
 /// The first half of [`initialise`]: the working copy and its edge map,
 /// with the values chosen on the way.
 struct EdgeStage {
-    /// Searched area `[x, y, w, h]` of the frame: the roi with some of its
-    /// surroundings (for the background statistics), or the whole frame.
-    area: [u32; 4],
+    /// Searched area `[x, y, w, h]` of the frame.
+    roi: [u32; 4],
     /// Integer downsampling factor of the working copy.
     scale: u32,
     /// The working copy (0..=1).
@@ -671,26 +533,11 @@ struct EdgeStage {
     edges: GrayImage,
 }
 
-/// The area searched for an object with these hints: the roi grown by 30%
-/// of its longer side (at least 16 px), clipped to the frame; the frame
-/// without a roi.
-fn searched_area(frame: &GrayFrame, hints: &Hints) -> [u32; 4] {
-    if !hints.has_roi {
-        return [0, 0, frame.width, frame.height];
-    }
-    let [x, y, w, h] = hints.roi;
-    let grow = ((0.3 * w.max(h) as f64).ceil() as u32).max(16);
-    let (x0, y0) = (x.saturating_sub(grow), y.saturating_sub(grow));
-    let x1 = (x + w).saturating_add(grow).min(frame.width);
-    let y1 = (y + h).saturating_add(grow).min(frame.height);
-    [x0, y0, x1 - x0, y1 - y0]
-}
-
 /// Downsamples, blurs and runs Canny as [`initialise`] does.
-fn edge_stage(frame: &GrayFrame, params: &InitParams, hints: &Hints) -> Result<EdgeStage, InitError> {
-    let area = searched_area(frame, hints);
-    let scale = area[2].max(area[3]).div_ceil(params.working_max_side).max(1);
-    let work = downsample(frame, area, scale);
+fn edge_stage(frame: &GrayFrame, params: &InitParams) -> Result<EdgeStage, InitError> {
+    let roi = resolve_roi(frame, params)?;
+    let scale = roi[2].max(roi[3]).div_ceil(params.working_max_side).max(1);
+    let work = downsample(frame, roi, scale);
     let (w, h) = work.dimensions();
     if w < 8 || h < 8 {
         return Err(InitError::InvalidParams(format!(
@@ -710,7 +557,7 @@ fn edge_stage(frame: &GrayFrame, params: &InitParams, hints: &Hints) -> Result<E
     let low = params.low_threshold.unwrap_or(auto_low.min(high));
     let edges = hysteresis(&non_maximum_suppression(&gradient, low), w, h, low, high);
     Ok(EdgeStage {
-        area,
+        roi,
         scale,
         work,
         noise_work,
@@ -732,10 +579,7 @@ fn auto_dilation_radius(width: u32, height: u32) -> u8 {
 /// edges, edges dilated by the first radius tried) for diagnosis; empty when
 /// the parameters are invalid.
 pub fn debug_stages(frame: &GrayFrame, params: &InitParams) -> Vec<(&'static str, GrayImage)> {
-    let Ok(stage) = params
-        .hints_for(frame.width, frame.height)
-        .and_then(|hints| edge_stage(frame, params, &hints))
-    else {
+    let Ok(stage) = edge_stage(frame, params) else {
         return Vec::new();
     };
     let (w, h) = stage.work.dimensions();
@@ -756,156 +600,106 @@ pub fn debug_stages(frame: &GrayFrame, params: &InitParams) -> Vec<(&'static str
     ]
 }
 
-/// The eroded outer borders (working coordinates) of the regions that are
-/// filled shapes rather than open outlines, at most eight, largest first.
-fn closed_regions(regions: &[Region], radius: u8, min_area: f64) -> Vec<Vec<[i32; 2]>> {
+enum SelectError {
+    /// Largest candidate's area (working pixels) when none is in range.
+    Size(f64),
+    /// The best candidate touches this border.
+    Border(String),
+}
+
+/// Picks the largest region whose eroded area lies in `min..=max` (working
+/// pixels), that is a filled shape rather than an open outline, and that does
+/// not touch the image border; returns its eroded outer border.
+fn select_object(
+    regions: &[Region],
+    width: u32,
+    height: u32,
+    radius: u8,
+    min_area: f64,
+    max_area: f64,
+) -> Result<Vec<[i32; 2]>, SelectError> {
+    let mut largest_seen = 0.0f64;
+    let mut border_hit = None;
     // A closed outline fills to a region much thicker than the dilated edge
     // line (about one pixel after erosion); an open outline (a gap wider than
     // the dilation closes, or an object cut by the frame edge) stays a line.
     let min_thickness = radius as f64 + 1.0;
     // Candidates far below the minimum cannot grow into range: stop there.
     // A few attempts bound the cost when many large regions are rejected.
-    regions
-        .iter()
-        .filter(|r| r.approx_area >= min_area * 0.5)
-        .take(8)
-        .filter_map(|region| {
-            let (filled, x0, y0) = fill_region(&region.border);
-            let eroded = erode_disk(&filled, radius);
-            let (border, area) = largest_component_border(&eroded)?;
-            // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
-            let thickness = 2.0 * area / border.len().max(1) as f64;
-            (thickness >= min_thickness).then(|| shifted(&border, [x0, y0]))
-        })
-        .collect()
+    for region in regions.iter().filter(|r| r.approx_area >= min_area * 0.5).take(8) {
+        let (filled, x0, y0) = fill_region(&region.border);
+        let eroded = erode_disk(&filled, radius);
+        let Some((border, area)) = largest_component_border(&eroded) else {
+            continue;
+        };
+        let border = shifted(&border, [x0, y0]);
+        // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
+        let thickness = 2.0 * area / border.len().max(1) as f64;
+        let touched = touched_border(&border, width, height);
+        if thickness < min_thickness {
+            if let Some(edge) = touched {
+                border_hit.get_or_insert(edge);
+            }
+            continue;
+        }
+        largest_seen = largest_seen.max(area);
+        if area < min_area || area > max_area {
+            continue;
+        }
+        if let Some(edge) = touched {
+            border_hit.get_or_insert(edge);
+            continue;
+        }
+        return Ok(without_tails(&eroded, border, [x0, y0]));
+    }
+    Err(match border_hit {
+        Some(edge) => SelectError::Border(edge),
+        None => SelectError::Size(largest_seen),
+    })
+}
+
+/// Which border of the working image a region touches, if any: comes within
+/// two pixels of it. Sobel gradients vanish on the outermost pixel ring, so an
+/// object cut by the frame edge leaves its outline open about there.
+fn touched_border(border: &[[i32; 2]], width: u32, height: u32) -> Option<String> {
+    const MARGIN: i32 = 2;
+    let (w, h) = (width as i32, height as i32);
+    for p in border {
+        if p[0] <= MARGIN {
+            return Some("left".into());
+        }
+        if p[1] <= MARGIN {
+            return Some("top".into());
+        }
+        if p[0] >= w - 1 - MARGIN {
+            return Some("right".into());
+        }
+        if p[1] >= h - 1 - MARGIN {
+            return Some("bottom".into());
+        }
+    }
+    None
 }
 
 /// Maps a working-resolution border to a smooth full-resolution contour.
-/// The runs of the border on the image's own border (`sides`: left, top,
-/// right, bottom of the working image lying there) are put exactly on the
-/// image edge (x = -0.5 or width - 0.5, likewise y) and kept straight: they
-/// are no edge of the object.
-fn to_full_resolution(
-    border: &[[i32; 2]],
-    scale: u32,
-    area: [u32; 4],
-    [image_w, image_h]: [u32; 2],
-    sides: [bool; 4],
-    [work_w, work_h]: [u32; 2],
-    spacing: f64,
-) -> Polygon {
+fn to_full_resolution(border: &[[i32; 2]], scale: u32, roi: [u32; 4], spacing: f64) -> Polygon {
     // Working pixel i covers full-resolution pixels i*s .. i*s+s-1, whose
     // centre is at i*s + (s-1)/2.
     let s = scale as f64;
-    let offset = [area[0] as f64 + (s - 1.0) / 2.0, area[1] as f64 + (s - 1.0) / 2.0];
-    let snap = |p: [i32; 2]| -> [Option<f64>; 2] {
-        let x = if sides[0] && p[0] == 0 {
-            Some(-0.5)
-        } else if sides[2] && p[0] == work_w as i32 - 1 {
-            Some(image_w as f64 - 0.5)
-        } else {
-            None
-        };
-        let y = if sides[1] && p[1] == 0 {
-            Some(-0.5)
-        } else if sides[3] && p[1] == work_h as i32 - 1 {
-            Some(image_h as f64 - 0.5)
-        } else {
-            None
-        };
-        [x, y]
-    };
-    let snapped: Vec<[Option<f64>; 2]> = border.iter().map(|&p| snap(p)).collect();
-    let on_border = |i: usize| snapped[i][0].is_some() || snapped[i][1].is_some();
-    let n = border.len();
-    let full = |i: usize| {
-        let p = border[i];
-        [
-            snapped[i][0].unwrap_or(p[0] as f64 * s + offset[0]),
-            snapped[i][1].unwrap_or(p[1] as f64 * s + offset[1]),
-        ]
-    };
+    let offset = [roi[0] as f64 + (s - 1.0) / 2.0, roi[1] as f64 + (s - 1.0) / 2.0];
+    let raw = Polygon::new(border.iter().map(|p| [p[0] as f64, p[1] as f64]).collect());
     // A traced border is a pixel staircase; a short moving average turns it
     // into a sub-pixel outline before resampling.
-    let Some(first) = (0..n).find(|&i| on_border(i) && !on_border((i + n - 1) % n)) else {
-        let raw = Polygon::new(border.iter().map(|p| [p[0] as f64, p[1] as f64]).collect());
-        let full = raw.moving_average(2).scaled(s, offset);
-        let count = ((full.length() / spacing).round() as usize).max(8);
-        return full.resampled(count);
-    };
-    let mut points = Vec::new();
-    let mut k = 0;
-    while k < n {
-        let i = (first + k) % n;
-        if on_border(i) {
-            // The run along the image border: its ends and its corners.
-            let corner = k > 0 && on_border((i + n - 1) % n) && snapped[i] != snapped[(i + n - 1) % n];
-            let ends_run = !on_border((i + 1) % n);
-            if k == 0 || corner || ends_run || !on_border((i + n - 1) % n) {
-                points.push(full(i));
-            }
-            k += 1;
-            continue;
-        }
-        // A free run, from the border point before it to the one after.
-        let mut run = vec![full((i + n - 1) % n)];
-        while k < n && !on_border((first + k) % n) {
-            run.push(full((first + k) % n));
-            k += 1;
-        }
-        run.push(full((first + k) % n));
-        let smooth = smooth_open(&run, 2);
-        points.extend(resample_open(&smooth, spacing).into_iter().skip(1));
-        // The last point is the next run's first: drop it here.
-        points.pop();
-    }
-    Polygon::new(points)
+    let smooth = raw.moving_average(2);
+    let full = smooth.scaled(s, offset);
+    let n = ((full.length() / spacing).round() as usize).max(8);
+    full.resampled(n)
 }
 
-/// Moving average over `2 * half + 1` neighbours of an open polyline, its
-/// ends fixed (the window shrinks towards them).
-fn smooth_open(points: &[Point], half: usize) -> Vec<Point> {
-    let n = points.len();
-    (0..n)
-        .map(|i| {
-            let h = half.min(i).min(n - 1 - i);
-            let window = &points[i - h..=i + h];
-            let k = window.len() as f64;
-            let sum = window.iter().fold([0.0, 0.0], |a, p| [a[0] + p[0], a[1] + p[1]]);
-            [sum[0] / k, sum[1] / k]
-        })
-        .collect()
-}
-
-/// An open polyline resampled to even spacing of about `spacing`, both
-/// ends kept.
-fn resample_open(points: &[Point], spacing: f64) -> Vec<Point> {
-    let lengths: Vec<f64> = points
-        .windows(2)
-        .map(|w| crate::geometry::dist(w[0], w[1]))
-        .collect();
-    let total: f64 = lengths.iter().sum();
-    let segments = ((total / spacing).round() as usize).max(1);
-    let step = total / segments as f64;
-    let mut out = Vec::with_capacity(segments + 1);
-    out.push(points[0]);
-    let (mut edge, mut walked) = (0usize, 0.0);
-    for k in 1..segments {
-        let target = k as f64 * step;
-        while edge + 1 < lengths.len() && walked + lengths[edge] < target {
-            walked += lengths[edge];
-            edge += 1;
-        }
-        let t = if lengths[edge] > 0.0 {
-            ((target - walked) / lengths[edge]).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        let (a, b) = (points[edge], points[edge + 1]);
-        out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
-    }
-    out.push(points[points.len() - 1]);
-    out
+/// The searched area `[x, y, w, h]` of the frame: the `roi` hint clipped
+/// to it, or the whole frame.
+fn resolve_roi(frame: &GrayFrame, params: &InitParams) -> Result<[u32; 4], InitError> {
+    Ok(params.hints_for(frame.width, frame.height)?.roi)
 }
 
 /// Box-averages the `roi` of a frame by an integer `factor`, normalised to
@@ -1002,15 +796,10 @@ mod tests {
     }
 
     #[test]
-    fn an_object_cut_by_the_border_is_found_with_its_outline_on_the_border() {
+    fn object_cut_by_the_border_is_reported() {
         let f = disc_frame(200, 200, [10.0, 100.0], 50.0, 40, 200);
-        let r = initialise(&f, &InitParams::default()).unwrap();
-        assert_eq!(r.border, vec!["left".to_string()]);
-        let on_edge = r.contour.points.iter().filter(|p| p[0] == -0.5).count();
-        assert!(on_edge >= 2, "{on_edge} vertices on the image edge");
-        let truth = Polygon::circle([10.0, 100.0], 50.0, 720).rasterize(200, 200);
-        let iou = mask_iou(&truth, &r.contour.rasterize(200, 200));
-        assert!(iou > 0.95, "IoU {iou}");
+        let e = initialise(&f, &InitParams::default()).unwrap_err();
+        assert_eq!(e, InitError::TouchesBorder { edge: "left".into() });
     }
 
     #[test]
