@@ -68,3 +68,51 @@ fn synthetic_initial_regions_match_truth() {
         "success rate {rate:.3} < {MIN_SUCCESS_RATE}; failures: {failures:#?}"
     );
 }
+
+/// A dark object with a bright SEM edge rim (the generator's `dark` scene
+/// class), found from a box around it: the region must include the rim
+/// (`init::rim`). Without the rim step the found region stops inside it
+/// (median IoU 0.87-0.91 on seeds 300-302). Thresholds: every case
+/// IoU >= 0.9 and the median >= 0.95 (measured on these unseen seeds: min
+/// 0.932, median 0.969). Issue #16 asks for >= 0.95 in 95% of cases with a
+/// hint: not met yet (90% here; a tip and a rod fall short).
+#[test]
+fn dark_objects_with_a_bright_rim_are_found_with_their_rim() {
+    let mut ious = Vec::new();
+    for shape in Shape::ALL {
+        for seed in 400..405 {
+            let config = SynthConfig {
+                frames: 1,
+                ..SynthConfig::preset(Preset::Dark, shape, seed)
+            };
+            let pair = Scene::new(&config).unwrap().render(0);
+            let (w, h) = (config.width, config.height);
+            let truth = pair.truth.left.mask(w, h);
+            let [x0, y0, x1, y1] = pair.truth.left.visible_polygon.bounds();
+            let (gx, gy) = (0.1 * (x1 - x0), 0.1 * (y1 - y0));
+            let roi = [
+                (x0 - gx).floor() as i64,
+                (y0 - gy).floor() as i64,
+                (x1 - x0 + 2.0 * gx).ceil() as i64 + 1,
+                (y1 - y0 + 2.0 * gy).ceil() as i64 + 1,
+            ];
+            let params = InitParams {
+                roi: Some(roi),
+                ..InitParams::default()
+            };
+            let found = initialise(&pair.left, &params)
+                .unwrap_or_else(|e| panic!("dark/{}/seed {seed}: {e}", shape.name()));
+            let iou = mask_iou(&found.contour.rasterize(w, h), &truth);
+            eprintln!("dark/{}/seed {seed}: IoU {iou:.3}", shape.name());
+            assert!(
+                iou >= 0.9,
+                "dark/{}/seed {seed}: IoU {iou:.3} < 0.9",
+                shape.name()
+            );
+            ious.push(iou);
+        }
+    }
+    ious.sort_by(|a, b| a.total_cmp(b));
+    let median = ious[ious.len() / 2];
+    assert!(median >= 0.95, "median IoU {median:.3} < 0.95");
+}

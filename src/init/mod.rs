@@ -25,6 +25,7 @@ use crate::imageio::GrayFrame;
 
 mod edges;
 mod morphology;
+mod rim;
 
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
@@ -80,6 +81,14 @@ impl Polarity {
         }
     }
 }
+
+/// How far outside a dark region its bright edge rim is looked for, in
+/// working pixels (see [`rim`]).
+const RIM_REACH_WORKING_PX: f64 = 6.0;
+
+/// How much brighter than the substrate a dark object's rim must be, as a
+/// fraction of the substrate-to-object contrast (see [`rim`]).
+const RIM_MIN_EXCESS: f64 = 0.15;
 
 /// Largest magnitude of a hint coordinate or size, pixels (2^31).
 pub const MAX_HINT_COORDINATE: i64 = 1 << 31;
@@ -476,6 +485,12 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
         ) {
             Ok(object) => {
                 let contour = to_full_resolution(&object, scale, roi, params.contour_spacing_px);
+                let contour = rim::grow_over_rim(
+                    frame,
+                    &contour,
+                    RIM_REACH_WORKING_PX * scale as f64,
+                    RIM_MIN_EXCESS,
+                );
                 let centroid = contour.centroid();
                 return Ok(InitResult {
                     area_px: contour.area(),
