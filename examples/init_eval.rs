@@ -1,0 +1,100 @@
+//! Initialisation against the generator's frame-clipped truth on every scene
+//! class: IoU of the found region, without hints, with a `roi` (the visible
+//! object's bounding box grown by 10% per side) and with a `point` (the
+//! visible mask pixel nearest its centroid).
+//! `cargo run --release --example init_eval -- [SEEDS] [FIRST_SEED]`;
+//! `ONLY=border_tool,dark` restricts the presets, `FAILS=1` lists failures.
+use semdepth::geometry::mask_iou;
+use semdepth::init::{initialise, InitParams};
+use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
+
+fn main() {
+    let args: Vec<u64> = std::env::args().skip(1).map(|s| s.parse().unwrap()).collect();
+    let seeds = *args.first().unwrap_or(&5);
+    let seed0 = *args.get(1).unwrap_or(&300);
+    let list = std::env::var("FAILS").is_ok();
+    println!("preset       | none >=0.9 | roi >=0.95 | point >=0.95 | median IoU none/roi/point");
+    for preset in Preset::ALL {
+        if let Ok(only) = std::env::var("ONLY") {
+            if !only.split(',').any(|p| p == preset.name()) {
+                continue;
+            }
+        }
+        let mut ious: [Vec<f64>; 3] = Default::default();
+        let mut fails = Vec::new();
+        for shape in Shape::ALL {
+            for seed in seed0..seed0 + seeds {
+                let cfg = SynthConfig {
+                    frames: 1,
+                    ..SynthConfig::preset(preset, shape, seed)
+                };
+                let pair = Scene::new(&cfg).unwrap().render(0);
+                let (w, h) = (cfg.width, cfg.height);
+                let truth = pair.truth.left.mask(w, h);
+                let [x0, y0, x1, y1] = pair.truth.left.visible_polygon.bounds();
+                let (gx, gy) = (0.1 * (x1 - x0), 0.1 * (y1 - y0));
+                let roi = [
+                    (x0 - gx).floor() as i64,
+                    (y0 - gy).floor() as i64,
+                    (x1 - x0 + 2.0 * gx).ceil() as i64 + 1,
+                    (y1 - y0 + 2.0 * gy).ceil() as i64 + 1,
+                ];
+                let c = pair.truth.left.visible_centroid;
+                let point = (0..truth.len())
+                    .filter(|&i| truth[i])
+                    .map(|i| [(i % w as usize) as f64, (i / w as usize) as f64])
+                    .min_by(|a, b| {
+                        let da = (a[0] - c[0]).hypot(a[1] - c[1]);
+                        let db = (b[0] - c[0]).hypot(b[1] - c[1]);
+                        da.total_cmp(&db)
+                    })
+                    .unwrap();
+                let runs = [
+                    InitParams::default(),
+                    InitParams {
+                        roi: Some(roi),
+                        ..InitParams::default()
+                    },
+                    InitParams {
+                        point: Some(point),
+                        ..InitParams::default()
+                    },
+                ];
+                for (k, params) in runs.iter().enumerate() {
+                    let iou = match initialise(&pair.left, params) {
+                        Ok(found) => mask_iou(&found.contour.rasterize(w, h), &truth),
+                        Err(_) => 0.0,
+                    };
+                    let limit = if k == 0 { 0.9 } else { 0.95 };
+                    if iou < limit {
+                        fails.push(format!(
+                            "{}/{}/{seed} {}: {iou:.3}",
+                            preset.name(),
+                            shape.name(),
+                            ["none", "roi", "point"][k]
+                        ));
+                    }
+                    ious[k].push(iou);
+                }
+            }
+        }
+        let share = |v: &[f64], limit: f64| v.iter().filter(|&&x| x >= limit).count() as f64 / v.len() as f64;
+        let median = |v: &mut Vec<f64>| {
+            v.sort_by(|a, b| a.total_cmp(b));
+            v[v.len() / 2]
+        };
+        let (a, b, c) = (share(&ious[0], 0.9), share(&ious[1], 0.95), share(&ious[2], 0.95));
+        println!(
+            "{:<12} | {a:>10.2} | {b:>10.2} | {c:>12.2} | {:.3} / {:.3} / {:.3}",
+            preset.name(),
+            median(&mut ious[0]),
+            median(&mut ious[1]),
+            median(&mut ious[2])
+        );
+        if list {
+            for f in fails {
+                println!("    {f}");
+            }
+        }
+    }
+}
