@@ -31,14 +31,7 @@ fn main() {
                 let pair = Scene::new(&cfg).unwrap().render(0);
                 let (w, h) = (cfg.width, cfg.height);
                 let truth = pair.truth.left.mask(w, h);
-                let [x0, y0, x1, y1] = pair.truth.left.visible_polygon.bounds();
-                let (gx, gy) = (0.1 * (x1 - x0), 0.1 * (y1 - y0));
-                let roi = [
-                    (x0 - gx).floor() as i64,
-                    (y0 - gy).floor() as i64,
-                    (x1 - x0 + 2.0 * gx).ceil() as i64 + 1,
-                    (y1 - y0 + 2.0 * gy).ceil() as i64 + 1,
-                ];
+                let roi = pair.truth.left.roi_hint(0.1);
                 let c = pair.truth.left.visible_centroid;
                 let point = (0..truth.len())
                     .filter(|&i| truth[i])

@@ -104,6 +104,20 @@ impl ObjectTruth {
         self.polygon.rasterize(width, height)
     }
 
+    /// A `roi` hint `[x, y, width, height]` around the visible object: its
+    /// bounding box grown by `grow` (e.g. 0.1) of its width and height on
+    /// every side, as a person would draw it.
+    pub fn roi_hint(&self, grow: f64) -> [i64; 4] {
+        let [x0, y0, x1, y1] = self.visible_polygon.bounds();
+        let (gx, gy) = (grow * (x1 - x0), grow * (y1 - y0));
+        [
+            (x0 - gx).floor() as i64,
+            (y0 - gy).floor() as i64,
+            (x1 - x0 + 2.0 * gx).ceil() as i64 + 1,
+            (y1 - y0 + 2.0 * gy).ceil() as i64 + 1,
+        ]
+    }
+
     /// Fraction of the object's area inside the frame (1 when it does not
     /// cross a border).
     pub fn visible_fraction(&self) -> f64 {
