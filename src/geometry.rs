@@ -188,21 +188,29 @@ impl Polygon {
     /// move inwards. For small distances this grows or shrinks the outline
     /// by about `distance` everywhere.
     pub fn offset_along_normals(&self, distance: f64) -> Self {
+        let normals = self.outward_normals();
+        let points = self
+            .points
+            .iter()
+            .zip(&normals)
+            .map(|(p, n)| [p[0] + distance * n[0], p[1] + distance * n[1]])
+            .collect();
+        Self::new(points)
+    }
+
+    /// Unit outward normal at every vertex: perpendicular to the chord
+    /// through its two neighbours.
+    pub fn outward_normals(&self) -> Vec<Point> {
         let n = self.points.len();
         let outward = if self.signed_area() >= 0.0 { 1.0 } else { -1.0 };
-        let points = (0..n)
+        (0..n)
             .map(|i| {
                 let (a, b) = (self.points[(i + n - 1) % n], self.points[(i + 1) % n]);
                 let t = [b[0] - a[0], b[1] - a[1]];
                 let l = t[0].hypot(t[1]).max(1e-12);
-                let p = self.points[i];
-                [
-                    p[0] + distance * outward * t[1] / l,
-                    p[1] - distance * outward * t[0] / l,
-                ]
+                [outward * t[1] / l, -outward * t[0] / l]
             })
-            .collect();
-        Self::new(points)
+            .collect()
     }
 
     /// Moving average over `2 * half + 1` neighbouring vertices (the outline

@@ -41,9 +41,22 @@ pub(super) fn grow_over_rim(frame: &GrayFrame, contour: &Polygon, max_px: f64, m
     };
     // Only differences of means are compared: no intensity offset needed.
     let sums = PrefixSums::new(frame, rect, 0);
-    let inside = |d: f64| contour.offset_along_normals(d);
+    // Normals from a smoothed copy (about 9 vertices): the outline's pixel
+    // noise would turn offsets of 10-20 px along the vertex normals into
+    // loops.
+    let normals = contour.moving_average(4).outward_normals();
+    let inside = |d: f64| {
+        Polygon::new(
+            contour
+                .points
+                .iter()
+                .zip(&normals)
+                .map(|(p, n)| [p[0] + d * n[0], p[1] + d * n[1]])
+                .collect(),
+        )
+    };
     let outer = inside(max_px + SUBSTRATE_BAND_PX[1]);
-    if contour.len() < 8 || !sums.contains(&outer.points) || !outer.is_simple() {
+    if contour.len() < 8 || !sums.contains(&outer.points) {
         return contour.clone();
     }
     let sum = |p: &Polygon| sums.polygon(&p.points);
