@@ -91,6 +91,9 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         "centroid": result.centroid,
         "area_px": result.area_px,
         "bbox": result.bbox,
+        "score": result.score,
+        "source": result.source,
+        "border": result.border,
         "diagnostics": result.diagnostics,
     });
     if !args.no_contour {

@@ -23,10 +23,13 @@ use serde::{Deserialize, Serialize};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 
+mod candidates;
 mod edges;
 mod morphology;
+mod prompted;
 mod rim;
 
+pub use candidates::{Score, Source};
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
 };
@@ -84,7 +87,7 @@ impl Polarity {
 
 /// How far outside a dark region its bright edge rim is looked for, in
 /// working pixels (see [`rim`]).
-const RIM_REACH_WORKING_PX: f64 = 6.0;
+const RIM_REACH_WORKING_PX: f64 = 10.0;
 
 /// How much brighter than the substrate a dark object's rim must be, as a
 /// fraction of the substrate-to-object contrast (see [`rim`]).
@@ -201,6 +204,17 @@ pub struct InitResult {
     pub area_px: f64,
     /// Bounding box of the contour as `[min_x, min_y, max_x, max_y]`.
     pub bbox: [f64; 4],
+    /// Why this region won when candidates were ranked: its score (the
+    /// region energy's gain per pixel of outline, higher is better) and
+    /// contrast (see [`candidates`]); `None` when the paper's
+    /// largest-region rule chose it (no hints).
+    pub score: Option<Score>,
+    /// Where the region came from.
+    pub source: Source,
+    /// The image borders the object crosses (`left`, `top`, `right`,
+    /// `bottom`): its outline runs along them there, which is no edge of
+    /// the object.
+    pub border: Vec<String>,
     /// What the pipeline used and saw, for diagnosis.
     pub diagnostics: InitDiagnostics,
 }
@@ -221,8 +235,23 @@ pub struct InitDiagnostics {
     pub dilation_radius: u8,
     /// Number of edge pixels after hysteresis.
     pub edge_pixels: usize,
-    /// Number of top-level outer contours (candidate objects).
+    /// Number of candidate regions (outer contours for the largest-region
+    /// rule, scored candidates when they were ranked).
     pub candidates: usize,
+    /// The next best candidates, best first (at most four; empty for the
+    /// largest-region rule).
+    pub runners_up: Vec<RunnerUp>,
+}
+
+/// A candidate that lost, for diagnosis.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunnerUp {
+    /// Its score.
+    pub score: Score,
+    /// Where it came from.
+    pub source: Source,
+    /// Its bounding box `[x0, y0, x1, y1]`, pixels.
+    pub bbox: [f64; 4],
 }
 
 /// Why no object was found, or why the request was refused.
@@ -254,6 +283,9 @@ pub enum InitError {
     /// border, so its outline is incomplete.
     #[error("the object touches the {edge} border of the searched area; move it into view or widen the region of interest")]
     TouchesBorder { edge: String },
+    /// Regions exist, but none is a plausible object with these hints.
+    #[error("no plausible object: {message} (point at the object or draw a box around it)")]
+    NoPlausibleRegion { message: String },
 }
 
 impl InitError {
@@ -265,6 +297,7 @@ impl InitError {
             Self::NoEdges { .. } => "no_edges",
             Self::NothingInSizeRange { .. } => "nothing_in_size_range",
             Self::TouchesBorder { .. } => "object_touches_border",
+            Self::NoPlausibleRegion { .. } => "no_plausible_region",
         }
     }
 }
@@ -380,6 +413,14 @@ pub struct Hints {
     pub polarity: Polarity,
 }
 
+impl Hints {
+    /// True when any hint narrows the search (a `roi`, a `point`, or a
+    /// polarity other than `any`).
+    pub fn given(&self) -> bool {
+        self.has_roi || self.point.is_some() || self.polarity != Polarity::Any
+    }
+}
+
 impl InitParams {
     /// The hints checked against a `width` x `height` image: the `roi`
     /// clipped to it (an error only when nothing of at least
@@ -440,19 +481,44 @@ impl InitParams {
     }
 }
 
-/// Finds the object in `frame` (see the module docs for the steps).
+/// Finds the object in `frame`. With a hint (`roi`, `point` or a
+/// `polarity` other than `any`), the object is the best-scoring candidate
+/// that fits it ([`prompted`]). Without hints, the paper's rule (steps 1-7
+/// of the module docs: the largest closed region in the size range) picks
+/// it, and the candidates are asked only when that finds nothing, e.g. for
+/// a tool entering from the image border.
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
+    let hints = params.hints_for(frame.width, frame.height)?;
+    let stage = edge_stage(frame, params, &hints)?;
+    if hints.given() {
+        return prompted::find(frame, params, &hints, &stage);
+    }
+    match largest_region(frame, params, &stage) {
+        Err(e @ (InitError::TouchesBorder { .. } | InitError::NothingInSizeRange { .. })) => {
+            prompted::find(frame, params, &hints, &stage).map_err(|_| e)
+        }
+        found => found,
+    }
+}
+
+/// The paper's rule: the largest closed outline of the dilated edges whose
+/// filled area lies in the size range, away from the image border.
+fn largest_region(
+    frame: &GrayFrame,
+    params: &InitParams,
+    stage: &EdgeStage,
+) -> Result<InitResult, InitError> {
     let EdgeStage {
-        roi,
+        area: roi,
         scale,
         noise_work,
         sigma,
         low,
         high,
-        edges,
+        ref edges,
         ..
-    } = edge_stage(frame, params)?;
+    } = *stage;
     let (w, h) = edges.dimensions();
     let noise_full = noise_work * scale as f32;
     let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
@@ -472,7 +538,7 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
 
     let mut last_error = None;
     for &radius in &radii {
-        let closed = dilate_disk(&edges, radius);
+        let closed = dilate_disk(edges, radius);
         let regions = outer_regions(&closed);
         let candidates = regions.len();
         match select_object(
@@ -497,6 +563,11 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
                     bbox: contour.bounds(),
                     centroid,
                     contour,
+                    score: None,
+                    source: Source::Edges {
+                        dilation_radius: radius,
+                    },
+                    border: Vec::new(),
                     diagnostics: InitDiagnostics {
                         scale,
                         noise_sigma: noise_full,
@@ -506,6 +577,7 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
                         dilation_radius: radius,
                         edge_pixels,
                         candidates,
+                        runners_up: Vec::new(),
                     },
                 });
             }
@@ -528,31 +600,47 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
 
 /// The first half of [`initialise`]: the working copy and its edge map,
 /// with the values chosen on the way.
-struct EdgeStage {
-    /// Searched area `[x, y, w, h]` of the frame.
-    roi: [u32; 4],
+pub(super) struct EdgeStage {
+    /// Searched area `[x, y, w, h]` of the frame: the roi with some of its
+    /// surroundings (for the background statistics), or the whole frame.
+    pub(super) area: [u32; 4],
     /// Integer downsampling factor of the working copy.
-    scale: u32,
+    pub(super) scale: u32,
     /// The working copy (0..=1).
-    work: FloatImage,
+    pub(super) work: FloatImage,
     /// Estimated noise of the working copy.
-    noise_work: f32,
+    pub(super) noise_work: f32,
     /// Gaussian sigma used.
-    sigma: f32,
+    pub(super) sigma: f32,
     /// The blurred working copy.
-    blurred: FloatImage,
+    pub(super) blurred: FloatImage,
     /// Canny thresholds used.
-    low: f32,
-    high: f32,
+    pub(super) low: f32,
+    pub(super) high: f32,
     /// Edge pixels (255) after hysteresis.
-    edges: GrayImage,
+    pub(super) edges: GrayImage,
+}
+
+/// The area searched for an object with these hints: the roi grown by 30%
+/// of its longer side (at least 16 px), clipped to the frame; the frame
+/// without a roi.
+fn searched_area(frame: &GrayFrame, hints: &Hints) -> [u32; 4] {
+    if !hints.has_roi {
+        return [0, 0, frame.width, frame.height];
+    }
+    let [x, y, w, h] = hints.roi;
+    let grow = ((0.3 * w.max(h) as f64).ceil() as u32).max(16);
+    let (x0, y0) = (x.saturating_sub(grow), y.saturating_sub(grow));
+    let x1 = (x + w).saturating_add(grow).min(frame.width);
+    let y1 = (y + h).saturating_add(grow).min(frame.height);
+    [x0, y0, x1 - x0, y1 - y0]
 }
 
 /// Downsamples, blurs and runs Canny as [`initialise`] does.
-fn edge_stage(frame: &GrayFrame, params: &InitParams) -> Result<EdgeStage, InitError> {
-    let roi = resolve_roi(frame, params)?;
-    let scale = roi[2].max(roi[3]).div_ceil(params.working_max_side).max(1);
-    let work = downsample(frame, roi, scale);
+fn edge_stage(frame: &GrayFrame, params: &InitParams, hints: &Hints) -> Result<EdgeStage, InitError> {
+    let area = searched_area(frame, hints);
+    let scale = area[2].max(area[3]).div_ceil(params.working_max_side).max(1);
+    let work = downsample(frame, area, scale);
     let (w, h) = work.dimensions();
     if w < 8 || h < 8 {
         return Err(InitError::InvalidParams(format!(
@@ -572,7 +660,7 @@ fn edge_stage(frame: &GrayFrame, params: &InitParams) -> Result<EdgeStage, InitE
     let low = params.low_threshold.unwrap_or(auto_low.min(high));
     let edges = hysteresis(&non_maximum_suppression(&gradient, low), w, h, low, high);
     Ok(EdgeStage {
-        roi,
+        area,
         scale,
         work,
         noise_work,
@@ -586,7 +674,7 @@ fn edge_stage(frame: &GrayFrame, params: &InitParams) -> Result<EdgeStage, InitE
 
 /// First dilation radius (working pixels) when none is given: about 1/150
 /// of the working image's shorter side.
-fn auto_dilation_radius(width: u32, height: u32) -> u8 {
+pub(super) fn auto_dilation_radius(width: u32, height: u32) -> u8 {
     ((width.min(height) as f32 / 150.0).round() as u8).clamp(2, 6)
 }
 
@@ -594,7 +682,10 @@ fn auto_dilation_radius(width: u32, height: u32) -> u8 {
 /// edges, edges dilated by the first radius tried) for diagnosis; empty when
 /// the parameters are invalid.
 pub fn debug_stages(frame: &GrayFrame, params: &InitParams) -> Vec<(&'static str, GrayImage)> {
-    let Ok(stage) = edge_stage(frame, params) else {
+    let Ok(stage) = params
+        .hints_for(frame.width, frame.height)
+        .and_then(|hints| edge_stage(frame, params, &hints))
+    else {
         return Vec::new();
     };
     let (w, h) = stage.work.dimensions();
@@ -711,12 +802,6 @@ fn to_full_resolution(border: &[[i32; 2]], scale: u32, roi: [u32; 4], spacing: f
     full.resampled(n)
 }
 
-/// The searched area `[x, y, w, h]` of the frame: the `roi` hint clipped
-/// to it, or the whole frame.
-fn resolve_roi(frame: &GrayFrame, params: &InitParams) -> Result<[u32; 4], InitError> {
-    Ok(params.hints_for(frame.width, frame.height)?.roi)
-}
-
 /// Box-averages the `roi` of a frame by an integer `factor`, normalised to
 /// 0..=1. Partial blocks at the right and bottom edges are dropped.
 pub fn downsample(frame: &GrayFrame, roi: [u32; 4], factor: u32) -> FloatImage {
@@ -811,10 +896,17 @@ mod tests {
     }
 
     #[test]
-    fn object_cut_by_the_border_is_reported() {
+    fn an_object_cut_by_the_border_is_found_with_its_outline_on_the_border() {
+        // The largest-region rule refuses it; the candidates find it.
         let f = disc_frame(200, 200, [10.0, 100.0], 50.0, 40, 200);
-        let e = initialise(&f, &InitParams::default()).unwrap_err();
-        assert_eq!(e, InitError::TouchesBorder { edge: "left".into() });
+        let r = initialise(&f, &InitParams::default()).unwrap();
+        assert_eq!(r.border, vec!["left".to_string()]);
+        assert!(r.score.is_some(), "ranked by score: {:?}", r.source);
+        let on_edge = r.contour.points.iter().filter(|p| p[0] == -0.5).count();
+        assert!(on_edge >= 2, "{on_edge} vertices on the image edge");
+        let truth = Polygon::circle([10.0, 100.0], 50.0, 720).rasterize(200, 200);
+        let iou = mask_iou(&truth, &r.contour.rasterize(200, 200));
+        assert!(iou > 0.95, "IoU {iou}");
     }
 
     #[test]

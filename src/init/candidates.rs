@@ -1,0 +1,1096 @@
+//! Candidate objects for the initialisation, and the score that ranks them.
+//!
+//! Two sources of candidates on the working image:
+//! - the paper's edge pipeline (Canny, dilation, filled outer contours,
+//!   erosion; see [`super::initialise`]), and
+//! - threshold components: for grey levels spread between the working
+//!   image's extremes, the 4-connected components above the level (for
+//!   brighter objects) and below it (darker), with holes filled and thin
+//!   appendages cut off by an opening scaled to the component. For a fixed
+//!   window the two-region Poisson model's best labelling of the pixels is a
+//!   threshold (its per-pixel log-likelihood ratio is monotonic in the grey
+//!   value), so these are the model's own partitions, regularised. They need
+//!   no closed outline, so an object cut by the image border is found too.
+//!
+//! Every candidate is scored with the method's region energy (method note,
+//! section 2) on the working image, in full-resolution pixels:
+//!
+//! ```text
+//! E = L^2 / A - D / m_w,   D = N_a f(m_a) + N_b f(m_b) - N_w f(m_w),   f(z) = z ln z
+//! score = -E / L
+//! ```
+//!
+//! over the window w (the bounding box grown by 0.3 sqrt(A), at least 8 px),
+//! where L leaves out the outline's run along the image border (not an edge
+//! of the object). The score is the energy the outline gains per pixel of its
+//! length: about a quarter of the object's thickness times its squared
+//! relative contrast, so it prefers thick, contrasted regions to slivers,
+//! ragged outlines and faint patches of background, and size counts only
+//! through thickness.
+
+use image::{GrayImage, Luma};
+use serde::{Deserialize, Serialize};
+
+use super::morphology::{dilate_disk, erode_disk, fill_region, outer_regions};
+use super::{FloatImage, Polarity};
+
+/// Grey levels tried per polarity.
+const LEVELS: usize = 16;
+
+/// How a candidate was found.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case", tag = "kind")]
+pub enum Source {
+    /// A filled outline of the edge pipeline (dilation radius in working px).
+    Edges { dilation_radius: u8 },
+    /// A component above (`brighter`) or below (`darker`) a grey level
+    /// (0..=1 of full scale).
+    Threshold { polarity: Polarity, level: f32 },
+}
+
+/// The energy terms behind a candidate's score, in full-resolution pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Score {
+    /// -E / L: the energy gain per pixel of outline (higher is better).
+    pub score: f64,
+    /// Michelson contrast of the region against the rest of its window,
+    /// -1..=1 (negative: darker than its surroundings).
+    pub contrast: f64,
+    /// D / m_w, the two-region log-likelihood ratio (>= 0).
+    pub data: f64,
+    /// Outline length L, leaving out the run along the image border.
+    pub outline_px: f64,
+    /// Area A.
+    pub area_px: f64,
+}
+
+/// Where the object may lie, and how the working image maps to the frame.
+pub(super) struct WorkArea<'a> {
+    /// The working copy (0..=1), unblurred: the scores' statistics.
+    pub work: &'a FloatImage,
+    /// The blurred working copy: the threshold components.
+    pub blurred: &'a FloatImage,
+    /// Integer downsampling factor.
+    pub scale: u32,
+    /// Which sides of the working image (left, top, right, bottom) lie on
+    /// the image border.
+    pub image_sides: [bool; 4],
+    /// The working pixels `[x0, y0, x1, y1)` a candidate may cover (the
+    /// roi with a little slack, or everything).
+    pub domain: [u32; 4],
+    /// A working pixel the object must cover (the point hint).
+    pub point: Option<[u32; 2]>,
+    /// Object polarity allowed.
+    pub polarity: Polarity,
+    /// Area range in working pixels.
+    pub min_area: f64,
+    pub max_area: f64,
+    /// The grey-value offset of the energy (one grey level) on the 0..=1 scale.
+    pub offset: f64,
+    /// Summed-area table of `work`.
+    pub table: SummedArea,
+}
+
+/// A summed-area table of a working image: window sums in O(1).
+pub(super) struct SummedArea {
+    stride: usize,
+    sums: Vec<f64>,
+}
+
+impl SummedArea {
+    pub fn new(image: &FloatImage) -> Self {
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        let stride = w + 1;
+        let mut sums = vec![0.0; stride * (h + 1)];
+        for (y, row) in image.as_raw().chunks_exact(w).enumerate() {
+            let mut acc = 0.0;
+            for (x, &v) in row.iter().enumerate() {
+                acc += v as f64;
+                sums[(y + 1) * stride + x + 1] = sums[y * stride + x + 1] + acc;
+            }
+        }
+        Self { stride, sums }
+    }
+
+    /// Pixel count and sum over `[x0, y0, x1, y1)`.
+    pub fn sum(&self, [x0, y0, x1, y1]: [usize; 4]) -> (f64, f64) {
+        let at = |x: usize, y: usize| self.sums[y * self.stride + x];
+        let n = ((x1 - x0) * (y1 - y0)) as f64;
+        (n, at(x1, y1) - at(x0, y1) - at(x1, y0) + at(x0, y0))
+    }
+}
+
+/// A candidate region on the working image.
+#[derive(Clone, Debug)]
+pub(super) struct Candidate {
+    /// Working coordinates of the mask's first pixel.
+    pub origin: [u32; 2],
+    pub width: u32,
+    pub height: u32,
+    /// Row-major, `width * height`.
+    pub mask: Vec<bool>,
+    pub source: Source,
+    pub score: Score,
+}
+
+impl Candidate {
+    /// The mask as an 8-bit image (255 inside).
+    pub fn image(&self) -> GrayImage {
+        GrayImage::from_raw(
+            self.width,
+            self.height,
+            self.mask.iter().map(|&m| if m { 255 } else { 0 }).collect(),
+        )
+        .expect("length matches size")
+    }
+
+    /// The bounding box `[x0, y0, x1, y1)` in working pixels.
+    pub fn bbox(&self) -> [u32; 4] {
+        [
+            self.origin[0],
+            self.origin[1],
+            self.origin[0] + self.width,
+            self.origin[1] + self.height,
+        ]
+    }
+
+    /// Pixels inside.
+    pub fn area(&self) -> usize {
+        self.mask.iter().filter(|&&m| m).count()
+    }
+}
+
+/// Why candidates were turned down, for the error when none is left.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Rejections {
+    /// Largest area (working px) of a region outside the size range.
+    pub largest_out_of_range: f64,
+    /// Regions turned down for their size.
+    pub size: usize,
+    /// Regions that span the frame or fill the box (structure or background).
+    pub spanning: usize,
+    /// Regions of the wrong polarity or with no contrast.
+    pub polarity: usize,
+    /// Regions that do not cover the point.
+    pub point: usize,
+}
+
+impl WorkArea<'_> {
+    fn width(&self) -> u32 {
+        self.work.width()
+    }
+
+    fn height(&self) -> u32 {
+        self.work.height()
+    }
+
+    /// Threshold components of both (or the allowed) polarities at
+    /// [`LEVELS`] grey levels: every component in the size range is scored
+    /// from running sums (holes and all), and the best few of each distinct
+    /// region (see [`finalists`]) come back as masks with their holes
+    /// filled, scored again (before pruning, see [`WorkArea::finish`]).
+    /// Turned-down regions are counted in `rejected`.
+    pub fn threshold_candidates(&self, rejected: &mut Rejections) -> Vec<Candidate> {
+        let Some((lo, hi)) = self.level_range() else {
+            return Vec::new();
+        };
+        let polarities: &[Polarity] = match self.polarity {
+            Polarity::Any => &[Polarity::Brighter, Polarity::Darker],
+            Polarity::Brighter => &[Polarity::Brighter],
+            Polarity::Darker => &[Polarity::Darker],
+        };
+        let levels = Levels::new(self, lo, hi);
+        let (w, min_count, max_count) = (
+            self.width() as usize,
+            (0.5 * self.min_area).max(1.0) as u32,
+            1.5 * self.max_area,
+        );
+        // Every component's provisional score; the masks of those that can
+        // still matter (a fifth of the best score so far, or more).
+        let mut scored: Vec<(Candidate, Score)> = Vec::new();
+        let mut best = 0.0f64;
+        for &polarity in polarities {
+            let mut emitted: std::collections::HashMap<u32, u32> = std::collections::HashMap::new();
+            levels.grow(self, polarity, min_count, |k, forest| {
+                for root in forest.large_roots() {
+                    let stats = forest.stats(root);
+                    // A component that barely grew since it was last scored
+                    // is the same region.
+                    if emitted.get(&root).is_some_and(|&n| stats.count < n + n / 50 + 1) {
+                        continue;
+                    }
+                    emitted.insert(root, stats.count);
+                    if stats.count as f64 > max_count {
+                        continue;
+                    }
+                    let bbox = stats.bbox.map(u32::from);
+                    if self.spans(bbox) {
+                        rejected.spanning += 1;
+                        continue;
+                    }
+                    if let Some([px, py]) = self.point {
+                        let p = py as usize * w + px as usize;
+                        if !forest.contains(p) || forest.find(p) != root {
+                            rejected.point += 1;
+                            continue;
+                        }
+                    }
+                    let Some(score) =
+                        self.score_from(stats.count as f64, stats.sum as f64, bbox, stats.edges as f64)
+                    else {
+                        continue;
+                    };
+                    if !self.polarity.admits(score.contrast) {
+                        rejected.polarity += 1;
+                        continue;
+                    }
+                    if score.score < 0.2 * best {
+                        continue;
+                    }
+                    best = best.max(score.score);
+                    let [x0, y0, x1, y1] = bbox;
+                    let (cw, ch) = (x1 - x0, y1 - y0);
+                    let mut mask = vec![false; (cw * ch) as usize];
+                    for y in y0..y1 {
+                        for x in x0..x1 {
+                            let i = y as usize * w + x as usize;
+                            mask[((y - y0) * cw + x - x0) as usize] =
+                                forest.contains(i) && forest.find(i) == root;
+                        }
+                    }
+                    let source = Source::Threshold {
+                        polarity,
+                        level: levels.value(k),
+                    };
+                    let candidate = Candidate {
+                        origin: [x0, y0],
+                        width: cw,
+                        height: ch,
+                        mask,
+                        source,
+                        score,
+                    };
+                    scored.push((candidate, score));
+                }
+            });
+        }
+        finalists(scored, |(c, score)| (c.bbox(), score.score))
+            .into_iter()
+            .filter_map(|(c, _)| {
+                let mask = c.mask.clone();
+                self.provisional(c.origin, c.width, c.height, mask, c.source, rejected)
+            })
+            .collect()
+    }
+
+    /// The grey levels' range: the 0.5th and 99.5th percentiles of the
+    /// blurred domain; `None` for a featureless one.
+    fn level_range(&self) -> Option<(f32, f32)> {
+        let [x0, y0, x1, y1] = self.domain;
+        let w = self.width() as usize;
+        let values = self.blurred.as_raw();
+        let step = (((x1 - x0) as usize * (y1 - y0) as usize) / 50_000).max(1);
+        let mut sample: Vec<f32> = (y0 as usize..y1 as usize)
+            .flat_map(|y| (x0 as usize..x1 as usize).map(move |x| y * w + x))
+            .step_by(step)
+            .map(|i| values[i])
+            .collect();
+        if sample.len() < 16 {
+            return None;
+        }
+        let n = sample.len();
+        let lo = *sample.select_nth_unstable_by(n / 200, |a, b| a.total_cmp(b)).1;
+        let hi = *sample
+            .select_nth_unstable_by(n - 1 - n / 200, |a, b| a.total_cmp(b))
+            .1;
+        (hi - lo > 1e-4).then_some((lo, hi))
+    }
+
+    /// A region from the edge pipeline (a traced border in working
+    /// coordinates), clipped to the domain and scored.
+    pub fn edge_candidate(
+        &self,
+        border: &[[i32; 2]],
+        radius: u8,
+        rejected: &mut Rejections,
+    ) -> Option<Candidate> {
+        let (filled, bx, by) = fill_region(border);
+        let [dx0, dy0, dx1, dy1] = self.domain.map(|v| v as i32);
+        let (x0, y0) = (bx.max(dx0), by.max(dy0));
+        let x1 = (bx + filled.width() as i32).min(dx1);
+        let y1 = (by + filled.height() as i32).min(dy1);
+        if x1 <= x0 || y1 <= y0 {
+            return None;
+        }
+        let (cw, ch) = ((x1 - x0) as u32, (y1 - y0) as u32);
+        let mut mask = vec![false; (cw * ch) as usize];
+        for y in y0..y1 {
+            for x in x0..x1 {
+                mask[((y - y0) as u32 * cw + (x - x0) as u32) as usize] =
+                    filled.get_pixel((x - bx) as u32, (y - by) as u32)[0] != 0;
+            }
+        }
+        if let Some([px, py]) = self.point {
+            let (lx, ly) = (px as i32 - x0, py as i32 - y0);
+            if lx < 0
+                || ly < 0
+                || lx >= cw as i32
+                || ly >= ch as i32
+                || !mask[(ly as u32 * cw + lx as u32) as usize]
+            {
+                rejected.point += 1;
+                return None;
+            }
+        }
+        let source = Source::Edges {
+            dilation_radius: radius,
+        };
+        self.provisional([x0 as u32, y0 as u32], cw, ch, mask, source, rejected)
+    }
+
+    /// A region with its holes filled, checked and scored as it is: cheap,
+    /// for ranking the many regions before the few best are pruned.
+    fn provisional(
+        &self,
+        origin: [u32; 2],
+        width: u32,
+        height: u32,
+        mask: Vec<bool>,
+        source: Source,
+        rejected: &mut Rejections,
+    ) -> Option<Candidate> {
+        let candidate = Candidate {
+            origin,
+            width,
+            height,
+            mask: fill_holes(&mask, width, height),
+            source,
+            score: Score {
+                score: f64::NEG_INFINITY,
+                contrast: 0.0,
+                data: 0.0,
+                outline_px: 0.0,
+                area_px: 0.0,
+            },
+        };
+        self.checked(candidate, rejected)
+    }
+
+    /// The region with thin appendages cut off (an opening scaled to its
+    /// thickness, see [`WorkArea::prune`]), the part that covers the point
+    /// (or the largest) kept, checked and scored again.
+    pub fn finish(&self, c: &Candidate, rejected: &mut Rejections) -> Option<Candidate> {
+        let (width, height) = (c.width, c.height);
+        let count = c.area();
+        let perimeter = boundary_edges(&c.mask, width, height) as f64 * std::f64::consts::FRAC_PI_4;
+        let thickness = 2.0 * count as f64 / perimeter.max(1.0);
+        let radius = (0.15 * thickness).round().clamp(1.0, 6.0) as u8;
+        let pruned = self.prune(c.origin, width, height, &c.mask, radius);
+        let local_point = self
+            .point
+            .map(|[px, py]| [px as i64 - c.origin[0] as i64, py as i64 - c.origin[1] as i64]);
+        let part = keep_one_component(&pruned, width, height, local_point)?;
+        self.checked(
+            Candidate {
+                mask: part,
+                ..c.clone()
+            },
+            rejected,
+        )
+    }
+
+    /// The candidate trimmed to its pixels, checked (size, spanning,
+    /// polarity) and scored.
+    fn checked(&self, candidate: Candidate, rejected: &mut Rejections) -> Option<Candidate> {
+        let mut candidate = trim(candidate)?;
+        let area = candidate.area() as f64;
+        if area < self.min_area || area > self.max_area {
+            rejected.size += 1;
+            rejected.largest_out_of_range = rejected.largest_out_of_range.max(area);
+            return None;
+        }
+        if self.spans(candidate.bbox()) {
+            rejected.spanning += 1;
+            return None;
+        }
+        let score = self.score(&candidate)?;
+        if !self.polarity.admits(score.contrast) || score.contrast.abs() < 0.005 {
+            rejected.polarity += 1;
+            return None;
+        }
+        candidate.score = score;
+        Some(candidate)
+    }
+
+    /// Cuts thin appendages: an opening by a disk of `radius`, after which
+    /// the parts it removed that stay within `3 radius` of what is left come
+    /// back (corners and a tool's point are not appendages; a scratch or
+    /// fibre running off the object reaches further). Pixels past the image
+    /// border count as continuing the mask's border pixels, so an object cut
+    /// by the border is not eaten away there.
+    fn prune(&self, origin: [u32; 2], width: u32, height: u32, mask: &[bool], radius: u8) -> Vec<bool> {
+        let pad = radius as u32 + 1;
+        let (pw, ph) = (width + 2 * pad, height + 2 * pad);
+        let [left, top, right, bottom] = self.image_sides;
+        let at_left = left && origin[0] == 0;
+        let at_top = top && origin[1] == 0;
+        let at_right = right && origin[0] + width == self.width();
+        let at_bottom = bottom && origin[1] + height == self.height();
+        let padded = GrayImage::from_fn(pw, ph, |x, y| {
+            let (mut lx, mut ly) = (x as i64 - pad as i64, y as i64 - pad as i64);
+            if lx < 0 && at_left {
+                lx = 0;
+            }
+            if ly < 0 && at_top {
+                ly = 0;
+            }
+            if lx >= width as i64 && at_right {
+                lx = width as i64 - 1;
+            }
+            if ly >= height as i64 && at_bottom {
+                ly = height as i64 - 1;
+            }
+            let inside = lx >= 0 && ly >= 0 && lx < width as i64 && ly < height as i64;
+            Luma([if inside && mask[(ly as u32 * width + lx as u32) as usize] {
+                255
+            } else {
+                0
+            }])
+        });
+        let opened = dilate_disk(&erode_disk(&padded, radius), radius);
+        let reach = dilate_disk(&opened, radius.saturating_mul(3));
+        let at =
+            |img: &GrayImage, i: usize| img.get_pixel(i as u32 % width + pad, i as u32 / width + pad)[0] != 0;
+        let mut kept: Vec<bool> = (0..mask.len()).map(|i| at(&opened, i)).collect();
+        let removed: Vec<bool> = (0..mask.len()).map(|i| mask[i] && !kept[i]).collect();
+        let (wu, hu) = (width as usize, height as usize);
+        let mut labels = vec![0u32; wu * hu];
+        let parts = components(
+            &|i| removed[i],
+            wu,
+            hu,
+            [0, 0, width, height],
+            &mut labels,
+            &mut Vec::new(),
+        );
+        let mut near = vec![true; parts.len() + 1];
+        for (i, &l) in labels.iter().enumerate() {
+            if l != 0 && !at(&reach, i) {
+                near[l as usize] = false;
+            }
+        }
+        for (k, &l) in labels.iter().enumerate() {
+            if l != 0 && near[l as usize] {
+                kept[k] = true;
+            }
+        }
+        kept
+    }
+
+    /// A structure rather than an object: a region with bounding box
+    /// `[x0, y0, x1, y1)` that touches opposite image borders, every side of
+    /// the searched box, or three sides of a box inside the image.
+    fn spans(&self, [cx0, cy0, cx1, cy1]: [u32; 4]) -> bool {
+        let [x0, y0, x1, y1] = self.domain;
+        let touches = [cx0 <= x0, cy0 <= y0, cx1 >= x1, cy1 >= y1];
+        let at_image_side = [
+            touches[0] && self.image_sides[0] && x0 == 0,
+            touches[1] && self.image_sides[1] && y0 == 0,
+            touches[2] && self.image_sides[2] && x1 == self.width(),
+            touches[3] && self.image_sides[3] && y1 == self.height(),
+        ];
+        let opposite = (at_image_side[0] && at_image_side[2]) || (at_image_side[1] && at_image_side[3]);
+        let inner_sides = touches
+            .iter()
+            .zip(&at_image_side)
+            .filter(|(t, i)| **t && !**i)
+            .count();
+        opposite || touches.iter().all(|&t| t) || inner_sides >= 3
+    }
+
+    /// The region energy's terms and score (see the module docs).
+    pub fn score(&self, c: &Candidate) -> Option<Score> {
+        let w = self.width() as usize;
+        let values = self.work.as_raw();
+        let (mut n_a, mut s_a) = (0.0f64, 0.0f64);
+        for y in 0..c.height {
+            let row = &values[(c.origin[1] + y) as usize * w + c.origin[0] as usize..][..c.width as usize];
+            let m = &c.mask[(y * c.width) as usize..][..c.width as usize];
+            for (&v, &inside) in row.iter().zip(m) {
+                if inside {
+                    n_a += 1.0;
+                    s_a += v as f64;
+                }
+            }
+        }
+        self.score_from(n_a, s_a, c.bbox(), self.outline_edges(c) as f64)
+    }
+
+    /// The score of a region of `n_a` working pixels with grey-value sum
+    /// `s_a` (0..=1 scale), bounding box `bbox` and `edges` pixel edges of
+    /// outline; `None` when it is empty or has too little background
+    /// around it to say what it stands out from.
+    fn score_from(&self, n_a: f64, s_a: f64, bbox: [u32; 4], edges: f64) -> Option<Score> {
+        if n_a == 0.0 {
+            return None;
+        }
+        let s = self.scale as f64;
+        let (w, h) = (self.width() as i64, self.height() as i64);
+        let margin = ((0.3 * (n_a * s * s).sqrt()).max(8.0) / s).ceil() as i64;
+        let window = [
+            (bbox[0] as i64 - margin).max(0) as usize,
+            (bbox[1] as i64 - margin).max(0) as usize,
+            (bbox[2] as i64 + margin).min(w) as usize,
+            (bbox[3] as i64 + margin).min(h) as usize,
+        ];
+        let (n_w, s_w) = self.table.sum(window);
+        let o = self.offset;
+        let (s_a, s_w) = (s_a + o * n_a, s_w + o * n_w);
+        let (n_b, s_b) = (n_w - n_a, s_w - s_a);
+        if n_b < 0.1 * n_a || s_b <= 0.0 {
+            return None;
+        }
+        let f = crate::energy::f;
+        let (m_a, m_b, m_w) = (s_a / n_a, s_b / n_b, s_w / n_w);
+        let d = n_a * f(m_a) + n_b * f(m_b) - n_w * f(m_w);
+        let data = d / m_w * s * s;
+        let outline = edges * std::f64::consts::FRAC_PI_4 * s;
+        let area = n_a * s * s;
+        let score = if outline > 0.0 {
+            (data - outline * outline / area) / outline
+        } else {
+            f64::NEG_INFINITY
+        };
+        Some(Score {
+            score,
+            contrast: crate::energy::michelson(m_a, m_b),
+            data,
+            outline_px: outline,
+            area_px: area,
+        })
+    }
+
+    /// Pixel edges between the region and the rest of the image, leaving
+    /// out those on the image border.
+    fn outline_edges(&self, c: &Candidate) -> usize {
+        let (cw, ch) = (c.width as i64, c.height as i64);
+        let at = |x: i64, y: i64| x >= 0 && y >= 0 && x < cw && y < ch && c.mask[(y * cw + x) as usize];
+        let (iw, ih) = (self.width() as i64, self.height() as i64);
+        let [ox, oy] = [c.origin[0] as i64, c.origin[1] as i64];
+        // A neighbour past the image border on a side that is the image's
+        // own border is not background.
+        let beyond_image = |x: i64, y: i64| {
+            let (gx, gy) = (ox + x, oy + y);
+            (gx < 0 && self.image_sides[0])
+                || (gy < 0 && self.image_sides[1])
+                || (gx >= iw && self.image_sides[2])
+                || (gy >= ih && self.image_sides[3])
+        };
+        let mut edges = 0;
+        for y in 0..ch {
+            for x in 0..cw {
+                if !c.mask[(y * cw + x) as usize] {
+                    continue;
+                }
+                for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
+                    let (nx, ny) = (x + dx, y + dy);
+                    if !at(nx, ny) && !beyond_image(nx, ny) {
+                        edges += 1;
+                    }
+                }
+            }
+        }
+        edges
+    }
+
+    /// Which image borders (left, top, right, bottom) the region touches.
+    pub fn border_sides(&self, c: &Candidate) -> [bool; 4] {
+        let mut sides = [false; 4];
+        let (cw, ch) = (c.width, c.height);
+        let any_in_column = |x: u32| (0..ch).any(|y| c.mask[(y * cw + x) as usize]);
+        let any_in_row = |y: u32| (0..cw).any(|x| c.mask[(y * cw + x) as usize]);
+        if self.image_sides[0] && c.origin[0] == 0 {
+            sides[0] = any_in_column(0);
+        }
+        if self.image_sides[1] && c.origin[1] == 0 {
+            sides[1] = any_in_row(0);
+        }
+        if self.image_sides[2] && c.origin[0] + cw == self.width() {
+            sides[2] = any_in_column(cw - 1);
+        }
+        if self.image_sides[3] && c.origin[1] + ch == self.height() {
+            sides[3] = any_in_row(ch - 1);
+        }
+        sides
+    }
+}
+
+/// The grey levels of the threshold components, and the domain's pixels by
+/// bucket: how many levels lie below their (blurred) value.
+struct Levels {
+    lo: f32,
+    hi: f32,
+    /// Domain pixel indices by bucket.
+    by_bucket: Vec<Vec<u32>>,
+}
+
+impl Levels {
+    fn new(area: &WorkArea, lo: f32, hi: f32) -> Self {
+        let w = area.width() as usize;
+        let [dx0, dy0, dx1, dy1] = area.domain.map(|v| v as usize);
+        let mut by_bucket: Vec<Vec<u32>> = vec![Vec::new(); LEVELS + 1];
+        let values = area.blurred.as_raw();
+        for y in dy0..dy1 {
+            for x in dx0..dx1 {
+                let i = y * w + x;
+                let b = ((values[i] - lo) / (hi - lo) * LEVELS as f32 + 0.5)
+                    .floor()
+                    .clamp(0.0, LEVELS as f32) as u8;
+                by_bucket[b as usize].push(i as u32);
+            }
+        }
+        Self { lo, hi, by_bucket }
+    }
+
+    /// Grey level `k` (0..LEVELS) on the 0..=1 scale.
+    fn value(&self, k: usize) -> f32 {
+        self.lo + (self.hi - self.lo) * (k as f32 + 0.5) / LEVELS as f32
+    }
+
+    /// Grows the level sets of one polarity, brightest (darkest) pixels
+    /// first, and calls `at_level(k, forest)` once the set holds every
+    /// pixel above (below) level k.
+    fn grow<'a>(
+        &self,
+        area: &WorkArea<'a>,
+        polarity: Polarity,
+        min_count: u32,
+        mut at_level: impl FnMut(usize, &mut Forest<'a>),
+    ) {
+        let bright = polarity == Polarity::Brighter;
+        let mut forest = Forest::new(area);
+        // Brighter: after adding bucket b the set is {bucket >= b}, the
+        // pixels above level b - 1. Darker: {bucket <= b}, below level b.
+        let order: Vec<u8> = if bright {
+            (1..=LEVELS as u8).rev().collect()
+        } else {
+            (0..LEVELS as u8).collect()
+        };
+        for now in order {
+            for &i in &self.by_bucket[now as usize] {
+                forest.add(i as usize, min_count);
+            }
+            let k = if bright { now as usize - 1 } else { now as usize };
+            at_level(k, &mut forest);
+        }
+    }
+}
+
+/// The regions worth a closer look: by score, the best two of each of the
+/// best four distinct regions (regions whose bounding boxes overlap by more
+/// than half are one region at different levels).
+pub(super) fn finalists<T>(mut items: Vec<T>, key: impl Fn(&T) -> ([u32; 4], f64)) -> Vec<T> {
+    const REGIONS: usize = 4;
+    const PER_REGION: usize = 2;
+    items.sort_by(|a, b| key(b).1.total_cmp(&key(a).1));
+    let overlap = |a: [u32; 4], b: [u32; 4]| {
+        let iw = a[2].min(b[2]).saturating_sub(a[0].max(b[0])) as f64;
+        let ih = a[3].min(b[3]).saturating_sub(a[1].max(b[1])) as f64;
+        let area = |r: [u32; 4]| (r[2] - r[0]) as f64 * (r[3] - r[1]) as f64;
+        let inter = iw * ih;
+        inter / (area(a) + area(b) - inter)
+    };
+    let mut leaders: Vec<([u32; 4], usize)> = Vec::new();
+    let mut out = Vec::new();
+    for item in items {
+        let b = key(&item).0;
+        match leaders.iter().position(|(l, _)| overlap(*l, b) > 0.5) {
+            Some(k) if leaders[k].1 < PER_REGION => {
+                leaders[k].1 += 1;
+                out.push(item);
+            }
+            Some(_) => {}
+            None if leaders.len() < REGIONS => {
+                leaders.push((b, 1));
+                out.push(item);
+            }
+            None => {}
+        }
+    }
+    out
+}
+
+/// Union-find over the pixels of a growing level set (4-connected), with
+/// each root's pixel count, grey-value sum, outline edges and bounding box:
+/// every level's components in one pass over the pixels in order of value.
+struct Forest<'a> {
+    width: usize,
+    height: usize,
+    values: &'a [f32],
+    /// Which sides of the working image (left, top, right, bottom) lie on
+    /// the image border: edges there are not outline.
+    image_sides: [bool; 4],
+    parent: Vec<u32>,
+    /// Per root.
+    stats: Vec<ComponentStats>,
+    /// Roots that reached the smallest count of interest (some may have
+    /// been merged since).
+    large: Vec<u32>,
+}
+
+/// What a root knows of its component.
+#[derive(Clone, Copy, Debug, Default)]
+struct ComponentStats {
+    count: u32,
+    /// Sum of the unblurred working values (f32 keeps the table small; its
+    /// 1e-7 relative error is far below what a score can resolve).
+    sum: f32,
+    /// Pixel edges to pixels outside the component, not counting edges on
+    /// the image border.
+    edges: u32,
+    /// `[x0, y0, x1, y1)` (working images are at most 8192 px a side).
+    bbox: [u16; 4],
+}
+
+impl<'a> Forest<'a> {
+    const NONE: u32 = u32::MAX;
+
+    fn new(area: &WorkArea<'a>) -> Self {
+        let (width, height) = (area.width() as usize, area.height() as usize);
+        Self {
+            width,
+            height,
+            values: area.work.as_raw(),
+            image_sides: area.image_sides,
+            parent: vec![Self::NONE; width * height],
+            stats: vec![ComponentStats::default(); width * height],
+            large: Vec::new(),
+        }
+    }
+
+    fn find(&mut self, i: usize) -> u32 {
+        let mut root = i as u32;
+        while self.parent[root as usize] != root {
+            root = self.parent[root as usize];
+        }
+        let mut j = i as u32;
+        while self.parent[j as usize] != root {
+            let next = self.parent[j as usize];
+            self.parent[j as usize] = root;
+            j = next;
+        }
+        root
+    }
+
+    /// True when pixel `i` is in the set (the set only grows).
+    fn contains(&self, i: usize) -> bool {
+        self.parent[i] != Self::NONE
+    }
+
+    /// Adds pixel `i` and merges it with its neighbours already in the set;
+    /// roots reaching `min_count` pixels are remembered.
+    fn add(&mut self, i: usize, min_count: u32) {
+        let (x, y) = (i % self.width, i / self.width);
+        let at_side = [x == 0, y == 0, x + 1 == self.width, y + 1 == self.height];
+        let border_edges = at_side
+            .iter()
+            .zip(&self.image_sides)
+            .filter(|(a, b)| **a && **b)
+            .count() as u32;
+        self.parent[i] = i as u32;
+        let neighbours = [
+            (x > 0).then(|| i - 1),
+            (x + 1 < self.width).then(|| i + 1),
+            (y > 0).then(|| i - self.width),
+            (y + 1 < self.height).then(|| i + self.width),
+        ];
+        let mut joined = 0u32;
+        let mut stats = ComponentStats {
+            count: 1,
+            sum: self.values[i],
+            edges: 0,
+            bbox: [x as u16, y as u16, x as u16 + 1, y as u16 + 1],
+        };
+        let mut root = i as u32;
+        for j in neighbours.into_iter().flatten() {
+            if self.parent[j] == Self::NONE {
+                continue;
+            }
+            joined += 1;
+            let other = self.find(j);
+            if other == root {
+                continue;
+            }
+            let o = self.stats[other as usize];
+            stats.count += o.count;
+            stats.sum += o.sum;
+            stats.edges += o.edges;
+            stats.bbox = [
+                stats.bbox[0].min(o.bbox[0]),
+                stats.bbox[1].min(o.bbox[1]),
+                stats.bbox[2].max(o.bbox[2]),
+                stats.bbox[3].max(o.bbox[3]),
+            ];
+            // Union by size: the larger root stays.
+            let (big, small) = if o.count >= self.stats[root as usize].count.max(1) {
+                (other, root)
+            } else {
+                (root, other)
+            };
+            self.parent[small as usize] = big;
+            root = big;
+        }
+        // Each joined neighbour turns one of its edges and one of the new
+        // pixel's into inner edges.
+        stats.edges = stats.edges + 4 - border_edges - 2 * joined;
+        let was = self.stats[root as usize].count;
+        let before = if root == i as u32 { 0 } else { was };
+        self.stats[root as usize] = stats;
+        if before < min_count && stats.count >= min_count {
+            self.large.push(root);
+        }
+    }
+
+    /// The current roots among the remembered large ones.
+    fn large_roots(&mut self) -> Vec<u32> {
+        let mut roots: Vec<u32> = self
+            .large
+            .iter()
+            .copied()
+            .filter(|&r| self.parent[r as usize] == r)
+            .collect();
+        roots.sort_unstable();
+        roots.dedup();
+        self.large.clone_from(&roots);
+        roots
+    }
+
+    /// A root's component.
+    fn stats(&self, root: u32) -> ComponentStats {
+        self.stats[root as usize]
+    }
+}
+
+/// A 4-connected component of a threshold mask.
+struct Component {
+    label: u32,
+    count: usize,
+}
+
+/// The 4-connected components of the pixels where `inside` holds, within
+/// `domain`; `labels` (reused, `w * h`) gets each pixel's component label
+/// (0: none).
+fn components(
+    inside: &dyn Fn(usize) -> bool,
+    w: usize,
+    h: usize,
+    domain: [u32; 4],
+    labels: &mut [u32],
+    stack: &mut Vec<usize>,
+) -> Vec<Component> {
+    let [x0, y0, x1, y1] = domain.map(|v| v as usize);
+    debug_assert!(x1 <= w && y1 <= h);
+    labels.fill(0);
+    let mut out = Vec::new();
+    let mut next = 0u32;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            let start = y * w + x;
+            if labels[start] != 0 || !inside(start) {
+                continue;
+            }
+            next += 1;
+            labels[start] = next;
+            stack.push(start);
+            let mut count = 0usize;
+            while let Some(i) = stack.pop() {
+                count += 1;
+                let (px, py) = (i % w, i / w);
+                let mut visit = |j: usize| {
+                    if labels[j] == 0 && inside(j) {
+                        labels[j] = next;
+                        stack.push(j);
+                    }
+                };
+                if px > x0 {
+                    visit(i - 1);
+                }
+                if px + 1 < x1 {
+                    visit(i + 1);
+                }
+                if py > y0 {
+                    visit(i - w);
+                }
+                if py + 1 < y1 {
+                    visit(i + w);
+                }
+            }
+            out.push(Component { label: next, count });
+        }
+    }
+    out
+}
+
+/// The mask with its holes filled: every pixel that the outside of the
+/// mask's box cannot reach (4-connected) through background.
+pub(super) fn fill_holes(mask: &[bool], w: u32, h: u32) -> Vec<bool> {
+    let (w, h) = (w as usize, h as usize);
+    let mut outside = vec![false; w * h];
+    let mut stack: Vec<usize> = Vec::new();
+    let seed = |i: usize, outside: &mut Vec<bool>, stack: &mut Vec<usize>| {
+        if !mask[i] && !outside[i] {
+            outside[i] = true;
+            stack.push(i);
+        }
+    };
+    for x in 0..w {
+        seed(x, &mut outside, &mut stack);
+        seed((h - 1) * w + x, &mut outside, &mut stack);
+    }
+    for y in 0..h {
+        seed(y * w, &mut outside, &mut stack);
+        seed(y * w + w - 1, &mut outside, &mut stack);
+    }
+    while let Some(i) = stack.pop() {
+        let (x, y) = (i % w, i / w);
+        let neighbours = [
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+        ];
+        for j in neighbours.into_iter().flatten() {
+            seed(j, &mut outside, &mut stack);
+        }
+    }
+    outside.iter().map(|&o| !o).collect()
+}
+
+/// Pixel edges between mask and non-mask pixels (the box's outside counts
+/// as non-mask).
+fn boundary_edges(mask: &[bool], w: u32, h: u32) -> usize {
+    let (w, h) = (w as usize, h as usize);
+    let at = |x: usize, y: usize| mask[y * w + x];
+    let mut edges = 0;
+    for y in 0..h {
+        for x in 0..w {
+            if !at(x, y) {
+                continue;
+            }
+            edges += usize::from(x == 0 || !at(x - 1, y))
+                + usize::from(x + 1 == w || !at(x + 1, y))
+                + usize::from(y == 0 || !at(x, y - 1))
+                + usize::from(y + 1 == h || !at(x, y + 1));
+        }
+    }
+    edges
+}
+
+/// The 4-connected part of `mask` that covers `point` (local pixel), or
+/// without a point the largest; `None` when nothing is left or the point is
+/// not covered.
+fn keep_one_component(mask: &[bool], w: u32, h: u32, point: Option<[i64; 2]>) -> Option<Vec<bool>> {
+    let (wu, hu) = (w as usize, h as usize);
+    let mut labels = vec![0u32; wu * hu];
+    let mut stack = Vec::new();
+    let parts = components(&|i| mask[i], wu, hu, [0, 0, w, h], &mut labels, &mut stack);
+    let label = match point {
+        Some([x, y]) => {
+            if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+                return None;
+            }
+            let l = labels[y as usize * wu + x as usize];
+            (l != 0).then_some(l)?
+        }
+        None => parts.iter().max_by_key(|c| c.count)?.label,
+    };
+    Some(labels.iter().map(|&l| l == label).collect())
+}
+
+/// The candidate with its mask cropped to the bounding box of its pixels;
+/// `None` when empty.
+fn trim(c: Candidate) -> Option<Candidate> {
+    let (w, h) = (c.width, c.height);
+    let (mut x0, mut y0, mut x1, mut y1) = (w, h, 0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            if c.mask[(y * w + x) as usize] {
+                x0 = x0.min(x);
+                y0 = y0.min(y);
+                x1 = x1.max(x + 1);
+                y1 = y1.max(y + 1);
+            }
+        }
+    }
+    if x1 <= x0 {
+        return None;
+    }
+    let (nw, nh) = (x1 - x0, y1 - y0);
+    let mask = (y0..y1)
+        .flat_map(|y| (x0..x1).map(move |x| (x, y)))
+        .map(|(x, y)| c.mask[(y * w + x) as usize])
+        .collect();
+    Some(Candidate {
+        origin: [c.origin[0] + x0, c.origin[1] + y0],
+        width: nw,
+        height: nh,
+        mask,
+        ..c
+    })
+}
+
+/// The outer border of a candidate's mask, traced (working coordinates).
+pub(super) fn traced_border(c: &Candidate) -> Option<Vec<[i32; 2]>> {
+    let region = outer_regions(&c.image()).into_iter().next()?;
+    Some(
+        region
+            .border
+            .iter()
+            .map(|p| [p[0] + c.origin[0] as i32, p[1] + c.origin[1] as i32])
+            .collect(),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn holes_are_filled_and_the_outside_kept() {
+        // A ring 7x7 with a hole at its centre, in a 9x9 box.
+        let mut mask = vec![false; 81];
+        for y in 1..8 {
+            for x in 1..8 {
+                mask[y * 9 + x] = !(x == 4 && y == 4);
+            }
+        }
+        let filled = fill_holes(&mask, 9, 9);
+        assert!(filled[4 * 9 + 4], "hole filled");
+        assert!(!filled[0], "outside kept");
+        assert_eq!(filled.iter().filter(|&&m| m).count(), 49);
+    }
+
+    #[test]
+    fn components_are_four_connected_and_bounded_by_the_domain() {
+        // Two pixels touching only diagonally, and a bar cut by the domain.
+        let (w, h) = (8usize, 6usize);
+        let mut on = vec![false; w * h];
+        on[w + 1] = true;
+        on[2 * w + 2] = true;
+        for x in 4..8 {
+            on[4 * w + x] = true;
+        }
+        let mut labels = vec![0; w * h];
+        let parts = components(&|i| on[i], w, h, [0, 0, 6, 6], &mut labels, &mut Vec::new());
+        let mut counts: Vec<usize> = parts.iter().map(|c| c.count).collect();
+        counts.sort();
+        assert_eq!(
+            counts,
+            vec![1, 1, 2],
+            "diagonal neighbours apart; bar clipped at x = 6"
+        );
+        let bar = parts.iter().find(|c| c.count == 2).unwrap();
+        assert_eq!(labels[4 * w + 4], bar.label);
+        assert_eq!(labels[4 * w + 6], 0, "outside the domain");
+    }
+}

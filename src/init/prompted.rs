@@ -1,0 +1,383 @@
+//! Prompted segmentation: the object is the candidate region the method's
+//! own two-region energy prefers in and around the hints (Dahmen et al.,
+//! ICINCO 2009, section 3, used as a score; method note section 2).
+//!
+//! Candidates come from the paper's edge pipeline (filled outlines of
+//! dilated Canny edges) and from threshold components of the working image
+//! (see [`super::candidates`]); each is scored by the region energy's gain
+//! per pixel of outline, and the best one that fits the hints (`roi`,
+//! `point`, `polarity`, area range) is the object. Unlike the paper's
+//! largest-region rule this finds objects cut by the image border (a tool
+//! entering the field of view; its outline then runs along the border) and
+//! keeps clutter that touches the object out of it (thin appendages are cut
+//! by an opening scaled to the region). [`super::initialise`] takes this
+//! path whenever a hint is given, and without hints when the largest-region
+//! rule finds nothing.
+
+use super::candidates::{finalists, traced_border, Candidate, Rejections, SummedArea, WorkArea};
+use super::morphology::{
+    dilate_disk, erode_disk, fill_region, largest_component_border, outer_regions, shifted, Region,
+};
+use super::rim::grow_over_rim;
+use super::{
+    auto_dilation_radius, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult, RunnerUp,
+    RIM_MIN_EXCESS, RIM_REACH_WORKING_PX,
+};
+use crate::geometry::{Point, Polygon};
+use crate::imageio::GrayFrame;
+
+/// The best-scoring candidate that fits the hints, as an [`InitResult`]
+/// (see the module docs); `stage` is the shared working copy and edge map.
+pub(super) fn find(
+    frame: &GrayFrame,
+    params: &InitParams,
+    hints: &Hints,
+    stage: &EdgeStage,
+) -> Result<InitResult, InitError> {
+    let EdgeStage {
+        area,
+        scale,
+        ref work,
+        noise_work,
+        sigma,
+        ref blurred,
+        low,
+        high,
+        ref edges,
+    } = *stage;
+    let (w, h) = edges.dimensions();
+    let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
+    let searched_area = hints.roi[2] as f64 * hints.roi[3] as f64;
+    let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
+    let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
+    let px_per_work = (scale * scale) as f64;
+    let image_sides = [
+        area[0] == 0,
+        area[1] == 0,
+        area[0] + area[2] == frame.width,
+        area[1] + area[3] == frame.height,
+    ];
+    let work_area = WorkArea {
+        work,
+        blurred,
+        scale,
+        image_sides,
+        domain: working_domain(hints, area, scale, [w, h]),
+        point: hints.point.map(|[px, py]| {
+            let s = scale as f64;
+            [
+                (((px + 0.5 - area[0] as f64) / s).floor().max(0.0) as u32).min(w - 1),
+                (((py + 0.5 - area[1] as f64) / s).floor().max(0.0) as u32).min(h - 1),
+            ]
+        }),
+        polarity: hints.polarity,
+        min_area: min_area / px_per_work,
+        max_area: max_area / px_per_work,
+        offset: 1.0 / frame.max_value() as f64,
+        table: SummedArea::new(work),
+    };
+
+    let mut rejected = Rejections::default();
+    let mut candidates = Vec::new();
+    let auto_radius = auto_dilation_radius(w, h);
+    let radii: Vec<u8> = match params.dilation_radius {
+        Some(r) => vec![r],
+        None => vec![auto_radius, auto_radius * 2],
+    };
+    let mut dilation_radius = radii[0];
+    if edge_pixels > 0 {
+        for &radius in &radii {
+            let closed = dilate_disk(edges, radius);
+            let regions = outer_regions(&closed);
+            let found: Vec<Candidate> = closed_regions(&regions, radius, work_area.min_area)
+                .iter()
+                .filter_map(|border| work_area.edge_candidate(border, radius, &mut rejected))
+                .collect();
+            dilation_radius = radius;
+            // The wider radius only when the first closes no outline.
+            if !found.is_empty() {
+                candidates.extend(found);
+                break;
+            }
+        }
+    }
+    candidates.extend(work_area.threshold_candidates(&mut rejected));
+    let mut candidates: Vec<Candidate> = finalists(candidates, |c| (c.bbox(), c.score.score))
+        .iter()
+        .filter_map(|c| work_area.finish(c, &mut rejected))
+        .collect();
+    candidates.sort_by(|a, b| b.score.score.total_cmp(&a.score.score));
+    let Some(best) = candidates.first() else {
+        return Err(no_candidate(high, &rejected, min_area, max_area, px_per_work));
+    };
+    let border =
+        traced_border(best).ok_or_else(|| no_candidate(high, &rejected, min_area, max_area, px_per_work))?;
+    let contour = to_full_resolution(
+        &border,
+        scale,
+        area,
+        [frame.width, frame.height],
+        work_area.border_sides(best),
+        [w, h],
+        params.contour_spacing_px,
+    );
+    let sides = work_area.border_sides(best);
+    let contour = if best.score.contrast < 0.0 && !sides.contains(&true) {
+        grow_over_rim(
+            frame,
+            &contour,
+            RIM_REACH_WORKING_PX * scale as f64,
+            RIM_MIN_EXCESS,
+        )
+    } else {
+        contour
+    };
+    let centroid = contour.centroid();
+    Ok(InitResult {
+        area_px: contour.area(),
+        bbox: contour.bounds(),
+        centroid,
+        contour,
+        score: Some(best.score),
+        source: best.source,
+        border: ["left", "top", "right", "bottom"]
+            .iter()
+            .zip(sides)
+            .filter(|(_, on)| *on)
+            .map(|(name, _)| name.to_string())
+            .collect(),
+        diagnostics: InitDiagnostics {
+            scale,
+            noise_sigma: noise_work * scale as f32,
+            sigma,
+            low_threshold: low,
+            high_threshold: high,
+            dilation_radius,
+            edge_pixels,
+            candidates: candidates.len(),
+            runners_up: candidates
+                .iter()
+                .skip(1)
+                .take(4)
+                .map(|c| RunnerUp {
+                    score: c.score,
+                    source: c.source,
+                    bbox: working_box_to_full(c, scale, area),
+                })
+                .collect(),
+        },
+    })
+}
+
+/// The error when no candidate is left, saying why.
+fn no_candidate(
+    high: f32,
+    rejected: &Rejections,
+    min_area: f64,
+    max_area: f64,
+    px_per_work: f64,
+) -> InitError {
+    // Background regions that span the frame are always turned down; they
+    // say why only when nothing else was found.
+    let hinted = rejected.polarity + rejected.point;
+    if hinted == 0 && rejected.size > 0 {
+        return InitError::NothingInSizeRange {
+            min_area_px: min_area,
+            max_area_px: max_area,
+            largest_area_px: rejected.largest_out_of_range * px_per_work,
+        };
+    }
+    if hinted == 0 && rejected.spanning == 0 {
+        return InitError::NoEdges { high_threshold: high };
+    }
+    InitError::NoPlausibleRegion {
+        message: format!(
+            "{} regions span the frame or fill the box, {} have the wrong polarity or no contrast, {} miss the point, {} are outside the size range {min_area:.0}..={max_area:.0} px",
+            rejected.spanning, rejected.polarity, rejected.point, rejected.size
+        ),
+    }
+}
+
+/// The working pixels `[x0, y0, x1, y1)` an object may cover: those meeting
+/// the roi grown by a little slack (a box drawn tight around the object
+/// leaves it room), or all.
+fn working_domain(hints: &Hints, area: [u32; 4], scale: u32, [w, h]: [u32; 2]) -> [u32; 4] {
+    if !hints.has_roi {
+        return [0, 0, w, h];
+    }
+    let s = scale as f64;
+    let [rx, ry, rw, rh] = hints.roi.map(f64::from);
+    let slack = (0.04 * rw.max(rh)).max(2.0 * s);
+    let to_work = |v: f64, origin: u32| (v - origin as f64) / s;
+    let x0 = to_work(rx - slack, area[0]).floor().max(0.0) as u32;
+    let y0 = to_work(ry - slack, area[1]).floor().max(0.0) as u32;
+    let x1 = (to_work(rx + rw + slack, area[0]).ceil().max(0.0) as u32).min(w);
+    let y1 = (to_work(ry + rh + slack, area[1]).ceil().max(0.0) as u32).min(h);
+    [
+        x0.min(x1.saturating_sub(1)),
+        y0.min(y1.saturating_sub(1)),
+        x1.max(1),
+        y1.max(1),
+    ]
+}
+
+/// A candidate's bounding box in full-resolution pixels `[x0, y0, x1, y1]`.
+fn working_box_to_full(c: &Candidate, scale: u32, area: [u32; 4]) -> [f64; 4] {
+    let s = scale as f64;
+    [
+        area[0] as f64 + c.origin[0] as f64 * s - 0.5,
+        area[1] as f64 + c.origin[1] as f64 * s - 0.5,
+        area[0] as f64 + (c.origin[0] + c.width) as f64 * s - 0.5,
+        area[1] as f64 + (c.origin[1] + c.height) as f64 * s - 0.5,
+    ]
+}
+
+fn closed_regions(regions: &[Region], radius: u8, min_area: f64) -> Vec<Vec<[i32; 2]>> {
+    // A closed outline fills to a region much thicker than the dilated edge
+    // line (about one pixel after erosion); an open outline (a gap wider than
+    // the dilation closes, or an object cut by the frame edge) stays a line.
+    let min_thickness = radius as f64 + 1.0;
+    // Candidates far below the minimum cannot grow into range: stop there.
+    // A few attempts bound the cost when many large regions are rejected.
+    regions
+        .iter()
+        .filter(|r| r.approx_area >= min_area * 0.5)
+        .take(8)
+        .filter_map(|region| {
+            let (filled, x0, y0) = fill_region(&region.border);
+            let eroded = erode_disk(&filled, radius);
+            let (border, area) = largest_component_border(&eroded)?;
+            // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
+            let thickness = 2.0 * area / border.len().max(1) as f64;
+            (thickness >= min_thickness).then(|| shifted(&border, [x0, y0]))
+        })
+        .collect()
+}
+
+/// Maps a working-resolution border to a smooth full-resolution contour.
+/// The runs of the border on the image's own border (`sides`: left, top,
+/// right, bottom of the working image lying there) are put exactly on the
+/// image edge (x = -0.5 or width - 0.5, likewise y) and kept straight: they
+/// are no edge of the object.
+fn to_full_resolution(
+    border: &[[i32; 2]],
+    scale: u32,
+    area: [u32; 4],
+    [image_w, image_h]: [u32; 2],
+    sides: [bool; 4],
+    [work_w, work_h]: [u32; 2],
+    spacing: f64,
+) -> Polygon {
+    // Working pixel i covers full-resolution pixels i*s .. i*s+s-1, whose
+    // centre is at i*s + (s-1)/2.
+    let s = scale as f64;
+    let offset = [area[0] as f64 + (s - 1.0) / 2.0, area[1] as f64 + (s - 1.0) / 2.0];
+    let snap = |p: [i32; 2]| -> [Option<f64>; 2] {
+        let x = if sides[0] && p[0] == 0 {
+            Some(-0.5)
+        } else if sides[2] && p[0] == work_w as i32 - 1 {
+            Some(image_w as f64 - 0.5)
+        } else {
+            None
+        };
+        let y = if sides[1] && p[1] == 0 {
+            Some(-0.5)
+        } else if sides[3] && p[1] == work_h as i32 - 1 {
+            Some(image_h as f64 - 0.5)
+        } else {
+            None
+        };
+        [x, y]
+    };
+    let snapped: Vec<[Option<f64>; 2]> = border.iter().map(|&p| snap(p)).collect();
+    let on_border = |i: usize| snapped[i][0].is_some() || snapped[i][1].is_some();
+    let n = border.len();
+    let full = |i: usize| {
+        let p = border[i];
+        [
+            snapped[i][0].unwrap_or(p[0] as f64 * s + offset[0]),
+            snapped[i][1].unwrap_or(p[1] as f64 * s + offset[1]),
+        ]
+    };
+    // A traced border is a pixel staircase; a short moving average turns it
+    // into a sub-pixel outline before resampling.
+    let Some(first) = (0..n).find(|&i| on_border(i) && !on_border((i + n - 1) % n)) else {
+        let raw = Polygon::new(border.iter().map(|p| [p[0] as f64, p[1] as f64]).collect());
+        let full = raw.moving_average(2).scaled(s, offset);
+        let count = ((full.length() / spacing).round() as usize).max(8);
+        return full.resampled(count);
+    };
+    let mut points = Vec::new();
+    let mut k = 0;
+    while k < n {
+        let i = (first + k) % n;
+        if on_border(i) {
+            // The run along the image border: its ends and its corners.
+            let corner = k > 0 && on_border((i + n - 1) % n) && snapped[i] != snapped[(i + n - 1) % n];
+            let ends_run = !on_border((i + 1) % n);
+            if k == 0 || corner || ends_run || !on_border((i + n - 1) % n) {
+                points.push(full(i));
+            }
+            k += 1;
+            continue;
+        }
+        // A free run, from the border point before it to the one after.
+        let mut run = vec![full((i + n - 1) % n)];
+        while k < n && !on_border((first + k) % n) {
+            run.push(full((first + k) % n));
+            k += 1;
+        }
+        run.push(full((first + k) % n));
+        let smooth = smooth_open(&run, 2);
+        points.extend(resample_open(&smooth, spacing).into_iter().skip(1));
+        // The last point is the next run's first: drop it here.
+        points.pop();
+    }
+    Polygon::new(points)
+}
+
+/// Moving average over `2 * half + 1` neighbours of an open polyline, its
+/// ends fixed (the window shrinks towards them).
+fn smooth_open(points: &[Point], half: usize) -> Vec<Point> {
+    let n = points.len();
+    (0..n)
+        .map(|i| {
+            let h = half.min(i).min(n - 1 - i);
+            let window = &points[i - h..=i + h];
+            let k = window.len() as f64;
+            let sum = window.iter().fold([0.0, 0.0], |a, p| [a[0] + p[0], a[1] + p[1]]);
+            [sum[0] / k, sum[1] / k]
+        })
+        .collect()
+}
+
+/// An open polyline resampled to even spacing of about `spacing`, both
+/// ends kept.
+fn resample_open(points: &[Point], spacing: f64) -> Vec<Point> {
+    let lengths: Vec<f64> = points
+        .windows(2)
+        .map(|w| crate::geometry::dist(w[0], w[1]))
+        .collect();
+    let total: f64 = lengths.iter().sum();
+    let segments = ((total / spacing).round() as usize).max(1);
+    let step = total / segments as f64;
+    let mut out = Vec::with_capacity(segments + 1);
+    out.push(points[0]);
+    let (mut edge, mut walked) = (0usize, 0.0);
+    for k in 1..segments {
+        let target = k as f64 * step;
+        while edge + 1 < lengths.len() && walked + lengths[edge] < target {
+            walked += lengths[edge];
+            edge += 1;
+        }
+        let t = if lengths[edge] > 0.0 {
+            ((target - walked) / lengths[edge]).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let (a, b) = (points[edge], points[edge + 1]);
+        out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+    }
+    out.push(points[points.len() - 1]);
+    out
+}
