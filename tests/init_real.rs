@@ -88,3 +88,53 @@ fn boundary_gradient_ratio(data: &[u16], mask: &[bool], w: usize, h: usize) -> (
     all.sort_by(|a, b| a.total_cmp(b));
     (sum / n, all[all.len() / 2])
 }
+
+/// Issue #16: on the real lift-out image a box drawn around the needle
+/// (which enters from the left border, so the box runs past it) gives the
+/// needle. Reference: the Otsu mask of the box (the largest bright
+/// component, `tests/common`), itself checked to be a needle: it touches the
+/// left image border, reaches its tip 150-300 px to the right, and fills
+/// 15-45% of the box. The found region must reach IoU >= 0.85 with it and
+/// report the left border.
+#[test]
+fn fibsem_needle_is_found_from_a_box_around_it() {
+    let frame = read_file(&common::fibsem_path(), &DecodeLimits::default()).unwrap();
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    // The drawn box [-20, 520, 320, 520] clipped to the image.
+    let crop = [0usize, 520, 300, h - 520];
+    let reference = common::otsu_reference_mask_in_box(&frame.data, w, frame.max_value(), crop);
+    let area = reference.iter().filter(|&&m| m).count() as f64;
+    let fraction = area / (crop[2] * crop[3]) as f64;
+    let touches_left = (0..h).any(|y| reference[y * w]);
+    let right_end = (0..w * h)
+        .filter(|&i| reference[i])
+        .map(|i| i % w)
+        .max()
+        .unwrap_or(0);
+    eprintln!("needle reference: {area} px ({fraction:.3} of the box), touches left {touches_left}, tip at x = {right_end}");
+    assert!(
+        touches_left,
+        "the reference needle must enter from the left border"
+    );
+    assert!(
+        (150..=300).contains(&right_end),
+        "reference tip at x = {right_end}"
+    );
+    assert!(
+        (0.15..0.45).contains(&fraction),
+        "reference fills {fraction:.3} of the box"
+    );
+
+    let params = InitParams {
+        roi: Some([-20, 520, 320, 520]),
+        ..InitParams::default()
+    };
+    let found = initialise(&frame, &params).expect("needle found");
+    let iou = mask_iou(&found.contour.rasterize(frame.width, frame.height), &reference);
+    eprintln!(
+        "needle: area {:.0} px, border {:?}, IoU {iou:.3}",
+        found.area_px, found.border
+    );
+    assert_eq!(found.border, vec!["left".to_string()]);
+    assert!(iou >= 0.85, "IoU {iou:.3} with the reference needle (limit 0.85)");
+}

@@ -2,8 +2,10 @@
 //! truth: every shape, every preset (frame 0, before any occlusion), 20 seeds.
 
 use semdepth::geometry::mask_iou;
+use semdepth::geometry::Polygon;
 use semdepth::init::{initialise, InitParams};
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
+use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
 /// IoU a case must reach to count as a success (issue #2).
 const MIN_IOU: f64 = 0.9;
@@ -70,12 +72,13 @@ fn synthetic_initial_regions_match_truth() {
 }
 
 /// A dark object with a bright SEM edge rim (the generator's `dark` scene
-/// class), found from a box around it: the region must include the rim
-/// (`init::rim`). Without the rim step the found region stops inside it
-/// (median IoU 0.87-0.91 on seeds 300-302). Thresholds: every case
-/// IoU >= 0.9 and the median >= 0.95 (measured on these unseen seeds: min
-/// 0.932, median 0.969). Issue #16 asks for >= 0.95 in 95% of cases with a
-/// hint: not met yet (90% here; a tip and a rod fall short).
+/// class), found without hints by the paper's rule: the region must include
+/// the rim (`init::rim`). Without the rim step the region stops inside it
+/// (median IoU 0.905 on seeds 300-302, against 0.956 with it). Thresholds:
+/// every case IoU >= 0.85 and the median >= 0.94 (measured on these unseen
+/// seeds: min 0.863, median 0.948). Issue #16 asks for >= 0.9 in 95% of the
+/// cases without hints: not met yet (18 of 20 here; a tip and a rod fall
+/// short), nor >= 0.95 with a box (the candidates prefer the dark core).
 #[test]
 fn dark_objects_with_a_bright_rim_are_found_with_their_rim() {
     let mut ious = Vec::new();
@@ -88,18 +91,13 @@ fn dark_objects_with_a_bright_rim_are_found_with_their_rim() {
             let pair = Scene::new(&config).unwrap().render(0);
             let (w, h) = (config.width, config.height);
             let truth = pair.truth.left.mask(w, h);
-            let roi = pair.truth.left.roi_hint(0.1);
-            let params = InitParams {
-                roi: Some(roi),
-                ..InitParams::default()
-            };
-            let found = initialise(&pair.left, &params)
+            let found = initialise(&pair.left, &InitParams::default())
                 .unwrap_or_else(|e| panic!("dark/{}/seed {seed}: {e}", shape.name()));
             let iou = mask_iou(&found.contour.rasterize(w, h), &truth);
             eprintln!("dark/{}/seed {seed}: IoU {iou:.3}", shape.name());
             assert!(
-                iou >= 0.9,
-                "dark/{}/seed {seed}: IoU {iou:.3} < 0.9",
+                iou >= 0.85,
+                "dark/{}/seed {seed}: IoU {iou:.3} < 0.85",
                 shape.name()
             );
             ious.push(iou);
@@ -107,5 +105,98 @@ fn dark_objects_with_a_bright_rim_are_found_with_their_rim() {
     }
     ious.sort_by(|a, b| a.total_cmp(b));
     let median = ious[ious.len() / 2];
-    assert!(median >= 0.95, "median IoU {median:.3} < 0.95");
+    assert!(median >= 0.94, "median IoU {median:.3} < 0.94");
+}
+
+/// Issue #16: with a `roi` box (10% larger than the object) or a `point` on
+/// it, objects with scratches and fibres running under them and tools
+/// entering from the image border are found: IoU >= 0.95 with the
+/// frame-clipped truth in at least 95% of the cases (4 shapes x 5 unseen
+/// seeds x 2 hints per class; failures are listed). For scratched scenes the
+/// contour is the first pair's left contour after the free fit, as the issue
+/// asks. For border tools it is the initialisation's: the tracker does not
+/// take an outline that runs along the image border yet (it reports the
+/// pair lost, "the contour left the left image").
+#[test]
+fn hinted_objects_at_the_border_and_on_scratches_are_found() {
+    for (preset, via_tracker) in [(Preset::Scratched, true), (Preset::BorderTool, false)] {
+        let mut failures = Vec::new();
+        let mut total = 0usize;
+        for shape in Shape::ALL {
+            for seed in 500..505 {
+                let config = SynthConfig {
+                    frames: 1,
+                    ..SynthConfig::preset(preset, shape, seed)
+                };
+                let pair = Scene::new(&config).unwrap().render(0);
+                let (w, h) = (config.width, config.height);
+                let truth = pair.truth.left.mask(w, h);
+                let c = pair.truth.left.visible_centroid;
+                // The object pixel nearest the visible centroid, as a person clicks.
+                let point = (0..truth.len())
+                    .filter(|&i| truth[i])
+                    .map(|i| [(i % w as usize) as f64, (i / w as usize) as f64])
+                    .min_by(|a, b| {
+                        (a[0] - c[0])
+                            .hypot(a[1] - c[1])
+                            .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
+                    })
+                    .expect("object visible");
+                for (hint, params) in [
+                    (
+                        "roi",
+                        InitParams {
+                            roi: Some(pair.truth.left.roi_hint(0.1)),
+                            ..InitParams::default()
+                        },
+                    ),
+                    (
+                        "point",
+                        InitParams {
+                            point: Some(point),
+                            ..InitParams::default()
+                        },
+                    ),
+                ] {
+                    total += 1;
+                    let name = format!("{}/{}/seed {seed} {hint}", preset.name(), shape.name());
+                    let contour = if via_tracker {
+                        let mut tracker = StereoTracker::new(TrackerParams {
+                            init: params,
+                            ..TrackerParams::default()
+                        });
+                        let first = tracker.process(&pair.left, &pair.right).expect("same-size pair");
+                        match (&first.status, first.left) {
+                            (Status::Initialised, Some(left)) => Ok(Polygon::new(left.contour)),
+                            (status, _) => Err(format!("{status:?} {:?}", first.reason)),
+                        }
+                    } else {
+                        initialise(&pair.left, &params)
+                            .map(|found| found.contour)
+                            .map_err(|e| e.to_string())
+                    };
+                    match contour {
+                        Ok(contour) => {
+                            let iou = mask_iou(&contour.rasterize(w, h), &truth);
+                            if iou < 0.95 {
+                                failures.push(format!("{name}: IoU {iou:.3}"));
+                            }
+                        }
+                        Err(e) => failures.push(format!("{name}: {e}")),
+                    }
+                }
+            }
+        }
+        let rate = 1.0 - failures.len() as f64 / total as f64;
+        eprintln!(
+            "{}: {} of {total} below IoU 0.95: {failures:?}",
+            preset.name(),
+            failures.len()
+        );
+        assert!(
+            rate >= 0.95,
+            "{}: success rate {rate:.3} < 0.95: {failures:#?}",
+            preset.name()
+        );
+    }
 }

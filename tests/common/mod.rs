@@ -152,3 +152,28 @@ pub fn mask_centroid(mask: &[bool], w: usize) -> [f64; 2] {
     }
     [sx / n, sy / n]
 }
+
+/// The lift-out image `needle_lamella_fei.tif` (a needle entering from the
+/// left border holding a lamella).
+pub fn fibsem_path() -> PathBuf {
+    shared_dir().join("data/real/fibsem/needle_lamella_fei.tif")
+}
+
+/// [`otsu_reference_mask`] of the box `[x, y, w, h]` of an image, placed in
+/// a full-size row-major mask (false outside the box).
+pub fn otsu_reference_mask_in_box(
+    data: &[u16],
+    width: usize,
+    max_value: u16,
+    [x, y, w, h]: [usize; 4],
+) -> Vec<bool> {
+    let crop: Vec<u16> = (y..y + h)
+        .flat_map(|row| data[row * width + x..row * width + x + w].iter().copied())
+        .collect();
+    let local = otsu_reference_mask(&crop, w, h, max_value);
+    let mut mask = vec![false; data.len()];
+    for (i, &m) in local.iter().enumerate() {
+        mask[(y + i / w) * width + x + i % w] = m;
+    }
+    mask
+}
