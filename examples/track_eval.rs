@@ -1,5 +1,8 @@
 //! Tracks synthetic sequences and prints the disparity and centroid errors
 //! per condition: `cargo run --release --example track_eval -- [SEEDS] [FRAMES]`.
+//! `ONLY=scratched,dark` picks conditions (the five basic ones by default);
+//! `HINT=roi` or `HINT=point` gives the first pair's object as a hint (a box
+//! 10% larger than the visible object, or its pixel nearest the centroid).
 use semdepth::synth::{frames, Preset, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
@@ -7,18 +10,12 @@ fn main() {
     let args: Vec<usize> = std::env::args().skip(1).map(|s| s.parse().unwrap()).collect();
     let seeds = *args.first().unwrap_or(&5) as u64;
     let nframes = *args.get(1).unwrap_or(&10);
-    for preset in [
-        Preset::Clean,
-        Preset::Noisy,
-        Preset::Occluded,
-        Preset::Flicker,
-        Preset::Cluttered,
-    ] {
+    for preset in Preset::ALL {
         // ONLY=occluded,noisy restricts the run to those conditions.
-        if let Ok(only) = std::env::var("ONLY") {
-            if !only.split(',').any(|p| p == preset.name()) {
-                continue;
-            }
+        match std::env::var("ONLY") {
+            Ok(only) if !only.split(',').any(|p| p == preset.name()) => continue,
+            Err(_) if !Preset::BASIC.contains(&preset) => continue,
+            _ => {}
         }
         let (mut sq_d, mut sq_c, mut n, mut lost, mut worst, mut flagged) =
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
@@ -46,9 +43,27 @@ fn main() {
                 if let Ok(v) = std::env::var("TSPACING") {
                     params.template_spacing_px = Some(v.parse().unwrap());
                 }
+                let pairs: Vec<_> = frames(&cfg).unwrap().collect();
+                let first = &pairs[0].truth.left;
+                match std::env::var("HINT").as_deref() {
+                    Ok("roi") => params.init.roi = Some(first.roi_hint(0.1)),
+                    Ok("point") => {
+                        let mask = first.mask(cfg.width, cfg.height);
+                        let c = first.visible_centroid;
+                        params.init.point = (0..mask.len())
+                            .filter(|&i| mask[i])
+                            .map(|i| [(i % cfg.width as usize) as f64, (i / cfg.width as usize) as f64])
+                            .min_by(|a, b| {
+                                (a[0] - c[0])
+                                    .hypot(a[1] - c[1])
+                                    .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
+                            });
+                    }
+                    _ => {}
+                }
                 let mut tracker = StereoTracker::new(params);
                 let mut errs = Vec::new();
-                for pair in frames(&cfg).unwrap() {
+                for pair in pairs {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
                     if r.status == Status::Lost {
                         lost += 1;
