@@ -3,16 +3,20 @@
 //! object's bounding box grown by 10% per side) and with a `point` (the
 //! visible mask pixel nearest its centroid).
 //! `cargo run --release --example init_eval -- [SEEDS] [FIRST_SEED]`;
-//! `ONLY=border_tool,dark` restricts the presets, `FAILS=1` lists failures.
-use semdepth::geometry::mask_iou;
+//! `ONLY=border_tool,dark` restricts the presets, `FAILS=1` lists failures,
+//! `FIT=1` measures the first pair's left contour after the tracker's free
+//! fit instead of the initialisation's.
+use semdepth::geometry::{mask_iou, Polygon};
 use semdepth::init::{initialise, InitParams};
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
+use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
 fn main() {
     let args: Vec<u64> = std::env::args().skip(1).map(|s| s.parse().unwrap()).collect();
     let seeds = *args.first().unwrap_or(&5);
     let seed0 = *args.get(1).unwrap_or(&300);
     let list = std::env::var("FAILS").is_ok();
+    let fit = std::env::var("FIT").is_ok();
     println!("preset       | none >=0.9 | roi >=0.95 | point >=0.95 | median IoU none/roi/point");
     for preset in Preset::ALL {
         if let Ok(only) = std::env::var("ONLY") {
@@ -54,10 +58,20 @@ fn main() {
                     },
                 ];
                 for (k, params) in runs.iter().enumerate() {
-                    let iou = match initialise(&pair.left, params) {
-                        Ok(found) => mask_iou(&found.contour.rasterize(w, h), &truth),
-                        Err(_) => 0.0,
+                    let contour = if fit {
+                        let mut tracker = StereoTracker::new(TrackerParams {
+                            init: params.clone(),
+                            ..TrackerParams::default()
+                        });
+                        let first = tracker.process(&pair.left, &pair.right).unwrap();
+                        first
+                            .left
+                            .filter(|_| first.status == Status::Initialised)
+                            .map(|l| Polygon::new(l.contour))
+                    } else {
+                        initialise(&pair.left, params).ok().map(|found| found.contour)
                     };
+                    let iou = contour.map_or(0.0, |c| mask_iou(&c.rasterize(w, h), &truth));
                     let limit = if k == 0 { 0.9 } else { 0.95 };
                     if iou < limit {
                         fails.push(format!(

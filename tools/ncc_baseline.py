@@ -27,7 +27,8 @@ Requirements (of this script only, not of the Rust project):
   and a built semdepth binary (cargo build --release).
 
 usage: python3 tools/ncc_baseline.py [--semdepth PATH] [--work-dir DIR]
-                                     [--seeds 5] [--frames 10] [--json OUT.json]
+                                     [--seeds 5] [--seed0 0] [--frames 10]
+                                     [--conditions C ...] [--json OUT.json]
 """
 import argparse
 import concurrent.futures
@@ -41,7 +42,8 @@ import sys
 import tempfile
 import time
 
-CONDITIONS = ("clean", "noisy", "occluded", "flicker", "cluttered")
+CONDITIONS = ("clean", "noisy", "occluded", "flicker", "cluttered",
+              "border_tool", "scratched", "dark", "blurred", "relief")
 SHAPES = ("blob", "sphere", "tip", "rod")
 TEMPLATE_MARGIN = 4          # px added on every side of the true bounding box
 LEFT_SEARCH = (24, 24)       # +-x, +-y around the last left position
@@ -194,10 +196,11 @@ def parse_args():
                    help=f"semdepth binary (default: {DEFAULT_SEMDEPTH})")
     p.add_argument("--work-dir", type=pathlib.Path,
                    help="where to write the sequences (default: a temporary directory, removed afterwards)")
-    p.add_argument("--seeds", type=int, default=5, help="seeds 0..N-1 per shape (default 5)")
+    p.add_argument("--seeds", type=int, default=5, help="seeds SEED0..SEED0+N-1 per shape (default 5)")
+    p.add_argument("--seed0", type=int, default=0, help="first seed (default 0)")
     p.add_argument("--frames", type=int, default=10, help="stereo pairs per sequence (default 10)")
-    p.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS,
-                   help="presets to evaluate (default: all)")
+    p.add_argument("--conditions", nargs="+", default=list(CONDITIONS[:5]), choices=CONDITIONS,
+                   help="presets to evaluate (default: the five basic ones)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
                    help="parallel sequence workers (default: CPU count)")
     p.add_argument("--json", type=pathlib.Path, help="also write the numbers to this JSON file")
@@ -229,7 +232,7 @@ def main():
     else:
         root = args.work_dir
     try:
-        jobs = [(c, s, seed) for c in args.conditions for s in SHAPES for seed in range(args.seeds)]
+        jobs = [(c, s, seed) for c in args.conditions for s in SHAPES for seed in range(args.seed0, args.seed0 + args.seeds)]
         with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
             futures = [pool.submit(run_one, np, cv2, semdepth, root, c, s, seed, args.frames)
                        for c, s, seed in jobs]

@@ -14,6 +14,12 @@
 //! 7. erosion of the filled region by r, undoing the dilation's growth, so the
 //!    returned contour hugs the object.
 //!
+//! The region so found is the incumbent; scored candidates ([`prompted`])
+//! replace it where the paper's rule fails: clutter joined to the outline,
+//! an object cut by the image border, a hint it misses (see [`initialise`]).
+//! A dark threshold component's outline is then grown over the object's
+//! bright edge rim ([`rim`]).
+//!
 //! The output contour is in full-resolution pixel coordinates (centre of the
 //! top-left pixel at (0, 0)).
 
@@ -481,34 +487,52 @@ impl InitParams {
     }
 }
 
-/// Finds the object in `frame`. With a hint (`roi`, `point` or a
-/// `polarity` other than `any`), the object is the best-scoring candidate
-/// that fits it ([`prompted`]). Without hints, the paper's rule (steps 1-7
-/// of the module docs: the largest closed region in the size range) picks
-/// it, and the candidates are asked only when that finds nothing, e.g. for
-/// a tool entering from the image border.
+/// Finds the object in `frame`. The paper's rule (steps 1-7 of the module
+/// docs: the largest closed region in the size range) proposes it; the
+/// scored candidates ([`prompted`]) replace it when one scores at least
+/// twice as high (scratches or fibres joined to the outline, texture taken
+/// for the object), when it misses a hint (outside the `roi`, not on the
+/// `point`, the wrong `polarity`), or when the rule finds nothing (e.g. a
+/// tool entering from the image border).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
     let hints = params.hints_for(frame.width, frame.height)?;
     let stage = edge_stage(frame, params, &hints)?;
-    if hints.given() {
-        return prompted::find(frame, params, &hints, &stage);
-    }
-    match largest_region(frame, params, &stage) {
-        Err(e @ (InitError::TouchesBorder { .. } | InitError::NothingInSizeRange { .. })) => {
-            prompted::find(frame, params, &hints, &stage).map_err(|_| e)
+    let found = |incumbent| prompted::find(frame, params, &hints, &stage, incumbent);
+    match largest_region(params, &stage) {
+        Ok((paper, border, radius)) if paper_fits_box(&paper, &hints) => {
+            Ok(found(Some((&border, radius))).ok().flatten().unwrap_or(paper))
         }
-        found => found,
+        _ if hints.given() => found(None).map(|r| r.expect("no incumbent to stand")),
+        Ok(_) => unreachable!("without a roi every region fits the box"),
+        Err(e @ (InitError::TouchesBorder { .. } | InitError::NothingInSizeRange { .. })) => {
+            found(None).ok().flatten().ok_or(e)
+        }
+        Err(e) => Err(e),
     }
 }
 
+/// Whether the paper's region lies in the `roi` (with the slack of a box
+/// drawn tight around the object: 4% of its longer side, at least 2 px);
+/// always without a roi. The paper's rule searches the roi's surroundings
+/// too, for the background statistics.
+fn paper_fits_box(found: &InitResult, hints: &Hints) -> bool {
+    if !hints.has_roi {
+        return true;
+    }
+    let [x, y, w, h] = hints.roi.map(f64::from);
+    let slack = (0.04 * w.max(h)).max(2.0);
+    let [x0, y0, x1, y1] = found.bbox;
+    x0 >= x - 0.5 - slack && y0 >= y - 0.5 - slack && x1 <= x + w - 0.5 + slack && y1 <= y + h - 0.5 + slack
+}
+
 /// The paper's rule: the largest closed outline of the dilated edges whose
-/// filled area lies in the size range, away from the image border.
+/// filled area lies in the size range, away from the image border; with its
+/// border in working pixels and the dilation radius that closed it.
 fn largest_region(
-    frame: &GrayFrame,
     params: &InitParams,
     stage: &EdgeStage,
-) -> Result<InitResult, InitError> {
+) -> Result<(InitResult, Vec<[i32; 2]>, u8), InitError> {
     let EdgeStage {
         area: roi,
         scale,
@@ -551,14 +575,8 @@ fn largest_region(
         ) {
             Ok(object) => {
                 let contour = to_full_resolution(&object, scale, roi, params.contour_spacing_px);
-                let contour = rim::grow_over_rim(
-                    frame,
-                    &contour,
-                    RIM_REACH_WORKING_PX * scale as f64,
-                    RIM_MIN_EXCESS,
-                );
                 let centroid = contour.centroid();
-                return Ok(InitResult {
+                let result = InitResult {
                     area_px: contour.area(),
                     bbox: contour.bounds(),
                     centroid,
@@ -579,7 +597,8 @@ fn largest_region(
                         candidates,
                         runners_up: Vec::new(),
                     },
-                });
+                };
+                return Ok((result, object, radius));
             }
             Err(SelectError::Border(edge)) => last_error = Some(InitError::TouchesBorder { edge }),
             Err(SelectError::Size(largest)) => {
