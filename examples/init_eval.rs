@@ -36,16 +36,7 @@ fn main() {
                 let (w, h) = (cfg.width, cfg.height);
                 let truth = pair.truth.left.mask(w, h);
                 let roi = pair.truth.left.roi_hint(0.1);
-                let c = pair.truth.left.visible_centroid;
-                let point = (0..truth.len())
-                    .filter(|&i| truth[i])
-                    .map(|i| [(i % w as usize) as f64, (i / w as usize) as f64])
-                    .min_by(|a, b| {
-                        let da = (a[0] - c[0]).hypot(a[1] - c[1]);
-                        let db = (b[0] - c[0]).hypot(b[1] - c[1]);
-                        da.total_cmp(&db)
-                    })
-                    .unwrap();
+                let point = pair.truth.left.point_hint(w, h).unwrap();
                 let runs = [
                     InitParams::default(),
                     InitParams {

@@ -47,18 +47,7 @@ fn main() {
                 let first = &pairs[0].truth.left;
                 match std::env::var("HINT").as_deref() {
                     Ok("roi") => params.init.roi = Some(first.roi_hint(0.1)),
-                    Ok("point") => {
-                        let mask = first.mask(cfg.width, cfg.height);
-                        let c = first.visible_centroid;
-                        params.init.point = (0..mask.len())
-                            .filter(|&i| mask[i])
-                            .map(|i| [(i % cfg.width as usize) as f64, (i / cfg.width as usize) as f64])
-                            .min_by(|a, b| {
-                                (a[0] - c[0])
-                                    .hypot(a[1] - c[1])
-                                    .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
-                            });
-                    }
+                    Ok("point") => params.init.point = first.point_hint(cfg.width, cfg.height),
                     _ => {}
                 }
                 let mut tracker = StereoTracker::new(params);

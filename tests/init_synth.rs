@@ -71,6 +71,18 @@ fn synthetic_initial_regions_match_truth() {
     );
 }
 
+/// Frame 0 of a preset's sequence: the pair, its size and the left truth mask.
+fn first_frame(preset: Preset, shape: Shape, seed: u64) -> (semdepth::synth::SynthPair, u32, u32, Vec<bool>) {
+    let config = SynthConfig {
+        frames: 1,
+        ..SynthConfig::preset(preset, shape, seed)
+    };
+    let pair = Scene::new(&config).unwrap().render(0);
+    let (w, h) = (config.width, config.height);
+    let truth = pair.truth.left.mask(w, h);
+    (pair, w, h, truth)
+}
+
 /// Issue #16: with a `roi` box (10% larger than the object) or a `point` on
 /// it, objects with scratches and fibres running under them and tools
 /// entering from the image border are found: IoU >= 0.95 with the
@@ -87,24 +99,8 @@ fn hinted_objects_at_the_border_and_on_scratches_are_found() {
         let mut total = 0usize;
         for shape in Shape::ALL {
             for seed in 500..505 {
-                let config = SynthConfig {
-                    frames: 1,
-                    ..SynthConfig::preset(preset, shape, seed)
-                };
-                let pair = Scene::new(&config).unwrap().render(0);
-                let (w, h) = (config.width, config.height);
-                let truth = pair.truth.left.mask(w, h);
-                let c = pair.truth.left.visible_centroid;
-                // The object pixel nearest the visible centroid, as a person clicks.
-                let point = (0..truth.len())
-                    .filter(|&i| truth[i])
-                    .map(|i| [(i % w as usize) as f64, (i / w as usize) as f64])
-                    .min_by(|a, b| {
-                        (a[0] - c[0])
-                            .hypot(a[1] - c[1])
-                            .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
-                    })
-                    .expect("object visible");
+                let (pair, w, h, truth) = first_frame(preset, shape, seed);
+                let point = pair.truth.left.point_hint(w, h).expect("object visible");
                 for (hint, params) in [
                     (
                         "roi",
@@ -175,13 +171,7 @@ fn hard_scenes_are_found_without_hints() {
         let mut failures = Vec::new();
         for shape in Shape::ALL {
             for seed in 500..505 {
-                let config = SynthConfig {
-                    frames: 1,
-                    ..SynthConfig::preset(preset, shape, seed)
-                };
-                let pair = Scene::new(&config).unwrap().render(0);
-                let (w, h) = (config.width, config.height);
-                let truth = pair.truth.left.mask(w, h);
+                let (pair, w, h, truth) = first_frame(preset, shape, seed);
                 let name = format!("{}/{}/seed {seed}", preset.name(), shape.name());
                 match initialise(&pair.left, &InitParams::default()) {
                     Ok(found) => {

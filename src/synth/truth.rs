@@ -118,6 +118,23 @@ impl ObjectTruth {
         ]
     }
 
+    /// A `point` hint on the object in a `width` x `height` frame: the
+    /// centre of its pixel nearest the visible centroid, as a person clicks
+    /// it; `None` when no pixel centre lies inside it.
+    pub fn point_hint(&self, width: u32, height: u32) -> Option<Point> {
+        let mask = self.mask(width, height);
+        let c = self.visible_centroid;
+        let w = width as usize;
+        (0..mask.len())
+            .filter(|&i| mask[i])
+            .map(|i| [(i % w) as f64, (i / w) as f64])
+            .min_by(|a, b| {
+                (a[0] - c[0])
+                    .hypot(a[1] - c[1])
+                    .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
+            })
+    }
+
     /// Fraction of the object's area inside the frame (1 when it does not
     /// cross a border).
     pub fn visible_fraction(&self) -> f64 {
