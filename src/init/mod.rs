@@ -41,6 +41,7 @@ pub use edges::{
 };
 pub use morphology::{dilate_disk, erode_disk, fill_region, outer_regions, Region};
 use morphology::{largest_component_border, shifted, without_tails};
+use prompted::Outcome;
 
 /// A single-channel f32 image (values in 0..=1 after normalisation).
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
@@ -210,10 +211,9 @@ pub struct InitResult {
     pub area_px: f64,
     /// Bounding box of the contour as `[min_x, min_y, max_x, max_y]`.
     pub bbox: [f64; 4],
-    /// Why this region won when candidates were ranked: its score (the
-    /// region energy's gain per pixel of outline, higher is better) and
-    /// contrast (see [`candidates`]); `None` when the paper's
-    /// largest-region rule chose it (no hints).
+    /// Its score (the region energy's gain per pixel of outline, higher is
+    /// better) and contrast (see [`candidates`]); `None` only when the
+    /// paper's region stood without any candidate to compare it with.
     pub score: Option<Score>,
     /// Where the region came from.
     pub source: Source,
@@ -244,8 +244,7 @@ pub struct InitDiagnostics {
     /// Number of candidate regions (outer contours for the largest-region
     /// rule, scored candidates when they were ranked).
     pub candidates: usize,
-    /// The next best candidates, best first (at most four; empty for the
-    /// largest-region rule).
+    /// The next best candidates, best first (at most four).
     pub runners_up: Vec<RunnerUp>,
 }
 
@@ -499,16 +498,37 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
     let hints = params.hints_for(frame.width, frame.height)?;
     let stage = edge_stage(frame, params, &hints)?;
     let found = |incumbent| prompted::find(frame, params, &hints, &stage, incumbent);
-    match largest_region(params, &stage) {
-        Ok((paper, border, radius)) if paper_fits_box(&paper, &hints) => {
-            Ok(found(Some((&border, radius))).ok().flatten().unwrap_or(paper))
+    let paper = match largest_region(params, &stage) {
+        Ok((mut paper, border, radius)) if paper_fits_box(&paper, &hints) => {
+            return Ok(match found(Some((&border, radius))) {
+                Ok(Outcome::Found(better)) => better,
+                Ok(Outcome::Stands { score, runners_up }) => {
+                    paper.score = Some(score);
+                    paper.diagnostics.runners_up = runners_up;
+                    paper
+                }
+                // No candidate to challenge it: the paper's region stands.
+                Err(_) => paper,
+            });
         }
-        _ if hints.given() => found(None).map(|r| r.expect("no incumbent to stand")),
-        Ok(_) => unreachable!("without a roi every region fits the box"),
-        Err(e @ (InitError::TouchesBorder { .. } | InitError::NothingInSizeRange { .. })) => {
-            found(None).ok().flatten().ok_or(e)
-        }
-        Err(e) => Err(e),
+        other => other,
+    };
+    // The paper's rule found nothing, or nothing that fits the hints.
+    let fallback = hints.given()
+        || matches!(
+            paper,
+            Err(InitError::TouchesBorder { .. } | InitError::NothingInSizeRange { .. })
+        );
+    if !fallback {
+        return paper.map(|(found, _, _)| found);
+    }
+    match (found(None), paper) {
+        (Ok(Outcome::Found(candidate)), _) => Ok(candidate),
+        (Err(e), _) if hints.given() => Err(e),
+        (_, Err(e)) => Err(e),
+        (_, Ok(_)) => Err(InitError::NoPlausibleRegion {
+            message: "the largest region lies outside the roi and no candidate fits the hints".into(),
+        }),
     }
 }
 

@@ -19,7 +19,7 @@ use super::morphology::{
 use super::rim::grow_over_rim;
 use super::{
     auto_dilation_radius, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult, RunnerUp,
-    RIM_MIN_EXCESS, RIM_REACH_WORKING_PX,
+    Score, RIM_MIN_EXCESS, RIM_REACH_WORKING_PX,
 };
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
@@ -41,13 +41,23 @@ const HINTED_CHALLENGE_RATIO: f64 = 1.5;
 /// which it counts as a fragment of that object.
 const FRAGMENT_SHARE: f64 = 0.8;
 
+/// What [`find`] came to.
+pub(super) enum Outcome {
+    /// The best candidate: there was no incumbent, or it lost.
+    Found(InitResult),
+    /// The incumbent stands, with its own score and the best candidates
+    /// that did not beat it.
+    Stands { score: Score, runners_up: Vec<RunnerUp> },
+}
+
 /// The best-scoring candidate that fits the hints, as an [`InitResult`]
 /// (see the module docs); `stage` is the shared working copy and edge map.
 /// With an `incumbent` (the paper's largest region: its border in working
-/// pixels and the dilation radius that closed it), `Ok(None)` unless the
-/// best candidate scores at least [`CHALLENGE_RATIO`] times the incumbent's
-/// own score, or the incumbent misses the `point` or the `polarity`: the
-/// paper's rule stands where it found the object, and a region whose
+/// pixels and the dilation radius that closed it), the incumbent stands
+/// unless the best candidate scores at least [`CHALLENGE_RATIO`] times the
+/// incumbent's own score, the incumbent is a fragment of a candidate
+/// crossing the image border, or it misses the `point` or the `polarity`:
+/// the paper's rule stands where it found the object, and a region whose
 /// outline runs out along scratches and fibres (a long ragged outline for
 /// its contrast) gives way.
 pub(super) fn find(
@@ -56,7 +66,7 @@ pub(super) fn find(
     hints: &Hints,
     stage: &EdgeStage,
     incumbent: Option<(&[[i32; 2]], u8)>,
-) -> Result<Option<InitResult>, InitError> {
+) -> Result<Outcome, InitError> {
     let EdgeStage {
         area,
         scale,
@@ -148,8 +158,19 @@ pub(super) fn find(
         } else {
             CHALLENGE_RATIO
         };
-        if standing.is_some_and(|c| best.score.score < ratio * c.score.score && !fragment(&c)) {
-            return Ok(None);
+        if let Some(c) = standing.filter(|c| best.score.score < ratio * c.score.score && !fragment(c)) {
+            return Ok(Outcome::Stands {
+                score: c.score,
+                runners_up: candidates
+                    .iter()
+                    .take(4)
+                    .map(|c| RunnerUp {
+                        score: c.score,
+                        source: c.source,
+                        bbox: working_box_to_full(c, scale, area),
+                    })
+                    .collect(),
+            });
         }
     }
     let border =
@@ -179,7 +200,7 @@ pub(super) fn find(
         contour
     };
     let centroid = contour.centroid();
-    Ok(Some(InitResult {
+    Ok(Outcome::Found(InitResult {
         area_px: contour.area(),
         bbox: contour.bounds(),
         centroid,
