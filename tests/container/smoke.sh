@@ -7,7 +7,8 @@
 # healthy and that the server does not run as root. Cleans up its
 # containers, volume and image.
 #
-# Needs docker (installed from Debian and started here when missing), curl
+# Needs docker (the daemon installed from Debian and started here when
+# missing, also where only a docker client is installed), curl
 # and python3; the host binary $SEMDEPTH_BIN (default target/release/semdepth,
 # built if missing) makes the synthetic pair.
 set -euo pipefail
@@ -33,7 +34,8 @@ cleanup() {
 trap cleanup EXIT
 
 log "docker"
-if ! command -v docker >/dev/null 2>&1; then
+# The daemon, not only a client: a machine may ship a docker CLI alone.
+if ! command -v docker >/dev/null 2>&1 || { ! docker info >/dev/null 2>&1 && ! command -v dockerd >/dev/null 2>&1; }; then
     apt-get update -qq
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq docker.io >/dev/null
 fi
