@@ -23,6 +23,8 @@
 //! The output contour is in full-resolution pixel coordinates (centre of the
 //! top-left pixel at (0, 0)).
 
+use std::cell::OnceCell;
+
 use image::{GrayImage, ImageBuffer, Luma};
 use serde::{Deserialize, Serialize};
 
@@ -561,11 +563,12 @@ fn largest_region(
         low,
         high,
         ref edges,
+        edge_pixels,
+        ref radii,
         ..
     } = *stage;
     let (w, h) = edges.dimensions();
     let noise_full = noise_work * scale as f32;
-    let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
     if edge_pixels == 0 {
         return Err(InitError::NoEdges { high_threshold: high });
     }
@@ -574,19 +577,13 @@ fn largest_region(
     let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
     let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
     let px_per_work = (scale * scale) as f64;
-    let auto_radius = auto_dilation_radius(w, h);
-    let radii: Vec<u8> = match params.dilation_radius {
-        Some(r) => vec![r],
-        None => vec![auto_radius, auto_radius * 2],
-    };
 
     let mut last_error = None;
-    for &radius in &radii {
-        let closed = dilate_disk(edges, radius);
-        let regions = outer_regions(&closed);
+    for (k, &radius) in radii.iter().enumerate() {
+        let regions = stage.regions(k);
         let candidates = regions.len();
         match select_object(
-            &regions,
+            regions,
             w,
             h,
             radius,
@@ -658,6 +655,68 @@ pub(super) struct EdgeStage {
     pub(super) high: f32,
     /// Edge pixels (255) after hysteresis.
     pub(super) edges: GrayImage,
+    /// How many edge pixels there are.
+    pub(super) edge_pixels: usize,
+    /// The dilation radii to try, in order (working pixels).
+    pub(super) radii: Vec<u8>,
+    /// The outer regions of the edges dilated by each radius, traced on
+    /// first use: the paper's rule and the candidates share them.
+    regions: Vec<OnceCell<Vec<Region>>>,
+}
+
+impl EdgeStage {
+    /// The outer regions of the edges dilated by `radii[k]`, largest first.
+    pub(super) fn regions(&self, k: usize) -> &[Region] {
+        self.regions[k].get_or_init(|| outer_regions(&dilate_disk(&self.edges, self.radii[k])))
+    }
+}
+
+/// A region of the dilated edges, filled and eroded back by the dilation
+/// radius (working pixels).
+pub(super) struct ErodedRegion {
+    /// The eroded fill, its first pixel at `origin`.
+    pub(super) eroded: GrayImage,
+    pub(super) origin: [i32; 2],
+    /// Outer border of its largest component, in working coordinates.
+    pub(super) border: Vec<[i32; 2]>,
+    /// Area of that component, working pixels.
+    pub(super) area: f64,
+    /// Whether it is a filled shape rather than an open outline: a closed
+    /// outline fills to a region much thicker than the dilated edge line
+    /// (about one pixel after erosion); an open one (a gap wider than the
+    /// dilation closes, or an object cut by the frame edge) stays a line.
+    pub(super) closed: bool,
+}
+
+/// The regions (largest first) filled and eroded by `radius`: at most eight,
+/// none far below `min_area` (working pixels), which could not grow into
+/// range; a few attempts bound the cost when many large regions are
+/// rejected.
+pub(super) fn eroded_regions(
+    regions: &[Region],
+    radius: u8,
+    min_area: f64,
+) -> impl Iterator<Item = ErodedRegion> + '_ {
+    let min_thickness = radius as f64 + 1.0;
+    regions
+        .iter()
+        .filter(move |r| r.approx_area >= min_area * 0.5)
+        .take(8)
+        .filter_map(move |region| {
+            let (filled, x0, y0) = fill_region(&region.border);
+            let eroded = erode_disk(&filled, radius);
+            let (border, area) = largest_component_border(&eroded)?;
+            let border = shifted(&border, [x0, y0]);
+            // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
+            let thickness = 2.0 * area / border.len().max(1) as f64;
+            Some(ErodedRegion {
+                eroded,
+                origin: [x0, y0],
+                border,
+                area,
+                closed: thickness >= min_thickness,
+            })
+        })
 }
 
 /// The area searched for an object with these hints: the roi grown by 30%
@@ -698,6 +757,12 @@ fn edge_stage(frame: &GrayFrame, params: &InitParams, hints: &Hints) -> Result<E
     let high = params.high_threshold.unwrap_or(auto_high);
     let low = params.low_threshold.unwrap_or(auto_low.min(high));
     let edges = hysteresis(&non_maximum_suppression(&gradient, low), w, h, low, high);
+    let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
+    let auto_radius = auto_dilation_radius(w, h);
+    let radii = match params.dilation_radius {
+        Some(r) => vec![r],
+        None => vec![auto_radius, auto_radius * 2],
+    };
     Ok(EdgeStage {
         area,
         scale,
@@ -708,12 +773,15 @@ fn edge_stage(frame: &GrayFrame, params: &InitParams, hints: &Hints) -> Result<E
         low,
         high,
         edges,
+        edge_pixels,
+        regions: radii.iter().map(|_| OnceCell::new()).collect(),
+        radii,
     })
 }
 
 /// First dilation radius (working pixels) when none is given: about 1/150
 /// of the working image's shorter side.
-pub(super) fn auto_dilation_radius(width: u32, height: u32) -> u8 {
+fn auto_dilation_radius(width: u32, height: u32) -> u8 {
     ((width.min(height) as f32 / 150.0).round() as u8).clamp(2, 6)
 }
 
@@ -765,37 +833,23 @@ fn select_object(
 ) -> Result<Vec<[i32; 2]>, SelectError> {
     let mut largest_seen = 0.0f64;
     let mut border_hit = None;
-    // A closed outline fills to a region much thicker than the dilated edge
-    // line (about one pixel after erosion); an open outline (a gap wider than
-    // the dilation closes, or an object cut by the frame edge) stays a line.
-    let min_thickness = radius as f64 + 1.0;
-    // Candidates far below the minimum cannot grow into range: stop there.
-    // A few attempts bound the cost when many large regions are rejected.
-    for region in regions.iter().filter(|r| r.approx_area >= min_area * 0.5).take(8) {
-        let (filled, x0, y0) = fill_region(&region.border);
-        let eroded = erode_disk(&filled, radius);
-        let Some((border, area)) = largest_component_border(&eroded) else {
-            continue;
-        };
-        let border = shifted(&border, [x0, y0]);
-        // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
-        let thickness = 2.0 * area / border.len().max(1) as f64;
-        let touched = touched_border(&border, width, height);
-        if thickness < min_thickness {
+    for region in eroded_regions(regions, radius, min_area) {
+        let touched = touched_border(&region.border, width, height);
+        if !region.closed {
             if let Some(edge) = touched {
                 border_hit.get_or_insert(edge);
             }
             continue;
         }
-        largest_seen = largest_seen.max(area);
-        if area < min_area || area > max_area {
+        largest_seen = largest_seen.max(region.area);
+        if region.area < min_area || region.area > max_area {
             continue;
         }
         if let Some(edge) = touched {
             border_hit.get_or_insert(edge);
             continue;
         }
-        return Ok(without_tails(&eroded, border, [x0, y0]));
+        return Ok(without_tails(&region.eroded, region.border, region.origin));
     }
     Err(match border_hit {
         Some(edge) => SelectError::Border(edge),

@@ -13,13 +13,10 @@
 //! appendages are cut by an opening scaled to the region).
 
 use super::candidates::{finalists, traced_border, Candidate, Rejections, Source, SummedArea, WorkArea};
-use super::morphology::{
-    dilate_disk, erode_disk, fill_region, largest_component_border, outer_regions, shifted, Region,
-};
 use super::rim::grow_over_rim;
 use super::{
-    auto_dilation_radius, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult, RunnerUp,
-    Score, RIM_MIN_EXCESS, RIM_REACH_WORKING_PX,
+    eroded_regions, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult, RunnerUp, Score,
+    RIM_MIN_EXCESS, RIM_REACH_WORKING_PX,
 };
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
@@ -77,9 +74,11 @@ pub(super) fn find(
         low,
         high,
         ref edges,
+        edge_pixels,
+        ref radii,
+        ..
     } = *stage;
     let (w, h) = edges.dimensions();
-    let edge_pixels = edges.iter().filter(|&&p| p > 0).count();
     let searched_area = hints.roi[2] as f64 * hints.roi[3] as f64;
     let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
     let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
@@ -112,19 +111,12 @@ pub(super) fn find(
 
     let mut rejected = Rejections::default();
     let mut candidates = Vec::new();
-    let auto_radius = auto_dilation_radius(w, h);
-    let radii: Vec<u8> = match params.dilation_radius {
-        Some(r) => vec![r],
-        None => vec![auto_radius, auto_radius * 2],
-    };
     let mut dilation_radius = radii[0];
     if edge_pixels > 0 {
-        for &radius in &radii {
-            let closed = dilate_disk(edges, radius);
-            let regions = outer_regions(&closed);
-            let found: Vec<Candidate> = closed_regions(&regions, radius, work_area.min_area)
-                .iter()
-                .filter_map(|border| work_area.edge_candidate(border, radius, &mut rejected))
+        for (k, &radius) in radii.iter().enumerate() {
+            let found: Vec<Candidate> = eroded_regions(stage.regions(k), radius, work_area.min_area)
+                .filter(|region| region.closed)
+                .filter_map(|region| work_area.edge_candidate(&region.border, radius, &mut rejected))
                 .collect();
             dilation_radius = radius;
             // The wider radius only when the first closes no outline.
@@ -143,6 +135,7 @@ pub(super) fn find(
     let Some(best) = candidates.first() else {
         return Err(no_candidate(high, &rejected, min_area, max_area, px_per_work));
     };
+    let sides = work_area.border_sides(best);
     if let Some((border, radius)) = incumbent {
         // An incumbent that misses the point or has the wrong polarity is
         // refused here and cannot stand.
@@ -150,9 +143,7 @@ pub(super) fn find(
         // The paper's rule refuses regions on the image border, so a region
         // that lies mostly inside a best candidate crossing the border is a
         // fragment of an object cut by it (a tool entering the frame).
-        let fragment = |c: &Candidate| {
-            work_area.border_sides(best).contains(&true) && covered_share(c, best) >= FRAGMENT_SHARE
-        };
+        let fragment = |c: &Candidate| sides.contains(&true) && covered_share(c, best) >= FRAGMENT_SHARE;
         let ratio = if hints.given() {
             HINTED_CHALLENGE_RATIO
         } else {
@@ -161,15 +152,7 @@ pub(super) fn find(
         if let Some(c) = standing.filter(|c| best.score.score < ratio * c.score.score && !fragment(c)) {
             return Ok(Outcome::Stands {
                 score: c.score,
-                runners_up: candidates
-                    .iter()
-                    .take(4)
-                    .map(|c| RunnerUp {
-                        score: c.score,
-                        source: c.source,
-                        bbox: working_box_to_full(c, scale, area),
-                    })
-                    .collect(),
+                runners_up: runners_up(&candidates, scale, area),
             });
         }
     }
@@ -180,11 +163,10 @@ pub(super) fn find(
         scale,
         area,
         [frame.width, frame.height],
-        work_area.border_sides(best),
+        sides,
         [w, h],
         params.contour_spacing_px,
     );
-    let sides = work_area.border_sides(best);
     // A dark threshold component stops inside the bright rim at the edge of
     // the object; an edge outline sits on the rim already (grown further,
     // dark spheres were tracked up to 7.7 px wrong).
@@ -222,18 +204,22 @@ pub(super) fn find(
             dilation_radius,
             edge_pixels,
             candidates: candidates.len(),
-            runners_up: candidates
-                .iter()
-                .skip(1)
-                .take(4)
-                .map(|c| RunnerUp {
-                    score: c.score,
-                    source: c.source,
-                    bbox: working_box_to_full(c, scale, area),
-                })
-                .collect(),
+            runners_up: runners_up(&candidates[1..], scale, area),
         },
     }))
+}
+
+/// The first four of `candidates`, for diagnosis.
+fn runners_up(candidates: &[Candidate], scale: u32, area: [u32; 4]) -> Vec<RunnerUp> {
+    candidates
+        .iter()
+        .take(4)
+        .map(|c| RunnerUp {
+            score: c.score,
+            source: c.source,
+            bbox: working_box_to_full(c, scale, area),
+        })
+        .collect()
 }
 
 /// Share of `inner`'s pixels that `outer` covers (both in working pixels).
@@ -316,28 +302,6 @@ fn working_box_to_full(c: &Candidate, scale: u32, area: [u32; 4]) -> [f64; 4] {
         area[0] as f64 + (c.origin[0] + c.width) as f64 * s - 0.5,
         area[1] as f64 + (c.origin[1] + c.height) as f64 * s - 0.5,
     ]
-}
-
-fn closed_regions(regions: &[Region], radius: u8, min_area: f64) -> Vec<Vec<[i32; 2]>> {
-    // A closed outline fills to a region much thicker than the dilated edge
-    // line (about one pixel after erosion); an open outline (a gap wider than
-    // the dilation closes, or an object cut by the frame edge) stays a line.
-    let min_thickness = radius as f64 + 1.0;
-    // Candidates far below the minimum cannot grow into range: stop there.
-    // A few attempts bound the cost when many large regions are rejected.
-    regions
-        .iter()
-        .filter(|r| r.approx_area >= min_area * 0.5)
-        .take(8)
-        .filter_map(|region| {
-            let (filled, x0, y0) = fill_region(&region.border);
-            let eroded = erode_disk(&filled, radius);
-            let (border, area) = largest_component_border(&eroded)?;
-            // Mean thickness 2A/P (exact for long strips, r for a disc of radius r).
-            let thickness = 2.0 * area / border.len().max(1) as f64;
-            (thickness >= min_thickness).then(|| shifted(&border, [x0, y0]))
-        })
-        .collect()
 }
 
 /// Maps a working-resolution border to a smooth full-resolution contour.
