@@ -83,6 +83,22 @@ fn first_frame(preset: Preset, shape: Shape, seed: u64) -> (semdepth::synth::Syn
     (pair, w, h, truth)
 }
 
+/// Prints the `failures` (cases below IoU `min_iou`) of `total` and asserts
+/// that at least 95% of the cases succeeded (issue #16).
+fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_iou: f64) {
+    let rate = 1.0 - failures.len() as f64 / total as f64;
+    eprintln!(
+        "{}: {} of {total} below IoU {min_iou}: {failures:?}",
+        preset.name(),
+        failures.len()
+    );
+    assert!(
+        rate >= 0.95,
+        "{}: success rate {rate:.3} < 0.95: {failures:#?}",
+        preset.name()
+    );
+}
+
 /// Issue #16: with a `roi` box (10% larger than the object) or a `point` on
 /// it, objects with scratches and fibres running under them and tools
 /// entering from the image border are found: IoU >= 0.95 with the
@@ -146,17 +162,7 @@ fn hinted_objects_at_the_border_and_on_scratches_are_found() {
                 }
             }
         }
-        let rate = 1.0 - failures.len() as f64 / total as f64;
-        eprintln!(
-            "{}: {} of {total} below IoU 0.95: {failures:?}",
-            preset.name(),
-            failures.len()
-        );
-        assert!(
-            rate >= 0.95,
-            "{}: success rate {rate:.3} < 0.95: {failures:#?}",
-            preset.name()
-        );
+        assert_success_rate(preset, &failures, total, 0.95);
     }
 }
 
@@ -184,16 +190,6 @@ fn hard_scenes_are_found_without_hints() {
                 }
             }
         }
-        let rate = 1.0 - failures.len() as f64 / 20.0;
-        eprintln!(
-            "{}: {} of 20 below IoU 0.9: {failures:?}",
-            preset.name(),
-            failures.len()
-        );
-        assert!(
-            rate >= 0.95,
-            "{}: success rate {rate:.3} < 0.95: {failures:#?}",
-            preset.name()
-        );
+        assert_success_rate(preset, &failures, 20, 0.9);
     }
 }

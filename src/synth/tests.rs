@@ -393,15 +393,7 @@ fn bad_configs_are_rejected_with_the_field() {
             "motion.start_px",
         ),
     ];
-    for (cfg, field) in cases {
-        match Scene::new(&cfg) {
-            Err(SynthError::InvalidConfig { field: f, message }) => {
-                assert_eq!(f, field, "{message}");
-                assert!(message.contains("expected"), "{message}");
-            }
-            other => panic!("{field}: {other:?}"),
-        }
-    }
+    assert_invalid(cases);
     let wide = SynthConfig {
         object_size_px: Some(300.0),
         disparity: Disparity {
@@ -939,15 +931,7 @@ fn scene_class_fields_default_and_validate() {
             "relief.grain_px",
         ),
     ];
-    for (cfg, field) in cases {
-        match Scene::new(&cfg) {
-            Err(SynthError::InvalidConfig { field: f, message }) => {
-                assert_eq!(f, field, "{message}");
-                assert!(message.contains("expected"), "{message}");
-            }
-            other => panic!("{field}: {other:?}"),
-        }
-    }
+    assert_invalid(cases);
     // A tool too large for its border does not fit: an error, no panic.
     let big = SynthConfig {
         object_size_px: Some(380.0),
@@ -959,4 +943,18 @@ fn scene_class_fields_default_and_validate() {
         ..base()
     };
     assert!(matches!(Scene::new(&big), Err(SynthError::DoesNotFit(_))));
+}
+
+/// Every config of `cases` is refused naming its field (and saying what was
+/// expected).
+fn assert_invalid(cases: Vec<(SynthConfig, &str)>) {
+    for (cfg, field) in cases {
+        match Scene::new(&cfg) {
+            Err(SynthError::InvalidConfig { field: f, message }) => {
+                assert_eq!(f, field, "{message}");
+                assert!(message.contains("expected"), "{message}");
+            }
+            other => panic!("{field}: {other:?}"),
+        }
+    }
 }
