@@ -188,11 +188,17 @@ impl Polygon {
     /// move inwards. For small distances this grows or shrinks the outline
     /// by about `distance` everywhere.
     pub fn offset_along_normals(&self, distance: f64) -> Self {
-        let normals = self.outward_normals();
+        self.offset_along(&self.outward_normals(), distance)
+    }
+
+    /// Every vertex moved by `distance` along its own direction of
+    /// `normals` (one per vertex, e.g. [`Polygon::outward_normals`] of a
+    /// smoothed copy).
+    pub fn offset_along(&self, normals: &[Point], distance: f64) -> Self {
         let points = self
             .points
             .iter()
-            .zip(&normals)
+            .zip(normals)
             .map(|(p, n)| [p[0] + distance * n[0], p[1] + distance * n[1]])
             .collect();
         Self::new(points)

@@ -10,7 +10,7 @@
 
 use crate::geometry::Polygon;
 use crate::imageio::GrayFrame;
-use crate::region::{PixelRect, PrefixSums};
+use crate::region::{PixelRect, PrefixSums, RegionSum};
 
 /// Width of one ring, pixels.
 const RING_PX: f64 = 0.5;
@@ -45,32 +45,23 @@ pub(super) fn grow_over_rim(frame: &GrayFrame, contour: &Polygon, max_px: f64, m
     // noise would turn offsets of 10-20 px along the vertex normals into
     // loops.
     let normals = contour.moving_average(4).outward_normals();
-    let inside = |d: f64| {
-        Polygon::new(
-            contour
-                .points
-                .iter()
-                .zip(&normals)
-                .map(|(p, n)| [p[0] + d * n[0], p[1] + d * n[1]])
-                .collect(),
-        )
-    };
-    let outer = inside(max_px + SUBSTRATE_BAND_PX[1]);
+    let grown = |d: f64| contour.offset_along(&normals, d);
+    let outer = grown(max_px + SUBSTRATE_BAND_PX[1]);
     if contour.len() < 8 || !sums.contains(&outer.points) {
         return contour.clone();
     }
-    let sum = |p: &Polygon| sums.polygon(&p.points);
-    let band = |a: f64, b: f64| {
-        let (inner, outer) = (sum(&inside(a)), sum(&inside(b)));
+    let sum = |d: f64| sums.polygon(&grown(d).points);
+    // Mean of the band between two outlines' region sums.
+    let band = |inner: RegionSum, outer: RegionSum| {
         let count = outer.count - inner.count;
-        if count > 0.0 {
-            Some((outer.sum - inner.sum) / count)
-        } else {
-            None
-        }
+        (count > 0.0).then(|| (outer.sum - inner.sum) / count)
     };
-    let object = sum(contour).mean();
-    let Some(substrate) = band(max_px + SUBSTRATE_BAND_PX[0], max_px + SUBSTRATE_BAND_PX[1]) else {
+    let object = sums.polygon(&contour.points).mean();
+    let substrate_band = band(
+        sum(max_px + SUBSTRATE_BAND_PX[0]),
+        sum(max_px + SUBSTRATE_BAND_PX[1]),
+    );
+    let Some(substrate) = substrate_band else {
         return contour.clone();
     };
     let contrast = substrate - object;
@@ -78,9 +69,9 @@ pub(super) fn grow_over_rim(frame: &GrayFrame, contour: &Polygon, max_px: f64, m
         return contour.clone();
     }
     let rings = (max_px / RING_PX).floor() as usize;
-    let profile: Option<Vec<f64>> = (0..rings)
-        .map(|k| band(k as f64 * RING_PX, (k + 1) as f64 * RING_PX))
-        .collect();
+    // Each ring's outline is summed once and serves both rings it bounds.
+    let outlines: Vec<RegionSum> = (0..=rings).map(|k| sum(k as f64 * RING_PX)).collect();
+    let profile: Option<Vec<f64>> = outlines.windows(2).map(|w| band(w[0], w[1])).collect();
     let Some(profile) = profile else {
         return contour.clone();
     };
@@ -97,8 +88,8 @@ pub(super) fn grow_over_rim(frame: &GrayFrame, contour: &Polygon, max_px: f64, m
         return contour.clone();
     };
     let t = (profile[k - 1] - half) / (profile[k - 1] - profile[k]);
-    let grown = (k as f64 - 0.5 + t) * RING_PX;
-    inside(grown)
+    let grown_px = (k as f64 - 0.5 + t) * RING_PX;
+    grown(grown_px)
 }
 
 #[cfg(test)]
