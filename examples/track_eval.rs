@@ -21,6 +21,9 @@ fn main() {
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
         let t = std::time::Instant::now();
         for shape in Shape::ALL {
+            if std::env::var("SHAPE").is_ok_and(|v| v != shape.name()) {
+                continue;
+            }
             let seed0: u64 = std::env::var("SEED0").map_or(0, |v| v.parse().unwrap());
             for seed in seed0..seed0 + seeds {
                 let cfg = SynthConfig {
@@ -71,6 +74,23 @@ fn main() {
                         flagged += 1;
                     }
                     let d = r.disparity_px.unwrap()[0] - pair.truth.disparity_px[0];
+                    if std::env::var("FRAMES_OUT").is_ok() {
+                        let (l, rr) = (r.left.as_ref().unwrap(), r.right.as_ref().unwrap());
+                        eprintln!(
+                            "  frame {}: err {d:+.3} disparity {:.3} (truth {:.3}) left - truth ({:.2}, {:.2}) right - truth ({:.2}, {:.2}) occluded {:.2}/{:.2} energy {:.1}/{:.1}",
+                            r.frame,
+                            r.disparity_px.unwrap()[0],
+                            pair.truth.disparity_px[0],
+                            l.centroid[0] - pair.truth.left.centroid[0],
+                            l.centroid[1] - pair.truth.left.centroid[1],
+                            rr.centroid[0] - pair.truth.right.centroid[0],
+                            rr.centroid[1] - pair.truth.right.centroid[1],
+                            l.occluded_fraction,
+                            rr.occluded_fraction,
+                            l.energy,
+                            rr.energy
+                        );
+                    }
                     let c = r.left.as_ref().unwrap().centroid;
                     let tc = pair.truth.left.centroid;
                     sq_c += (c[0] - tc[0]).powi(2) + (c[1] - tc[1]).powi(2);

@@ -33,7 +33,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::geometry::Point;
+use crate::geometry::{HalfPlane, Point};
 use crate::region::{PrefixSums, RegionSum};
 
 /// Parameters of the energy.
@@ -178,10 +178,14 @@ pub fn combine(
     length: f64,
     m_ref: f64,
 ) -> EnergyTerms {
+    combine_with_internal(inside, window, internal_term(params, length, inside.count), m_ref)
+}
+
+/// [`combine`] with the internal term given.
+fn combine_with_internal(inside: RegionSum, window: RegionSum, internal: f64, m_ref: f64) -> EnergyTerms {
     let Some(d) = data_term(inside, window) else {
         return EnergyTerms::INVALID;
     };
-    let internal = internal_term(params, length, inside.count);
     let data = d / m_ref;
     EnergyTerms {
         energy: internal - data,
@@ -260,6 +264,56 @@ pub fn evaluate_with_length(
         return EnergyTerms::INVALID;
     }
     region_energy(sums, points, params, window, length)
+}
+
+/// Energy of a rigidly moved contour that is cut by the image border: a
+/// tool whose base lies outside the frame. Nothing is known beyond the
+/// image or beyond the `cuts`, the half-planes (image coordinates) that
+/// bounded the image where the template was made: there the object goes on
+/// unseen, so the stretch of outline along them is no edge of the object.
+/// Region a is the contour's part inside the image; the window is a's
+/// bounding box grown by `margin` and clipped to the image and the cuts, so
+/// neither region holds pixels of the unseen object. The internal term
+/// uses the whole template's `length` and `area` (constant under rigid
+/// motion, as without cuts).
+pub fn evaluate_cut(
+    sums: &PrefixSums,
+    points: &[Point],
+    cuts: &[HalfPlane],
+    params: &EnergyParams,
+    margin: f64,
+    [length, area]: [f64; 2],
+) -> EnergyTerms {
+    let extent = sums.image_extent();
+    let image = HalfPlane::sides_of_box(extent);
+    // Points cut on an image side land there up to rounding: put them on it.
+    let onto_image = |p: Vec<Point>| -> Vec<Point> {
+        p.into_iter()
+            .map(|[x, y]| [x.clamp(extent[0], extent[2]), y.clamp(extent[1], extent[3])])
+            .collect()
+    };
+    let visible = onto_image(image.iter().fold(points.to_vec(), |p, side| side.clip(&p)));
+    if visible.len() < 3 || !sums.contains(&visible) {
+        return EnergyTerms::INVALID;
+    }
+    let [x0, y0, x1, y1] = window_of(&visible, margin);
+    let window = onto_image(
+        image
+            .iter()
+            .chain(cuts)
+            .fold(vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]], |p, side| {
+                side.clip(&p)
+            }),
+    );
+    if window.len() < 3 || !sums.contains(&window) {
+        return EnergyTerms::INVALID;
+    }
+    combine_with_internal(
+        sums.polygon(&visible),
+        sums.polygon(&window),
+        internal_term(params, length, area),
+        sums.reference_mean(),
+    )
 }
 
 /// The energy of a contour inside the covered area, given its window and

@@ -5,8 +5,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::energy::{combine, evaluate, evaluate_with_length, window_of, EnergyParams, EnergyTerms};
-use crate::geometry::{dist, Point, Polygon};
+use crate::energy::{
+    combine, evaluate, evaluate_cut, evaluate_with_length, window_of, EnergyParams, EnergyTerms,
+};
+use crate::geometry::{dist, HalfPlane, Point, Polygon};
 use crate::region::PrefixSums;
 
 /// Parameters of the free (vertex-wise) fit.
@@ -360,6 +362,27 @@ pub struct RigidTemplate {
     /// rotation cannot be measured, and letting it wander would only turn
     /// the template against the image's fixed shading.
     pub rotation_observable: bool,
+    /// Area of `points`.
+    pub area: f64,
+    /// Where the image border cut the object when the template was made
+    /// (template coordinates; empty for an object inside the image): the
+    /// object goes on unseen beyond these half-planes, wherever they are
+    /// placed, so the outline along them is no edge and its energy leaves
+    /// out what lies beyond them ([`crate::energy::evaluate_cut`]).
+    pub cuts: Vec<HalfPlane>,
+}
+
+impl RigidTemplate {
+    /// The direction the rigid fits translate along
+    /// ([`CompassSearch::along`]): the principal axis for a template cut by
+    /// the border (a tool entering the image), x and y otherwise.
+    pub fn search_axis(&self) -> Option<Point> {
+        if self.cuts.is_empty() {
+            return None;
+        }
+        let angle = Polygon::new(self.points.clone()).orientation();
+        Some([angle.cos(), angle.sin()])
+    }
 }
 
 impl RigidTemplate {
@@ -389,6 +412,8 @@ impl RigidTemplate {
             radius,
             margin: energy.margin_for_area(outline.area()),
             rotation_observable,
+            area: outline.area(),
+            cuts: Vec::new(),
         };
         (
             template,
@@ -398,6 +423,76 @@ impl RigidTemplate {
                 theta: 0.0,
             },
         )
+    }
+
+    /// This template with the sides of the image box `image` (`[x0, y0, x1,
+    /// y1]`, image coordinates) along which its outline at `pose` runs for
+    /// [`RigidTemplate::MIN_CUT_PX`] or more as its cuts.
+    pub fn cut_by(mut self, image: [f64; 4], pose: Pose) -> Self {
+        let outline = place(&self.points, pose);
+        let n = outline.len();
+        self.cuts = HalfPlane::sides_of_box(image)
+            .into_iter()
+            .filter(|side| {
+                let on = |p: Point| side.depth(p) < Self::ON_BORDER_PX;
+                let along: f64 = (0..n)
+                    .map(|i| (outline[i], outline[(i + 1) % n]))
+                    .filter(|&(a, b)| on(a) && on(b))
+                    .map(|(a, b)| dist(a, b))
+                    .sum();
+                along >= Self::MIN_CUT_PX
+            })
+            // n . (R q + t) >= o  <=>  (R^T n) . q >= o - n . t
+            .map(|side| {
+                let turned = side.moved(-pose.theta, [0.0, 0.0]);
+                HalfPlane::new(turned.normal, -side.depth([pose.x, pose.y]))
+            })
+            .collect();
+        self
+    }
+
+    /// A vertex this close to an image side (pixels) lies on it.
+    pub const ON_BORDER_PX: f64 = 0.75;
+
+    /// Outline along an image side that makes it a cut, pixels: an object
+    /// that merely touches the border is not cut by it.
+    pub const MIN_CUT_PX: f64 = 4.0;
+
+    /// The cuts placed at `pose`.
+    pub fn cuts_at(&self, pose: Pose) -> Vec<HalfPlane> {
+        self.cuts
+            .iter()
+            .map(|c| c.moved(pose.theta, [pose.x, pose.y]))
+            .collect()
+    }
+
+    /// Energy of `placed`, this template's vertices (or its coarse copy's,
+    /// of perimeter `length`) placed at `pose`.
+    pub fn energy_of(
+        &self,
+        sums: &PrefixSums,
+        placed: &[Point],
+        pose: Pose,
+        length: f64,
+        energy: &EnergyParams,
+    ) -> EnergyTerms {
+        if self.cuts.is_empty() {
+            evaluate_with_length(sums, placed, energy, self.margin, length)
+        } else {
+            evaluate_cut(
+                sums,
+                placed,
+                &self.cuts_at(pose),
+                energy,
+                self.margin,
+                [length, self.area],
+            )
+        }
+    }
+
+    /// Energy of the template at `pose`.
+    pub fn energy_at(&self, sums: &PrefixSums, pose: Pose, energy: &EnergyParams) -> EnergyTerms {
+        self.energy_of(sums, &place(&self.points, pose), pose, self.length, energy)
     }
 
     /// The box the template can reach from `pose` within `reach` pixels,
@@ -433,7 +528,7 @@ pub fn fit_rigid(
     let eval_terms = |pts: &[Point], length: f64, pose: Pose| {
         let mut placed = placed.borrow_mut();
         place_into(pts, pose, &mut placed);
-        let terms = evaluate_with_length(sums, &placed, energy, template.margin, length);
+        let terms = template.energy_of(sums, &placed, pose, length, energy);
         if !terms.energy.is_finite() {
             outside_area.set(true);
         }
@@ -451,6 +546,7 @@ pub fn fit_rigid(
             rotate: false,
             max_evaluations: params.max_evaluations,
             settle_every_step: false,
+            along: template.search_axis(),
         };
         let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, template.coarse_length, p));
         pose = p;
@@ -468,6 +564,7 @@ pub fn fit_rigid(
         rotate: params.rotate && template.rotation_observable,
         max_evaluations: params.max_evaluations.saturating_sub(evaluations).max(1),
         settle_every_step: false,
+        along: template.search_axis(),
     };
     // The window moves with the contour, so the energy is a function of the
     // pose alone: two fits of the same image from different starts share
@@ -484,7 +581,7 @@ pub fn fit_rigid(
     let (pose, _, polished) = newton_polish(pose, best, template.radius, fine.rotate, energy_at);
     let terms = match lowest.get() {
         Some((at, terms)) if at == pose => terms,
-        _ => evaluate(sums, &place(&template.points, pose), energy, template.margin),
+        _ => template.energy_at(sums, pose, energy),
     };
     RigidOutcome {
         pose,
@@ -628,6 +725,11 @@ pub struct CompassSearch {
     /// (measured: 114 -> 94 polygon evaluations per 1024x768 step, and the
     /// reference sequences' outputs within 6e-8 px).
     pub settle_every_step: bool,
+    /// Translate along this unit vector and its perpendicular instead of x
+    /// and y, turned with the pose (template coordinates): a slender tool's
+    /// energy valley runs along its axis, and steps in x and y stall in a
+    /// diagonal valley (a tip cut by the border stopped 2.3 px short).
+    pub along: Option<Point>,
 }
 
 impl CompassSearch {
@@ -639,7 +741,7 @@ impl CompassSearch {
         let mut best = energy_at(pose);
         let mut step = self.first_step.max(self.min_step);
         loop {
-            let (p, e, improved) = compass_round(pose, best, step, self.radius, self.rotate, |p| {
+            let (p, e, improved) = compass_round(pose, best, step, self, |p| {
                 evaluations += 1;
                 energy_at(p)
             });
@@ -699,22 +801,28 @@ fn compass_round(
     mut pose: Pose,
     mut best: f64,
     step: f64,
-    radius: f64,
-    rotate: bool,
+    search: &CompassSearch,
     mut energy_at: impl FnMut(Pose) -> f64,
 ) -> (Pose, f64, bool) {
     let mut improved = false;
-    let axes: &[usize] = if rotate { &[0, 1, 2] } else { &[0, 1] };
+    let axes: &[usize] = if search.rotate { &[0, 1, 2] } else { &[0, 1] };
     for &axis in axes {
-        let delta = if axis == 2 { step / radius } else { step };
+        let delta = if axis == 2 { step / search.radius } else { step };
         for dir in [1.0, -1.0] {
             let mut moved = false;
             // Keep going while the move helps (bounded: 64 steps).
             for _ in 0..64 {
                 let mut candidate = pose;
-                match axis {
-                    0 => candidate.x += dir * delta,
-                    1 => candidate.y += dir * delta,
+                match (axis, search.along) {
+                    (0, None) => candidate.x += dir * delta,
+                    (1, None) => candidate.y += dir * delta,
+                    (0 | 1, Some(u)) => {
+                        let (sin, cos) = pose.theta.sin_cos();
+                        let u = [cos * u[0] - sin * u[1], sin * u[0] + cos * u[1]];
+                        let u = if axis == 0 { u } else { [-u[1], u[0]] };
+                        candidate.x += dir * delta * u[0];
+                        candidate.y += dir * delta * u[1];
+                    }
                     _ => candidate.theta += dir * delta,
                 }
                 let e = energy_at(candidate);

@@ -322,6 +322,37 @@ impl Polygon {
         true
     }
 
+    /// The part inside the box `[x0, y0, x1, y1]` (Sutherland-Hodgman
+    /// against its four sides: exact area for any simple outline, since the
+    /// box is convex).
+    pub fn clipped_to_box(&self, bounds: [f64; 4]) -> Self {
+        Self::new(
+            HalfPlane::sides_of_box(bounds)
+                .iter()
+                .fold(self.points.clone(), |p, side| side.clip(&p)),
+        )
+    }
+
+    /// The polygon with every vertex within `tolerance` of a side of the box
+    /// `[x0, y0, x1, y1]` (or outside it) moved onto that side.
+    pub fn snapped_to_box(&self, [x0, y0, x1, y1]: [f64; 4], tolerance: f64) -> Self {
+        let snap = |v: f64, lo: f64, hi: f64| {
+            if v < lo + tolerance {
+                lo
+            } else if v > hi - tolerance {
+                hi
+            } else {
+                v
+            }
+        };
+        Self::new(
+            self.points
+                .iter()
+                .map(|p| [snap(p[0], x0, x1), snap(p[1], y0, y1)])
+                .collect(),
+        )
+    }
+
     /// True when `p` lies inside (even-odd rule; points exactly on an edge
     /// may go either way).
     pub fn contains(&self, p: Point) -> bool {
@@ -372,6 +403,70 @@ impl Polygon {
             }
         }
         mask
+    }
+}
+
+/// The points `p` with `normal . p >= offset`: one side of a line. A
+/// tracked object cut by the image border carries the border's half-plane
+/// with it (see [`crate::fit::RigidTemplate::cuts`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HalfPlane {
+    /// Normal pointing into the half-plane (unit length for [`HalfPlane::depth`]
+    /// to be a distance).
+    pub normal: Point,
+    /// `normal . p` on the boundary line.
+    pub offset: f64,
+}
+
+impl HalfPlane {
+    /// The four half-planes whose intersection is the box `[x0, y0, x1, y1]`.
+    pub fn sides_of_box([x0, y0, x1, y1]: [f64; 4]) -> [Self; 4] {
+        [
+            Self::new([1.0, 0.0], x0),
+            Self::new([0.0, 1.0], y0),
+            Self::new([-1.0, 0.0], -x1),
+            Self::new([0.0, -1.0], -y1),
+        ]
+    }
+
+    /// The half-plane `normal . p >= offset`.
+    pub const fn new(normal: Point, offset: f64) -> Self {
+        Self { normal, offset }
+    }
+
+    /// Signed distance of `p` inside the half-plane (negative outside).
+    #[inline]
+    pub fn depth(&self, p: Point) -> f64 {
+        self.normal[0] * p[0] + self.normal[1] * p[1] - self.offset
+    }
+
+    /// The half-plane after rotating the plane by `theta` about the origin
+    /// and moving it by `shift` (the motion that places a template).
+    pub fn moved(&self, theta: f64, shift: Point) -> Self {
+        let (s, c) = theta.sin_cos();
+        let [nx, ny] = self.normal;
+        let normal = [c * nx - s * ny, s * nx + c * ny];
+        Self::new(normal, self.offset + normal[0] * shift[0] + normal[1] * shift[1])
+    }
+
+    /// The part of the polygon `poly` inside (Sutherland-Hodgman against one
+    /// half-plane; the area is exact also for non-convex input).
+    pub fn clip(&self, poly: &[Point]) -> Vec<Point> {
+        let mut out = Vec::with_capacity(poly.len() + 4);
+        let len = poly.len();
+        for i in 0..len {
+            let a = poly[i];
+            let b = poly[(i + 1) % len];
+            let (da, db) = (self.depth(a), self.depth(b));
+            if da >= 0.0 {
+                out.push(a);
+            }
+            if (da >= 0.0) != (db >= 0.0) {
+                let t = da / (da - db);
+                out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
+            }
+        }
+        out
     }
 }
 

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::energy::{data_term, michelson};
 use crate::fit::{place, Pose, RigidTemplate};
-use crate::geometry::{Point, Polygon};
+use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::region::{PrefixSums, RegionSum};
 
 /// Parameters of the occlusion handling.
@@ -98,6 +98,8 @@ pub struct SectorTemplate {
     inner: Vec<Point>,
     /// Vertices moved outwards by the outer band width.
     outer: Vec<Point>,
+    /// The template's cuts ([`RigidTemplate::cuts`]).
+    cuts: Vec<HalfPlane>,
 }
 
 impl SectorTemplate {
@@ -131,6 +133,7 @@ impl SectorTemplate {
             inner: polygon.offset_along_normals(-inner_width).points,
             outer: polygon.offset_along_normals(outer_width).points,
             contour: polygon.points,
+            cuts: template.cuts.clone(),
         }
     }
 
@@ -153,15 +156,33 @@ impl SectorTemplate {
     /// Inner- and outer-band sums of every sector at `pose`. Each band is
     /// the sector's arc of the contour, closed by the matching arc of the
     /// inner (outer) outline; the contour arc is walked once for both.
-    pub fn band_sums(&self, sums: &PrefixSums, pose: Pose) -> Vec<(RegionSum, RegionSum)> {
+    /// `None` for a sector that is not seen: for a template cut by the
+    /// image border, one whose bands reach within a pixel of the image
+    /// border or of a cut (the outline along a cut is no edge of the
+    /// object, and it is left out like an occluded sector), or past the
+    /// covered area.
+    pub fn band_sums(&self, sums: &PrefixSums, pose: Pose) -> Vec<Option<(RegionSum, RegionSum)>> {
         let contour = place(&self.contour, pose);
         let inner = place(&self.inner, pose);
         let outer = place(&self.outer, pose);
         let n = contour.len();
+        let domain: Vec<HalfPlane> = if self.cuts.is_empty() {
+            Vec::new()
+        } else {
+            let cuts = self.cuts.iter().map(|c| c.moved(pose.theta, [pose.x, pose.y]));
+            HalfPlane::sides_of_box(sums.image_extent())
+                .into_iter()
+                .chain(cuts)
+                .collect()
+        };
+        let seen = |p: Point| domain.iter().all(|h| h.depth(p) >= 1.0) && sums.contains(&[p]);
         let mut arc = Vec::with_capacity(n / self.starts.len().max(1) + 4);
         (0..self.starts.len())
             .map(|k| {
                 let (start, end) = (self.starts[k], self.starts.get(k + 1).copied().unwrap_or(n));
+                if !domain.is_empty() && !(start..=end).all(|i| seen(inner[i % n]) && seen(outer[i % n])) {
+                    return None;
+                }
                 arc.clear();
                 arc.extend((start..=end).map(|i| contour[i % n]));
                 let along = sums.path(&arc);
@@ -173,24 +194,28 @@ impl SectorTemplate {
                     arc.push(first);
                     (along + sums.path(&arc)).region()
                 };
-                (band(&inner), band(&outer))
+                Some((band(&inner), band(&outer)))
             })
             .collect()
     }
 
-    /// Michelson contrast of every sector's inner band against its outer band.
+    /// Michelson contrast of every sector's inner band against its outer
+    /// band; NaN for a sector that is not seen.
     pub fn contrasts(&self, sums: &PrefixSums, pose: Pose) -> Vec<f64> {
         self.band_sums(sums, pose)
             .into_iter()
-            .map(|(a, b)| michelson(a.mean(), b.mean()))
+            .map(|bands| bands.map_or(f64::NAN, |(a, b)| michelson(a.mean(), b.mean())))
             .collect()
     }
 
-    /// The inner and outer bands of the sectors not marked occluded, each
-    /// summed into one region.
+    /// The inner and outer bands of the seen sectors not marked occluded,
+    /// each summed into one region.
     pub fn visible_bands(&self, sums: &PrefixSums, pose: Pose, occluded: &[bool]) -> (RegionSum, RegionSum) {
         let (mut a, mut b) = (RegionSum::default(), RegionSum::default());
-        for (k, (inside, outside)) in self.band_sums(sums, pose).into_iter().enumerate() {
+        for (k, bands) in self.band_sums(sums, pose).into_iter().enumerate() {
+            let Some((inside, outside)) = bands else {
+                continue;
+            };
             if occluded.get(k).copied().unwrap_or(false) {
                 continue;
             }
@@ -202,12 +227,13 @@ impl SectorTemplate {
         (a, b)
     }
 
-    /// Band energy over the sectors not marked occluded: minus the
+    /// Band energy over the seen sectors not marked occluded: minus the
     /// two-region likelihood ratio of the union of their inner bands against
     /// the union of their outer bands, divided by `m_ref`. `+inf` when the
-    /// contour leaves the covered area or nothing is left.
+    /// contour leaves the covered area (a template without cuts) or nothing
+    /// is left.
     pub fn masked_energy(&self, sums: &PrefixSums, pose: Pose, occluded: &[bool], m_ref: f64) -> f64 {
-        if !sums.contains(&place(&self.outer, pose)) {
+        if self.cuts.is_empty() && !sums.contains(&place(&self.outer, pose)) {
             return f64::INFINITY;
         }
         let (a, b) = self.visible_bands(sums, pose, occluded);
@@ -260,19 +286,26 @@ impl SectorJudgement {
 /// not count); a sector is occluded when that normalised ratio lies outside
 /// `min_ratio..=max_ratio`. Sectors whose reference contrast is weak (below a
 /// quarter of the median) carry too little signal to judge and are never
-/// marked.
+/// marked. A sector not seen (its contrast not finite, e.g. cut off by the
+/// image border) is neither judged nor marked.
 pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_ratio: f64) -> SectorJudgement {
-    let mut magnitudes: Vec<f64> = reference.iter().map(|r| r.abs()).collect();
+    let mut magnitudes: Vec<f64> = reference
+        .iter()
+        .filter(|r| r.is_finite())
+        .map(|r| r.abs())
+        .collect();
     magnitudes.sort_by(|a, b| a.total_cmp(b));
     let typical = magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0);
     let strong: Vec<bool> = reference
         .iter()
-        .map(|r| r.abs() >= 0.25 * typical && *r != 0.0)
+        .zip(current)
+        .map(|(r, c)| r.is_finite() && c.is_finite() && r.abs() >= 0.25 * typical && *r != 0.0)
         .collect();
     let ratios: Vec<f64> = reference
         .iter()
         .zip(current)
-        .map(|(r, c)| if *r != 0.0 { c / r } else { 1.0 })
+        .zip(&strong)
+        .map(|((r, c), s)| if *s { c / r } else { 1.0 })
         .collect();
     let mut strong_ratios: Vec<f64> = ratios
         .iter()

@@ -325,6 +325,12 @@ impl<'a> PrefixSums<'a> {
         self.rect
     }
 
+    /// Continuous extent `[x0, y0, x1, y1]` of the whole image the tables
+    /// were built from.
+    pub fn image_extent(&self) -> [f64; 4] {
+        PixelRect::full(self.frame).extent()
+    }
+
     /// True when every vertex lies inside the covered area (so the polygon's
     /// sums are exact, not clamped).
     pub fn contains(&self, points: &[Point]) -> bool {

@@ -12,11 +12,11 @@
 use serde::{Deserialize, Serialize};
 
 use crate::calib::{axis_component, Calibration};
-use crate::energy::{evaluate, michelson, window_of, EnergyParams, EnergyTerms};
+use crate::energy::{michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
     fit_free, fit_rigid, newton_polish, place, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
-use crate::geometry::{Point, Polygon};
+use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{initialise, InitParams};
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
@@ -280,6 +280,10 @@ pub struct TrackerState {
     /// The same for the right view.
     #[serde(default)]
     pub right_sector_contrasts: Vec<f64>,
+    /// Where the image border cut the object when the template was made
+    /// (template coordinates; empty for an object inside the image).
+    #[serde(default)]
+    pub template_cuts: Vec<HalfPlane>,
 }
 
 /// One tracked object in a stereo sequence.
@@ -307,7 +311,7 @@ impl StereoTracker {
 
     /// A tracker continuing from a saved state after `frames` pairs.
     pub fn from_state(params: TrackerParams, state: Option<TrackerState>, frames: u64) -> Self {
-        let template = state.as_ref().map(|s| templates(&s.template, &params));
+        let template = state.as_ref().map(|s| templates(s, &params));
         Self {
             params,
             state,
@@ -324,7 +328,7 @@ impl StereoTracker {
     /// Replaces the parameters from the next pair on (the rigid template is
     /// rebuilt with them; the contour and pose are kept). Validate first.
     pub fn set_params(&mut self, params: TrackerParams) {
-        self.template = self.state.as_ref().map(|s| templates(&s.template, &params));
+        self.template = self.state.as_ref().map(|s| templates(s, &params));
         self.params = params;
     }
 
@@ -392,62 +396,35 @@ impl StereoTracker {
             Err(e) => return lost_result(frame, format!("initialisation failed: {e}")),
         };
         let energy = &self.params.energy;
-        let margin = energy.margin_for_area(found.area_px);
-        let [bx0, by0, bx1, by1] = found.bbox;
-        let slack = margin + 16.0;
-        let Some(rect) = PixelRect::covering(
-            bx0 - slack,
-            by0 - slack,
-            bx1 + slack,
-            by1 + slack,
-            left.width,
-            left.height,
-        ) else {
+        let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, &found.contour)
+        else {
             return lost_result(frame, "initial contour lies outside the image".into());
         };
-        let left_sums = PrefixSums::new(left, rect, INTENSITY_OFFSET);
-        let fitted = fit_free(&left_sums, &found.contour, energy, &self.params.free);
-        let outline = match self.params.template_spacing_px {
-            Some(spacing) => {
-                let n = ((fitted.polygon.length() / spacing).round() as usize).max(16);
-                fitted.polygon.resampled(n)
-            }
-            None => fitted.polygon,
-        };
-        let (template, fitted_pose) = RigidTemplate::new(&outline, self.params.rigid.coarse_vertices, energy);
-        // Settle the left pose on the rigid energy too, so that the left and
-        // right views are measured by the same criterion (identical views
-        // then give zero disparity).
-        let left_sums = self.sums_around(left, &template, fitted_pose, Self::NEAR_REACH_PX);
-        let settle = RigidParams {
-            coarse_step_px: 1.0,
-            rotate: false,
-            ..self.params.rigid.clone()
-        };
-        let settled = fit_rigid(&left_sums, &template, fitted_pose, energy, &settle);
-        let (left_pose, left_terms) = (settled.pose, settled.terms);
-
         let right_pose = match self.search_right(right, &template, left_pose) {
             Some(p) => p,
             None => return lost_result(frame, "object not found in the right image".into()),
         };
         let sectors = SectorTemplate::new(&template, self.params.occlusion.sectors);
-        let left_sector_contrasts = sectors.contrasts(&left_sums, left_pose);
+        // Stored as the reference appearance; a sector not seen (cut off by
+        // the image border) is stored as 0, which is never judged.
+        let reference = |contrasts: Vec<f64>| -> Vec<f64> {
+            contrasts
+                .into_iter()
+                .map(|c| if c.is_finite() { c } else { 0.0 })
+                .collect()
+        };
+        let left_sector_contrasts = reference(sectors.contrasts(&left_sums, left_pose));
         let right_sums = self.sums_around(right, &template, right_pose, Self::NEAR_REACH_PX);
         // On the tables every later pair uses, so that the energy is scaled
         // as it will be then (the search's tables reach along the whole
         // disparity range).
-        let right_terms = evaluate(
-            &right_sums,
-            &place(&template.points, right_pose),
-            energy,
-            template.margin,
-        );
-        let right_sector_contrasts = sectors.contrasts(&right_sums, right_pose);
+        let right_terms = template.energy_at(&right_sums, right_pose, energy);
+        let right_sector_contrasts = reference(sectors.contrasts(&right_sums, right_pose));
         let disparity = [right_pose.x - left_pose.x, right_pose.y - left_pose.y];
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
         let state = TrackerState {
             template: template.points.clone(),
+            template_cuts: template.cuts.clone(),
             left: left_pose,
             right: right_pose,
             reference_contrast: left_terms.contrast(),
@@ -479,6 +456,62 @@ impl StereoTracker {
         self.state = Some(state);
         self.template = Some((template, sectors));
         result
+    }
+
+    /// Free fit from `contour` in `frame`, the rigid template of the result
+    /// (cut where it runs along the image border) and its pose settled on
+    /// the rigid energy, with the energy there and the tables it was settled
+    /// on; `None` when the contour
+    /// lies outside the image.
+    fn template_from<'f>(
+        &self,
+        frame: &'f GrayFrame,
+        contour: &Polygon,
+    ) -> Option<(RigidTemplate, Pose, EnergyTerms, PrefixSums<'f>)> {
+        let energy = &self.params.energy;
+        let margin = energy.margin_for_area(contour.area());
+        let [bx0, by0, bx1, by1] = contour.bounds();
+        let slack = margin + 16.0;
+        let rect = PixelRect::covering(
+            bx0 - slack,
+            by0 - slack,
+            bx1 + slack,
+            by1 + slack,
+            frame.width,
+            frame.height,
+        )?;
+        let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
+        // An outline along the image border lies on the border itself, the
+        // edge of the last pixels' boxes, so that the region takes them in.
+        let image = PixelRect::full(frame).extent();
+        let on_border = RigidTemplate::ON_BORDER_PX;
+        let fitted = fit_free(
+            &sums,
+            &contour.snapped_to_box(image, on_border),
+            energy,
+            &self.params.free,
+        );
+        let outline = match self.params.template_spacing_px {
+            Some(spacing) => {
+                let n = ((fitted.polygon.length() / spacing).round() as usize).max(16);
+                fitted.polygon.resampled(n)
+            }
+            None => fitted.polygon,
+        }
+        .snapped_to_box(image, on_border);
+        let (template, fitted_pose) = RigidTemplate::new(&outline, self.params.rigid.coarse_vertices, energy);
+        let template = template.cut_by(image, fitted_pose);
+        // Settle the pose on the rigid energy too, so that the left and
+        // right views are measured by the same criterion (identical views
+        // then give zero disparity).
+        let sums = self.sums_around(frame, &template, fitted_pose, Self::NEAR_REACH_PX);
+        let settle = RigidParams {
+            coarse_step_px: 1.0,
+            rotate: false,
+            ..self.params.rigid.clone()
+        };
+        let settled = fit_rigid(&sums, &template, fitted_pose, energy, &settle);
+        Some((template, settled.pose, settled.terms, sums))
     }
 
     /// A later pair: rigid fits from the predicted poses.
@@ -622,7 +655,11 @@ impl StereoTracker {
         let confirmed = at_prediction.confirms_pose();
         let (mut mask, median) = (at_prediction.occluded, at_prediction.median_ratio);
         let mut pose = predicted;
-        if median < 0.6 || !mask.contains(&true) || widespread(&mask) {
+        // A tool cut by the border moves along its axis, and at the
+        // prediction its tip's sectors look occluded: it is judged only
+        // after a full fit.
+        let cut = !template.cuts.is_empty();
+        if cut || median < 0.6 || !mask.contains(&true) || widespread(&mask) {
             // Every sector still has its contrast at the prediction: it is
             // within a few pixels of the object, which the fine stage's
             // repeated half-pixel moves cover without the coarse stage
@@ -650,7 +687,7 @@ impl StereoTracker {
             // occluded suites (seeds 100-119 and 200-209, 20 pairs); it is a
             // quarter of the band sums of a 1024x768 step (72 of 288 paths).
             let moved = (fit.pose.x - predicted.x).hypot(fit.pose.y - predicted.y);
-            if median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
+            if !cut && median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
                 return fit;
             }
             mask = judge(&sums, fit.pose).occluded;
@@ -672,6 +709,7 @@ impl StereoTracker {
             // settling every step gave the same occluded-suite figures
             // (seeds 100-119: 0.492 against 0.493 px disparity RMS).
             settle_every_step: false,
+            along: template.search_axis(),
         };
         for _ in 0..2 {
             let masked = |p: Pose| sectors.masked_energy(&sums, p, &mask, m_ref);
@@ -683,7 +721,7 @@ impl StereoTracker {
             }
             mask = new_mask;
         }
-        let terms = evaluate(&sums, &place(&template.points, pose), energy, template.margin);
+        let terms = template.energy_at(&sums, pose, energy);
         // Contrast over the visible sectors' bands: the occluder does not
         // make a well-tracked object look faint.
         let (a, b) = sectors.visible_bands(&sums, pose, &mask);
@@ -719,9 +757,12 @@ impl StereoTracker {
                     y: left.y + d * dir[1],
                     theta: left.theta,
                 };
+                let placed = place(&template.coarse, pose);
                 (
                     d,
-                    evaluate(&sums, &place(&template.coarse, pose), energy, template.margin).energy,
+                    template
+                        .energy_of(&sums, &placed, pose, template.coarse_length, energy)
+                        .energy,
                 )
             })
             .collect();
@@ -783,7 +824,9 @@ impl StereoTracker {
             PixelRect::covering(x0, y0, x1, y1, frame.width, frame.height).unwrap_or(PixelRect::full(frame))
         };
         let near = cover(Self::NEAR_REACH_PX);
-        if reach > Self::NEAR_REACH_PX {
+        // A template cut by the border sums its windows as polygons (clipped
+        // at the cuts), from G over the whole reach.
+        if reach > Self::NEAR_REACH_PX || !template.cuts.is_empty() {
             return PrefixSums::new(frame, cover(reach), INTENSITY_OFFSET).with_reference(near);
         }
         // G only where the contour and its sector bands can be; the window
@@ -811,6 +854,10 @@ impl StereoTracker {
         PrefixSums::split(frame, polygons, guard, near, &edges, INTENSITY_OFFSET)
     }
 
+    /// Least part of a template cut by the image border that must stay in
+    /// both images.
+    const MIN_VISIBLE_FRACTION: f64 = 0.25;
+
     /// Rotation within a fit on the near tables that their window rows
     /// allow for (about 3 degrees): the rigid fits from a confirmed
     /// prediction turn far less.
@@ -826,14 +873,28 @@ impl StereoTracker {
     ) -> Option<String> {
         for (name, fit) in [("left", left), ("right", right)] {
             let pts = place(&template.points, fit.pose);
-            let inside = pts.iter().all(|p| {
-                p[0] >= 0.0
-                    && p[1] >= 0.0
-                    && p[0] <= (state.width - 1) as f64
-                    && p[1] <= (state.height - 1) as f64
-            });
-            if !inside {
-                return Some(format!("the contour left the {name} image"));
+            if template.cuts.is_empty() {
+                let inside = pts.iter().all(|p| {
+                    p[0] >= 0.0
+                        && p[1] >= 0.0
+                        && p[0] <= (state.width - 1) as f64
+                        && p[1] <= (state.height - 1) as f64
+                });
+                if !inside {
+                    return Some(format!("the contour left the {name} image"));
+                }
+            } else {
+                // An object cut by the border may move further out, until
+                // too little of it is left to measure.
+                let image = [0.0, 0.0, state.width as f64, state.height as f64].map(|v| v - 0.5);
+                let visible = Polygon::new(pts).clipped_to_box(image).area() / template.area;
+                if visible < Self::MIN_VISIBLE_FRACTION {
+                    return Some(format!(
+                        "{:.0}% of the object is left in the {name} image (limit {:.0}%)",
+                        100.0 * visible,
+                        100.0 * Self::MIN_VISIBLE_FRACTION
+                    ));
+                }
             }
             if !fit.terms.energy.is_finite() {
                 return Some(format!("no valid contour position in the {name} image"));
@@ -865,11 +926,18 @@ impl StereoTracker {
         left: &ImageFit,
         right: &ImageFit,
     ) -> PairResult {
+        let extent = [0.0, 0.0, state.width as f64, state.height as f64].map(|v| v - 0.5);
         let image = |fit: &ImageFit| {
-            let contour = place(&template.points, fit.pose);
-            let angle = Polygon::new(contour.clone()).orientation();
+            let contour = Polygon::new(place(&template.points, fit.pose));
+            let angle = contour.orientation();
+            // The part of a template cut by the border that is in the image.
+            let contour = if template.cuts.is_empty() {
+                contour
+            } else {
+                contour.clipped_to_box(extent)
+            };
             ImageResult {
-                contour,
+                contour: contour.points,
                 centroid: fit.pose.center(),
                 angle_rad: angle,
                 energy: fit.terms.energy,
@@ -939,13 +1007,14 @@ fn fraction(marks: &[bool]) -> f64 {
 
 /// The rigid template and its sectors from saved template vertices (which
 /// are relative to their centroid already).
-fn templates(points: &[Point], params: &TrackerParams) -> (RigidTemplate, SectorTemplate) {
-    let rigid = RigidTemplate::new(
-        &Polygon::new(points.to_vec()),
+fn templates(state: &TrackerState, params: &TrackerParams) -> (RigidTemplate, SectorTemplate) {
+    let mut rigid = RigidTemplate::new(
+        &Polygon::new(state.template.clone()),
         params.rigid.coarse_vertices,
         &params.energy,
     )
     .0;
+    rigid.cuts.clone_from(&state.template_cuts);
     let sectors = SectorTemplate::new(&rigid, params.occlusion.sectors);
     (rigid, sectors)
 }

@@ -1044,6 +1044,7 @@ mod tests {
     use super::*;
     use crate::calib::{build, CalibrationSpec, GeometricSpec};
     use crate::fit::Pose;
+    use crate::geometry::HalfPlane;
 
     fn calibration(pixel_size_um: f64) -> Calibration {
         build(CalibrationSpec::Geometric(GeometricSpec {
@@ -1088,6 +1089,7 @@ mod tests {
             left_velocity: [1.0, -0.5, 0.01],
             left_sector_contrasts: vec![0.1, 0.2, 1.0 / 3.0],
             right_sector_contrasts: vec![0.3, f],
+            template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
         }
     }
 

@@ -7,7 +7,7 @@ use std::f64::consts::TAU;
 use rand::Rng;
 
 use super::config::Shape;
-use crate::geometry::{Point, Polygon};
+use crate::geometry::{HalfPlane, Point, Polygon};
 
 /// Fewest vertices of an object outline.
 pub const MIN_VERTICES: usize = 256;
@@ -135,25 +135,9 @@ pub fn subdivided(poly: &Polygon, max_len: f64) -> Vec<Point> {
     out
 }
 
-/// The part of `poly` with `n . p >= s` (Sutherland-Hodgman against one
-/// half-plane; the area is exact also for non-convex input).
+/// The part of `poly` with `n . p >= s` (see [`HalfPlane::clip`]).
 pub fn clip_half_plane(poly: &[Point], n: Point, s: f64) -> Vec<Point> {
-    let mut out = Vec::with_capacity(poly.len() + 4);
-    let len = poly.len();
-    for i in 0..len {
-        let a = poly[i];
-        let b = poly[(i + 1) % len];
-        let da = n[0] * a[0] + n[1] * a[1] - s;
-        let db = n[0] * b[0] + n[1] * b[1] - s;
-        if da >= 0.0 {
-            out.push(a);
-        }
-        if (da >= 0.0) != (db >= 0.0) {
-            let t = da / (da - db);
-            out.push([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])]);
-        }
-    }
-    out
+    HalfPlane::new(n, s).clip(poly)
 }
 
 /// Area (>= 0) of a vertex list by the shoelace formula.

@@ -5,7 +5,6 @@
 use serde::{Deserialize, Serialize};
 
 use super::config::BorderSide;
-use super::shapes::clip_half_plane;
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 
@@ -155,16 +154,7 @@ pub fn clip_to_frame(polygon: &Polygon, width: u32, height: u32) -> Polygon {
     if b[0] >= -0.5 && b[1] >= -0.5 && b[2] <= xmax && b[3] <= ymax {
         return polygon.clone();
     }
-    let mut pts = polygon.points.clone();
-    for (n, s) in [
-        ([1.0, 0.0], -0.5),
-        ([0.0, 1.0], -0.5),
-        ([-1.0, 0.0], -xmax),
-        ([0.0, -1.0], -ymax),
-    ] {
-        pts = clip_half_plane(&pts, n, s);
-    }
-    Polygon::new(pts)
+    polygon.clipped_to_box([-0.5, -0.5, xmax, ymax])
 }
 
 /// The occluder of one frame (present from `Occlusion::enter_frame` on).
