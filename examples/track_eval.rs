@@ -26,10 +26,13 @@ fn main() {
             }
             let seed0: u64 = std::env::var("SEED0").map_or(0, |v| v.parse().unwrap());
             for seed in seed0..seed0 + seeds {
-                let cfg = SynthConfig {
+                let mut cfg = SynthConfig {
                     frames: nframes,
                     ..SynthConfig::preset(preset, shape, seed)
                 };
+                if std::env::var("NONOISE").is_ok() {
+                    cfg.noise = SynthConfig::preset(Preset::Clean, shape, seed).noise;
+                }
                 let mut params = TrackerParams::default();
                 if let Ok(v) = std::env::var("LAMBDA") {
                     params.energy.lambda = v.parse().unwrap();

@@ -292,7 +292,12 @@ pub fn evaluate_cut(
             .map(|[x, y]| [x.clamp(extent[0], extent[2]), y.clamp(extent[1], extent[3])])
             .collect()
     };
-    let visible = onto_image(image.iter().fold(points.to_vec(), |p, side| side.clip(&p)));
+    let visible = onto_image(
+        image
+            .iter()
+            .chain(cuts)
+            .fold(points.to_vec(), |p, side| side.clip(&p)),
+    );
     if visible.len() < 3 || !sums.contains(&visible) {
         return EnergyTerms::INVALID;
     }

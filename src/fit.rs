@@ -370,6 +370,10 @@ pub struct RigidTemplate {
     /// placed, so the outline along them is no edge and its energy leaves
     /// out what lies beyond them ([`crate::energy::evaluate_cut`]).
     pub cuts: Vec<HalfPlane>,
+    /// Half-planes fixed in the image (image coordinates) outside which a
+    /// fit of this template does not look; empty unless set for one view
+    /// ([`RigidTemplate::limited_to`]).
+    pub limits: Vec<HalfPlane>,
 }
 
 impl RigidTemplate {
@@ -414,6 +418,7 @@ impl RigidTemplate {
             rotation_observable,
             area: outline.area(),
             cuts: Vec::new(),
+            limits: Vec::new(),
         };
         (
             template,
@@ -458,12 +463,23 @@ impl RigidTemplate {
     /// that merely touches the border is not cut by it.
     pub const MIN_CUT_PX: f64 = 4.0;
 
-    /// The cuts placed at `pose`.
+    /// The cuts placed at `pose`, and the limits.
     pub fn cuts_at(&self, pose: Pose) -> Vec<HalfPlane> {
         self.cuts
             .iter()
             .map(|c| c.moved(pose.theta, [pose.x, pose.y]))
+            .chain(self.limits.iter().copied())
             .collect()
+    }
+
+    /// This template limited to `limits` (image coordinates): a view of an
+    /// object cut by the border looks only at what the other view sees too,
+    /// so that both fit the same part of the object.
+    pub fn limited_to(&self, limits: Vec<HalfPlane>) -> Self {
+        Self {
+            limits,
+            ..self.clone()
+        }
     }
 
     /// Energy of `placed`, this template's vertices (or its coarse copy's,

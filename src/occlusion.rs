@@ -100,9 +100,19 @@ pub struct SectorTemplate {
     outer: Vec<Point>,
     /// The template's cuts ([`RigidTemplate::cuts`]).
     cuts: Vec<HalfPlane>,
+    /// The template's limits ([`RigidTemplate::limits`]).
+    limits: Vec<HalfPlane>,
 }
 
 impl SectorTemplate {
+    /// These sectors limited like [`RigidTemplate::limited_to`].
+    pub fn limited_to(&self, limits: Vec<HalfPlane>) -> Self {
+        Self {
+            limits,
+            ..self.clone()
+        }
+    }
+
     /// Largest vertex spacing of the sector outline, pixels. The template
     /// itself is coarser (the free fit's vertices, 6 px apart by default),
     /// and sector boundaries fall on vertices; this keeps the sector layout
@@ -134,6 +144,7 @@ impl SectorTemplate {
             outer: polygon.offset_along_normals(outer_width).points,
             contour: polygon.points,
             cuts: template.cuts.clone(),
+            limits: template.limits.clone(),
         }
     }
 
@@ -173,6 +184,7 @@ impl SectorTemplate {
             HalfPlane::sides_of_box(sums.image_extent())
                 .into_iter()
                 .chain(cuts)
+                .chain(self.limits.iter().copied())
                 .collect()
         };
         let seen = |p: Point| domain.iter().all(|h| h.depth(p) >= 1.0) && sums.contains(&[p]);

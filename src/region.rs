@@ -48,11 +48,16 @@ pub struct PixelRect {
 impl PixelRect {
     /// The whole frame.
     pub fn full(frame: &GrayFrame) -> Self {
+        Self::full_size(frame.width, frame.height)
+    }
+
+    /// A whole `width` x `height` frame.
+    pub fn full_size(width: u32, height: u32) -> Self {
         Self {
             x: 0,
             y: 0,
-            width: frame.width,
-            height: frame.height,
+            width,
+            height,
         }
     }
 
