@@ -240,3 +240,29 @@ fn tools_entering_from_the_border_are_tracked() {
         (pooled.0 / pooled.1 as f64).sqrt()
     );
 }
+
+/// The other new scene classes of issue #16, 4 shapes x seeds 900..905 (not
+/// used while developing), 10 pairs each, no pair lost. Scratches and
+/// fibres under the object: within the issue's 0.15 px (measured 0.047).
+/// A dark object with a bright rim (measured 0.181) and defocus blur at low
+/// dose (0.254) miss the issue's 0.15 and 0.2 px; they are held to what they
+/// reach so that they do not get worse: a dark sphere's shading leaves one
+/// side's edge weak, and the blurred scenes' 15-30 electrons per pixel leave
+/// little to fit.
+#[test]
+fn scratched_dark_and_blurred_scenes() {
+    for (preset, limit) in [
+        (Preset::Scratched, 0.15),
+        (Preset::Dark, 0.25),
+        (Preset::Blurred, 0.3),
+    ] {
+        let a = measure(preset, &Shape::ALL, 900..905, FRAMES);
+        assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
+        assert!(
+            a.disparity_rms <= limit,
+            "{}: disparity RMS {:.4} px > {limit}",
+            preset.name(),
+            a.disparity_rms
+        );
+    }
+}
