@@ -868,6 +868,7 @@ fn cross(a: Point, b: Point) -> f64 {
 mod tests {
     use super::*;
     use crate::geometry::mask_iou;
+    use crate::imageio::GrayFrame;
     use crate::region::PixelRect;
     use crate::synth::{Preset, Scene, Shape, SynthConfig};
 
@@ -977,5 +978,90 @@ mod tests {
             "error {err:.3} px, outside {}",
             out.outside_area
         );
+    }
+
+    #[test]
+    fn cuts_follow_the_template_and_leave_out_what_lies_beyond_them() {
+        // A bar 40 px wide entering from the left border of a 200x100 image.
+        let image = [-0.5, -0.5, 199.5, 99.5];
+        let outline = Polygon::new(vec![[-0.5, 30.0], [120.0, 30.0], [120.0, 70.0], [-0.5, 70.0]]);
+        let energy = EnergyParams::default();
+        let (template, pose) = RigidTemplate::new(&outline, 32, &energy);
+        let template = template.cut_by(image, pose);
+        assert_eq!(
+            template.cuts.len(),
+            1,
+            "only the left side runs along the outline"
+        );
+        // At the template's own pose the cut is the image's left side.
+        let cut = template.cuts_at(pose)[0];
+        assert!((cut.normal[0] - 1.0).abs() < 1e-12 && (cut.offset + 0.5).abs() < 1e-9);
+        // Moved and turned, it still runs through the outline's border side.
+        let moved = Pose {
+            x: pose.x + 5.0,
+            y: pose.y - 3.0,
+            theta: 0.1,
+        };
+        let cut = template.cuts_at(moved)[0];
+        let placed = place(&template.points, moved);
+        let on_cut = placed.iter().filter(|p| cut.depth(**p).abs() < 1e-9).count();
+        assert!(on_cut >= 2, "{on_cut} vertices on the moved cut");
+        assert!(placed.iter().all(|p| cut.depth(*p) > -1e-9));
+        // An outline that only touches a side (less than MIN_CUT_PX) is not cut.
+        let touching = Polygon::new(vec![[-0.5, 30.0], [60.0, 10.0], [60.0, 50.0], [-0.5, 32.0]]);
+        let (t, p) = RigidTemplate::new(&touching, 32, &energy);
+        assert!(t.cut_by(image, p).cuts.is_empty());
+
+        // The energy of the cut template in an image of the bar is lowest
+        // at the bar, also once the bar has moved 10 px further in (its base
+        // still outside the frame); and what lies beyond the cut, where the
+        // template does not know the object, does not change it.
+        let frame_with_bar = |start: f64, end: f64| {
+            let data = (0..200 * 100)
+                .map(|i| {
+                    let (x, y) = ((i % 200) as f64, (i / 200) as f64);
+                    if (start..=end).contains(&x) && (30.0..70.0).contains(&y) {
+                        180
+                    } else {
+                        60
+                    }
+                })
+                .collect();
+            GrayFrame::new(200, 100, 8, data).unwrap()
+        };
+        for shift in [0.0, 10.0] {
+            let energy_at = |frame: &GrayFrame, dx: f64| {
+                // The energy's scale, the mean of the reference area, from
+                // where the frames agree.
+                let reference = PixelRect {
+                    x: 20,
+                    y: 0,
+                    width: 180,
+                    height: 100,
+                };
+                let sums = PrefixSums::new(frame, PixelRect::full(frame), 1).with_reference(reference);
+                let p = Pose {
+                    x: pose.x + shift + dx,
+                    ..pose
+                };
+                template.energy_at(&sums, p, &energy).energy
+            };
+            let frame = frame_with_bar(-1.0, 119.5 + shift);
+            let best = energy_at(&frame, 0.0);
+            assert!(best.is_finite());
+            for dx in [-3.0, -1.0, 1.0, 3.0] {
+                assert!(
+                    energy_at(&frame, dx) > best,
+                    "shift {shift}: energy at {dx} px not above the bar's"
+                );
+            }
+            // The bar's unseen base gone: the same energy.
+            let without_base = frame_with_bar(shift - 0.5, 119.5 + shift);
+            let e = energy_at(&without_base, 0.0);
+            assert!(
+                (e - best).abs() < 1e-9 * best.abs(),
+                "shift {shift}: {e} against {best}"
+            );
+        }
     }
 }
