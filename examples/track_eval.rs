@@ -3,6 +3,9 @@
 //! `ONLY=scratched,dark` picks conditions (the five basic ones by default);
 //! `HINT=roi` or `HINT=point` gives the first pair's object as a hint (a box
 //! 10% larger than the visible object, or its pixel nearest the centroid).
+//! `SHAPE=tip` picks one shape, `SEED0=300` the first seed, `FRAMES_OUT=1`
+//! prints every pair (errors of both views against the truth's centroids),
+//! `NONOISE=1` renders with the clean preset's noise.
 use semdepth::synth::{frames, Preset, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
