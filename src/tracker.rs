@@ -482,11 +482,10 @@ impl StereoTracker {
         result
     }
 
-    /// Free fit from `contour` in `frame`, the rigid template of the result
-    /// (cut where it runs along the image border) and its pose settled on
-    /// the rigid energy, with the energy there and the tables it was settled
-    /// on; `None` when the contour
-    /// lies outside the image.
+    /// Free fit from `contour` in `frame`: the rigid template of the result
+    /// (cut where it runs along the image border), its pose settled on the
+    /// rigid energy, the energy there and the tables it was settled on;
+    /// `None` when the contour lies outside the image.
     fn template_from<'f>(
         &self,
         frame: &'f GrayFrame,
