@@ -374,6 +374,10 @@ pub struct RigidTemplate {
     /// fit of this template does not look; empty unless set for one view
     /// ([`RigidTemplate::limited_to`]).
     pub limits: Vec<HalfPlane>,
+    /// When set (a unit vector in image coordinates), fits of this template
+    /// translate only along it: the right view of a stereo pair moves
+    /// across the tilt axis, along its epipolar line.
+    pub translate_only: Option<Point>,
 }
 
 impl RigidTemplate {
@@ -419,6 +423,7 @@ impl RigidTemplate {
             area: outline.area(),
             cuts: Vec::new(),
             limits: Vec::new(),
+            translate_only: None,
         };
         (
             template,
@@ -563,6 +568,7 @@ pub fn fit_rigid(
             max_evaluations: params.max_evaluations,
             settle_every_step: false,
             along: template.search_axis(),
+            only: template.translate_only,
         };
         let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, template.coarse_length, p));
         pose = p;
@@ -581,6 +587,7 @@ pub fn fit_rigid(
         max_evaluations: params.max_evaluations.saturating_sub(evaluations).max(1),
         settle_every_step: false,
         along: template.search_axis(),
+        only: template.translate_only,
     };
     // The window moves with the contour, so the energy is a function of the
     // pose alone: two fits of the same image from different starts share
@@ -594,7 +601,10 @@ pub fn fit_rigid(
         terms.energy
     };
     let (pose, best, used) = fine.run(pose, energy_at);
-    let (pose, _, polished) = newton_polish(pose, best, template.radius, fine.rotate, energy_at);
+    let (pose, _, polished) = match template.translate_only {
+        Some(u) => line_polish(pose, best, u, energy_at),
+        None => newton_polish(pose, best, template.radius, fine.rotate, energy_at),
+    };
     let terms = match lowest.get() {
         Some((at, terms)) if at == pose => terms,
         _ => template.energy_at(sums, pose, energy),
@@ -691,6 +701,48 @@ pub fn newton_polish(
     (pose, best, evaluations)
 }
 
+/// [`newton_polish`] along one direction `u` only (unit vector, image
+/// coordinates): a parabola through the energies at -h, 0 and +h
+/// (h = 0.25 px), stepped to its vertex when that lowers the energy and
+/// moves less than 1 px; twice at most.
+pub fn line_polish(
+    start: Pose,
+    start_energy: f64,
+    u: Point,
+    energy_at: impl Fn(Pose) -> f64,
+) -> (Pose, f64, usize) {
+    const H: f64 = 0.25;
+    let at = |p: Pose, s: f64| Pose {
+        x: p.x + s * u[0],
+        y: p.y + s * u[1],
+        ..p
+    };
+    let (mut pose, mut best, mut evaluations) = (start, start_energy, 0);
+    for _ in 0..2 {
+        let (plus, minus) = (energy_at(at(pose, H)), energy_at(at(pose, -H)));
+        evaluations += 2;
+        let curvature = (plus + minus - 2.0 * best) / (H * H);
+        if !(curvature > 0.0 && curvature.is_finite()) {
+            break;
+        }
+        let step = -(plus - minus) / (2.0 * H) / curvature;
+        if step.abs() >= 1.0 {
+            break;
+        }
+        let candidate = at(pose, step);
+        let e = energy_at(candidate);
+        evaluations += 1;
+        if e >= best {
+            break;
+        }
+        (pose, best) = (candidate, e);
+        if step.abs() < 0.05 {
+            break;
+        }
+    }
+    (pose, best, evaluations)
+}
+
 /// Solves H x = -g for the leading `d` x `d` block when H is positive
 /// definite (a minimum); `None` otherwise.
 fn solve_newton(h: &[[f64; 3]; 3], g: &[f64; 3], d: usize) -> Option<[f64; 3]> {
@@ -746,6 +798,8 @@ pub struct CompassSearch {
     /// energy valley runs along its axis, and steps in x and y stall in a
     /// diagonal valley (a tip cut by the border stopped 2.3 px short).
     pub along: Option<Point>,
+    /// Translate only along this unit vector (image coordinates).
+    pub only: Option<Point>,
 }
 
 impl CompassSearch {
@@ -821,7 +875,12 @@ fn compass_round(
     mut energy_at: impl FnMut(Pose) -> f64,
 ) -> (Pose, f64, bool) {
     let mut improved = false;
-    let axes: &[usize] = if search.rotate { &[0, 1, 2] } else { &[0, 1] };
+    let axes: &[usize] = match (search.rotate, search.only.is_some()) {
+        (true, false) => &[0, 1, 2],
+        (false, false) => &[0, 1],
+        (true, true) => &[0, 2],
+        (false, true) => &[0],
+    };
     for &axis in axes {
         let delta = if axis == 2 { step / search.radius } else { step };
         for dir in [1.0, -1.0] {
@@ -830,6 +889,11 @@ fn compass_round(
             for _ in 0..64 {
                 let mut candidate = pose;
                 match (axis, search.along) {
+                    (0 | 1, _) if search.only.is_some() => {
+                        let u = search.only.unwrap_or([1.0, 0.0]);
+                        candidate.x += dir * delta * u[0];
+                        candidate.y += dir * delta * u[1];
+                    }
                     (0, None) => candidate.x += dir * delta,
                     (1, None) => candidate.y += dir * delta,
                     (0 | 1, Some(u)) => {
