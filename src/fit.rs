@@ -374,10 +374,8 @@ pub struct RigidTemplate {
     /// fit of this template does not look; empty unless set for one view
     /// ([`RigidTemplate::limited_to`]).
     pub limits: Vec<HalfPlane>,
-    /// When set (a unit vector in image coordinates), fits of this template
-    /// translate only along it: the right view of a stereo pair moves
-    /// across the tilt axis, along its epipolar line.
-    pub translate_only: Option<Point>,
+    /// Unit vector along the principal axis of `points`.
+    pub axis: Point,
 }
 
 impl RigidTemplate {
@@ -385,11 +383,7 @@ impl RigidTemplate {
     /// ([`CompassSearch::along`]): the principal axis for a template cut by
     /// the border (a tool entering the image), x and y otherwise.
     pub fn search_axis(&self) -> Option<Point> {
-        if self.cuts.is_empty() {
-            return None;
-        }
-        let angle = Polygon::new(self.points.clone()).orientation();
-        Some([angle.cos(), angle.sin()])
+        (!self.cuts.is_empty()).then_some(self.axis)
     }
 }
 
@@ -412,6 +406,7 @@ impl RigidTemplate {
             .resampled(coarse_vertices.min(points.len()).max(8))
             .points;
         let rotation_observable = rotation_is_observable(&points);
+        let angle = Polygon::new(points.clone()).orientation();
         let template = Self {
             length: Polygon::new(points.clone()).length(),
             coarse_length: Polygon::new(coarse.clone()).length(),
@@ -423,7 +418,7 @@ impl RigidTemplate {
             area: outline.area(),
             cuts: Vec::new(),
             limits: Vec::new(),
-            translate_only: None,
+            axis: [angle.cos(), angle.sin()],
         };
         (
             template,
@@ -539,6 +534,21 @@ pub fn fit_rigid(
     energy: &EnergyParams,
     params: &RigidParams,
 ) -> RigidOutcome {
+    fit_rigid_on_line(sums, template, start, energy, params, None)
+}
+
+/// [`fit_rigid`] that, given a `line` (a unit vector in image coordinates),
+/// translates only along it, with [`line_polish`] in place of
+/// [`newton_polish`]: the right view of a stereo pair moves across the tilt
+/// axis, along its epipolar line.
+pub fn fit_rigid_on_line(
+    sums: &PrefixSums,
+    template: &RigidTemplate,
+    start: Pose,
+    energy: &EnergyParams,
+    params: &RigidParams,
+    line: Option<Point>,
+) -> RigidOutcome {
     // One vertex buffer for every evaluation (no allocation per pose).
     let placed = std::cell::RefCell::new(Vec::with_capacity(template.points.len()));
     // The lowest-energy pose of the fine stage with its terms: the fit ends
@@ -568,7 +578,7 @@ pub fn fit_rigid(
             max_evaluations: params.max_evaluations,
             settle_every_step: false,
             along: template.search_axis(),
-            only: template.translate_only,
+            only: line,
         };
         let (p, _, used) = coarse.run(pose, |p| eval(&template.coarse, template.coarse_length, p));
         pose = p;
@@ -587,7 +597,7 @@ pub fn fit_rigid(
         max_evaluations: params.max_evaluations.saturating_sub(evaluations).max(1),
         settle_every_step: false,
         along: template.search_axis(),
-        only: template.translate_only,
+        only: line,
     };
     // The window moves with the contour, so the energy is a function of the
     // pose alone: two fits of the same image from different starts share
@@ -601,7 +611,7 @@ pub fn fit_rigid(
         terms.energy
     };
     let (pose, best, used) = fine.run(pose, energy_at);
-    let (pose, _, polished) = match template.translate_only {
+    let (pose, _, polished) = match line {
         Some(u) => line_polish(pose, best, u, energy_at),
         None => newton_polish(pose, best, template.radius, fine.rotate, energy_at),
     };

@@ -14,8 +14,8 @@ use serde::{Deserialize, Serialize};
 use crate::calib::{axis_component, Calibration};
 use crate::energy::{michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
-    fit_free, fit_rigid, line_polish, newton_polish, place, CompassSearch, FreeFitParams, Pose, RigidParams,
-    RigidTemplate,
+    fit_free, fit_rigid, fit_rigid_on_line, line_polish, newton_polish, place, CompassSearch, FreeFitParams,
+    Pose, RigidParams, RigidTemplate,
 };
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
@@ -623,6 +623,7 @@ impl StereoTracker {
         let left_search = ViewSearch {
             coarse_step_px: self.params.rigid.coarse_step_px,
             rotate: self.params.rigid.rotate,
+            line: None,
         };
         let shared = (!template.cuts.is_empty()).then(|| {
             let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
@@ -636,18 +637,6 @@ impl StereoTracker {
             Some([l, r]) => (l, r),
             None => (templates, templates),
         };
-        let epipolar;
-        let right_templates = if self.params.epipolar {
-            let t = self.params.tilt_axis_deg.to_radians();
-            epipolar = RigidTemplate {
-                translate_only: Some([t.sin(), -t.cos()]),
-                ..right_templates.0.clone()
-            };
-            (&epipolar, &right_templates.1)
-        } else {
-            (&right_templates.0, &right_templates.1)
-        };
-        let left_templates = (&left_templates.0, &left_templates.1);
         let mut left_fit = self.fit_view(
             left,
             left_templates,
@@ -677,6 +666,11 @@ impl StereoTracker {
             // identical views give identical poses.
             coarse_step_px: 1.0,
             rotate: self.params.rigid.rotate && self.params.right_rotation,
+            // Along the epipolar line, across the tilt axis.
+            line: self.params.epipolar.then(|| {
+                let t = self.params.tilt_axis_deg.to_radians();
+                [t.sin(), -t.cos()]
+            }),
         };
         let right_fit = self.fit_view(
             right,
@@ -732,12 +726,13 @@ impl StereoTracker {
     fn fit_view<'f>(
         &self,
         frame: &'f GrayFrame,
-        (template, sectors): (&RigidTemplate, &SectorTemplate),
+        (template, sectors): &(RigidTemplate, SectorTemplate),
         reference: &[f64],
         predicted: Pose,
         ViewSearch {
             coarse_step_px,
             rotate,
+            line,
         }: ViewSearch,
     ) -> ImageFit {
         let (energy, occlusion) = (&self.params.energy, &self.params.occlusion);
@@ -747,7 +742,7 @@ impl StereoTracker {
             ..self.params.rigid.clone()
         };
         let full_fit = |sums: &PrefixSums, start: Pose, rigid: &RigidParams| {
-            let out = fit_rigid(sums, template, start, energy, rigid);
+            let out = fit_rigid_on_line(sums, template, start, energy, rigid, line);
             ImageFit::full(out.pose, out.terms)
         };
         let full_reach =
@@ -796,7 +791,7 @@ impl StereoTracker {
                     coarse_step_px: 1.0,
                     ..rigid.clone()
                 };
-                let out = fit_rigid(&sums, template, predicted, energy, &fine_only);
+                let out = fit_rigid_on_line(&sums, template, predicted, energy, &fine_only, line);
                 if out.outside_area && !widened {
                     widen(&mut sums, &mut widened);
                     full_fit(&sums, predicted, &fine_only)
@@ -835,12 +830,12 @@ impl StereoTracker {
             // (seeds 100-119: 0.492 against 0.493 px disparity RMS).
             settle_every_step: false,
             along: template.search_axis(),
-            only: template.translate_only,
+            only: line,
         };
         for _ in 0..2 {
             let masked = |p: Pose| sectors.masked_energy(&sums, p, &mask, m_ref);
             let (found, e, _) = search.run(pose, masked);
-            pose = match template.translate_only {
+            pose = match line {
                 Some(u) => line_polish(found, e, u, masked).0,
                 None => newton_polish(found, e, template.radius, search.rotate, masked).0,
             };
@@ -1015,7 +1010,7 @@ impl StereoTracker {
             } else {
                 // An object cut by the border may move further out, until
                 // too little of it is left to measure.
-                let image = [0.0, 0.0, state.width as f64, state.height as f64].map(|v| v - 0.5);
+                let image = PixelRect::full_size(state.width, state.height).extent();
                 let visible = Polygon::new(pts).clipped_to_box(image).area() / template.area;
                 if visible < Self::MIN_VISIBLE_FRACTION {
                     return Some(format!(
@@ -1055,7 +1050,7 @@ impl StereoTracker {
         left: &ImageFit,
         right: &ImageFit,
     ) -> PairResult {
-        let extent = [0.0, 0.0, state.width as f64, state.height as f64].map(|v| v - 0.5);
+        let extent = PixelRect::full_size(state.width, state.height).extent();
         let image = |fit: &ImageFit| {
             let contour = Polygon::new(place(&template.points, fit.pose));
             let angle = contour.orientation();
@@ -1098,6 +1093,9 @@ struct ViewSearch {
     coarse_step_px: f64,
     /// Fit the rotation too.
     rotate: bool,
+    /// Translate only along this unit vector (image coordinates; see
+    /// [`fit_rigid_on_line`]).
+    line: Option<Point>,
 }
 
 /// The fit of one view of a pair.
