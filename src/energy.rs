@@ -36,6 +36,10 @@ use serde::{Deserialize, Serialize};
 use crate::geometry::{HalfPlane, Point};
 use crate::region::{PrefixSums, RegionSum};
 
+/// Added to every grey value so that f(z) = z ln z is defined (method note:
+/// "+1 on 8-bit counts"); the same for every frame, so energies compare.
+pub const INTENSITY_OFFSET: u16 = 1;
+
 /// Parameters of the energy.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]

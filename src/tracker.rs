@@ -23,9 +23,7 @@ use crate::init::{initialise, InitParams};
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
 
-/// Added to every grey value so that f(z) = z ln z is defined (method note:
-/// "+1 on 8-bit counts"); the same for every frame, so energies compare.
-pub const INTENSITY_OFFSET: u16 = 1;
+pub use crate::energy::INTENSITY_OFFSET;
 
 /// All tracking parameters, with documented defaults.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -297,6 +295,13 @@ pub struct TrackerState {
     /// (template coordinates; empty for an object inside the image).
     #[serde(default)]
     pub template_cuts: Vec<HalfPlane>,
+    /// The object's outline in template coordinates, reported in place of
+    /// the template where the two differ: a dark object's template is the
+    /// region inside its bright edge rim, the outline runs along the rim's
+    /// outer edge (see [`crate::init::InitResult::core`]). Empty: the
+    /// template is the outline.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub outline: Vec<Point>,
 }
 
 /// One tracked object in a stereo sequence.
@@ -409,9 +414,23 @@ impl StereoTracker {
             Err(e) => return lost_result(frame, format!("initialisation failed: {e}")),
         };
         let energy = &self.params.energy;
-        let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, &found.contour)
-        else {
+        // A dark object's template is the region inside its bright rim:
+        // the two-region energy sees the rim as substrate.
+        let fitted = found.core.as_ref().unwrap_or(&found.contour);
+        let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted) else {
             return lost_result(frame, "initial contour lies outside the image".into());
+        };
+        // The outline moves with the template's pose.
+        let outline = match found.core {
+            Some(_) => {
+                let (s, c) = (-left_pose.theta).sin_cos();
+                let outline = found.contour.points.iter().map(|p| {
+                    let [dx, dy] = [p[0] - left_pose.x, p[1] - left_pose.y];
+                    [c * dx - s * dy, s * dx + c * dy]
+                });
+                outline.collect()
+            }
+            None => Vec::new(),
         };
         let right_pose = match self.search_right(right, &template, left_pose) {
             Some(p) => p,
@@ -472,6 +491,7 @@ impl StereoTracker {
             left_velocity: [0.0; 3],
             left_sector_contrasts,
             right_sector_contrasts,
+            outline,
         };
         let left_fit = ImageFit::full(left_pose, left_terms);
         let right_fit = ImageFit::full(right_pose, right_terms);
@@ -714,7 +734,10 @@ impl StereoTracker {
     /// sectors: when the prediction is roughly right (median sector contrast
     /// ratio >= 0.6) occlusion is judged there, before anything can slide
     /// onto the occluder; otherwise (large motion), or when the full fit
-    /// moved 1 px or more from a clear prediction, after a full fit. The
+    /// moved 1 px or more from a clear prediction, after a full fit. Sectors
+    /// that look occluded at the prediction are masked only when a full fit
+    /// does not find every sector as it was (a slender object that moved
+    /// along its axis shows its ends "occluded" at the prediction). The
     /// full fit skips its coarse stage when the judgement at the prediction
     /// confirms it ([`crate::occlusion::SectorJudgement::confirms_pose`]). A masked
     /// fit re-derives the mask at its result and refits once if it changed.
@@ -779,7 +802,16 @@ impl StereoTracker {
         // prediction its tip's sectors look occluded: it is judged only
         // after a full fit.
         let cut = !template.cuts.is_empty();
-        if cut || median < 0.6 || !mask.contains(&true) || widespread(&mask) {
+        if !cut && median >= 0.6 && mask.contains(&true) && !widespread(&mask) {
+            // Part of the object looks occluded at the prediction. So do
+            // the ends of a slender object that moved along its axis: a
+            // full fit that finds every sector as it was stands.
+            widen(&mut sums, &mut widened);
+            let fit = full_fit(&sums, predicted, rigid);
+            if !judge(&sums, fit.pose).occluded.contains(&true) {
+                return fit;
+            }
+        } else {
             // Every sector still has its contrast at the prediction: it is
             // within a few pixels of the object, which the fine stage's
             // repeated half-pixel moves cover without the coarse stage
@@ -1051,8 +1083,13 @@ impl StereoTracker {
         right: &ImageFit,
     ) -> PairResult {
         let extent = PixelRect::full_size(state.width, state.height).extent();
+        let outline = if state.outline.is_empty() {
+            &template.points
+        } else {
+            &state.outline
+        };
         let image = |fit: &ImageFit| {
-            let contour = Polygon::new(place(&template.points, fit.pose));
+            let contour = Polygon::new(place(outline, fit.pose));
             let angle = contour.orientation();
             // The part of a template cut by the border that is in the image.
             let contour = if template.cuts.is_empty() {
@@ -1060,9 +1097,15 @@ impl StereoTracker {
             } else {
                 contour.clipped_to_box(extent)
             };
+            // A dark object's outline need not share its core's centroid.
+            let centroid = if state.outline.is_empty() {
+                fit.pose.center()
+            } else {
+                place(&[Polygon::new(state.outline.clone()).centroid()], fit.pose)[0]
+            };
             ImageResult {
                 contour: contour.points,
-                centroid: fit.pose.center(),
+                centroid,
                 angle_rad: angle,
                 energy: fit.terms.energy,
                 contrast: fit.contrast,

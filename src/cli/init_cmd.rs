@@ -91,6 +91,7 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         "centroid": result.centroid,
         "area_px": result.area_px,
         "bbox": result.bbox,
+        "rim_px": result.rim_px,
         "score": result.score,
         "source": result.source,
         "border": result.border,

@@ -17,8 +17,8 @@
 //! The region so found is the incumbent; scored candidates ([`prompted`])
 //! replace it where the paper's rule fails: clutter joined to the outline,
 //! an object cut by the image border, a hint it misses (see [`initialise`]).
-//! A dark threshold component's outline is then grown over the object's
-//! bright edge rim ([`rim`]).
+//! A dark object's outline is then settled by the region-based free fit
+//! and grown over the object's bright edge rim ([`rim`]).
 //!
 //! The output contour is in full-resolution pixel coordinates (centre of the
 //! top-left pixel at (0, 0)).
@@ -28,8 +28,11 @@ use std::cell::OnceCell;
 use image::{GrayImage, ImageBuffer, Luma};
 use serde::{Deserialize, Serialize};
 
+use crate::energy::{EnergyParams, INTENSITY_OFFSET};
+use crate::fit::{fit_free, FreeFitParams};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
+use crate::region::{PixelRect, PrefixSums};
 
 mod candidates;
 mod edges;
@@ -213,6 +216,15 @@ pub struct InitResult {
     pub area_px: f64,
     /// Bounding box of the contour as `[min_x, min_y, max_x, max_y]`.
     pub bbox: [f64; 4],
+    /// Mean width of the bright edge rim of a dark object that the outline
+    /// was grown over, pixels (0 without one; see [`rim`]).
+    #[serde(default)]
+    pub rim_px: f64,
+    /// The region inside the rim (`None` without one): darker than the
+    /// substrate throughout, it is what a two-region energy fits, and what
+    /// the tracker's template follows.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub core: Option<Polygon>,
     /// Its score (the region energy's gain per pixel of outline, higher is
     /// better) and contrast (see [`candidates`]); `None` only when the
     /// paper's region stood without any candidate to compare it with.
@@ -497,6 +509,59 @@ impl InitParams {
 /// tool entering from the image border).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
+    let found = find_object(frame, params)?;
+    Ok(grown_over_rim(frame, found))
+}
+
+/// A dark object's outline grown over its bright edge rim (see [`rim`]);
+/// any other found object as it is.
+fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
+    let dark = found.score.is_some_and(|s| s.contrast < 0.0);
+    if !dark || !found.border.is_empty() {
+        return found;
+    }
+    let reach = RIM_REACH_WORKING_PX * found.diagnostics.scale as f64;
+    let Some(core) = fitted_core(frame, &found.contour) else {
+        return found;
+    };
+    let Some(grown) = rim::grow_over_rim(frame, &core, reach, RIM_MIN_EXCESS) else {
+        return found;
+    };
+    let contour = grown.outline;
+    InitResult {
+        area_px: contour.area(),
+        bbox: contour.bounds(),
+        centroid: contour.centroid(),
+        rim_px: grown.mean_px,
+        core: Some(core),
+        contour,
+        ..found
+    }
+}
+
+/// `contour` after the region-based active contour's free fit with the
+/// default energy (Dahmen et al., section 3): the edge pipeline's outline
+/// of a dark object carries spurs of substrate and runs out over its rim in
+/// places, and the rim is measured from the region inside it, which is
+/// what the fit settles on. `None` when the contour lies outside the image.
+fn fitted_core(frame: &GrayFrame, contour: &Polygon) -> Option<Polygon> {
+    let energy = EnergyParams::default();
+    let slack = energy.margin_for_area(contour.area()) + 16.0;
+    let [x0, y0, x1, y1] = contour.bounds();
+    let rect = PixelRect::covering(
+        x0 - slack,
+        y0 - slack,
+        x1 + slack,
+        y1 + slack,
+        frame.width,
+        frame.height,
+    )?;
+    let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
+    Some(fit_free(&sums, contour, &energy, &FreeFitParams::default()).polygon)
+}
+
+/// [`initialise`] up to the rim.
+fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     let hints = params.hints_for(frame.width, frame.height)?;
     let stage = edge_stage(frame, params, &hints)?;
     let found = |incumbent| prompted::find(frame, params, &hints, &stage, incumbent);
@@ -598,6 +663,8 @@ fn largest_region(
                     bbox: contour.bounds(),
                     centroid,
                     contour,
+                    rim_px: 0.0,
+                    core: None,
                     score: None,
                     source: Source::Edges {
                         dilation_radius: radius,

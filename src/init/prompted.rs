@@ -12,11 +12,9 @@
 //! the border) and keeps clutter that touches the object out of it (thin
 //! appendages are cut by an opening scaled to the region).
 
-use super::candidates::{finalists, traced_border, Candidate, Rejections, Source, SummedArea, WorkArea};
-use super::rim::grow_over_rim;
+use super::candidates::{finalists, traced_border, Candidate, Rejections, SummedArea, WorkArea};
 use super::{
     eroded_regions, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult, RunnerUp, Score,
-    RIM_MIN_EXCESS, RIM_REACH_WORKING_PX,
 };
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
@@ -190,26 +188,14 @@ pub(super) fn find(
         [w, h],
         params.contour_spacing_px,
     );
-    // A dark threshold component stops inside the bright rim at the edge of
-    // the object; an edge outline sits on the rim already (grown further,
-    // dark spheres were tracked up to 7.7 px wrong).
-    let dark_component = matches!(best.source, Source::Threshold { .. }) && best.score.contrast < 0.0;
-    let contour = if dark_component && !sides.contains(&true) {
-        grow_over_rim(
-            frame,
-            &contour,
-            RIM_REACH_WORKING_PX * scale as f64,
-            RIM_MIN_EXCESS,
-        )
-    } else {
-        contour
-    };
     let centroid = contour.centroid();
     Ok(Outcome::Found(InitResult {
         area_px: contour.area(),
         bbox: contour.bounds(),
         centroid,
         contour,
+        rim_px: 0.0,
+        core: None,
         score: Some(best.score),
         source: best.source,
         border: ["left", "top", "right", "bottom"]

@@ -1090,6 +1090,7 @@ mod tests {
             left_sector_contrasts: vec![0.1, 0.2, 1.0 / 3.0],
             right_sector_contrasts: vec![0.3, f],
             template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
+            outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
         }
     }
 
