@@ -6,6 +6,7 @@
 //!
 //! Module map (all pure: no async, no HTTP):
 //! - [`imageio`]: decode PNG/TIFF/JPEG/BMP and raw buffers into [`imageio::GrayFrame`]s, with limits.
+//! - [`meta`]: pixel size, stage tilt and working distance from the microscope's TIFF tags (FEI, ZEISS, TESCAN).
 //! - [`geometry`]: closed polygons (length, area, centroid, orientation, resampling, rasterisation).
 //! - [`occlusion`]: per-sector detection of partial occlusion and a band energy over the visible sectors.
 //! - [`region`]: region sums in O(contour length) (Green's theorem on row prefix sums), window sums.
@@ -28,6 +29,7 @@ pub mod fit;
 pub mod geometry;
 pub mod imageio;
 pub mod init;
+pub mod meta;
 pub mod occlusion;
 pub mod region;
 pub mod report;

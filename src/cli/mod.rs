@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod demo_cmd;
 pub mod init_cmd;
+pub mod meta_cmd;
 pub mod process_cmd;
 pub mod serve_cmd;
 pub mod synth_cmd;
@@ -29,6 +30,8 @@ pub enum Command {
     Synth(synth_cmd::SynthArgs),
     /// Find the object in one image and print its initial contour as JSON.
     Init(init_cmd::InitArgs),
+    /// Print the pixel size, stage tilt and working distance the microscope wrote into each image, as JSON.
+    Meta(meta_cmd::MetaArgs),
     /// Track a folder of stereo pairs and print one record per pair.
     Process(process_cmd::ProcessArgs),
     /// Stream a synthetic sequence through the service and print true and measured z.
@@ -99,6 +102,7 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
     match cli.command {
         Command::Synth(args) => synth_cmd::run(args),
         Command::Init(args) => init_cmd::run(args),
+        Command::Meta(args) => meta_cmd::run(args),
         Command::Process(args) => process_cmd::run(args),
         Command::Serve(args) => serve_cmd::run(args),
         Command::Demo(args) => demo_cmd::run(args),

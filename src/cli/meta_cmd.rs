@@ -1,0 +1,77 @@
+//! `semdepth meta IMAGE...`: print what the microscope wrote into each image
+//! file (pixel size, stage tilt, working distance, ...) as a JSON array.
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use clap::Args;
+use serde::Serialize;
+
+use super::CliError;
+use crate::imageio::ImageInputError;
+use crate::meta::{read_meta, ImageMeta};
+
+/// Largest file read, in bytes (1 GiB): far above any SEM image, and a
+/// bound on what a mistaken path (a disk image, a device) can cost.
+pub const MAX_FILE_BYTES: u64 = 1 << 30;
+
+/// Arguments of `semdepth meta`.
+#[derive(Debug, Args)]
+pub struct MetaArgs {
+    /// The image files (TIFF from FEI / Thermo Fisher, ZEISS or TESCAN
+    /// microscopes; other files give records with every field null).
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+}
+
+/// One printed record: the path, then the metadata fields.
+#[derive(Serialize)]
+struct Record<'a> {
+    image: String,
+    #[serde(flatten)]
+    meta: &'a ImageMeta,
+}
+
+/// Runs `semdepth meta`; exit code 2 when a file cannot be read. A readable
+/// file without metadata is not an error: its fields are null.
+pub fn run(args: MetaArgs) -> Result<(), CliError> {
+    let mut metas = Vec::with_capacity(args.images.len());
+    for path in &args.images {
+        metas.push(read_meta(&read_capped(path)?));
+    }
+    let records: Vec<Record> = args
+        .images
+        .iter()
+        .zip(&metas)
+        .map(|(path, meta)| Record {
+            image: path.display().to_string(),
+            meta,
+        })
+        .collect();
+    let json = serde_json::to_string(&records)
+        .map_err(|e| CliError::with_code(1, format!("could not write JSON: {e}")))?;
+    println!("{json}");
+    Ok(())
+}
+
+/// The bytes of `path`, at most [`MAX_FILE_BYTES`] of them.
+fn read_capped(path: &Path) -> Result<Vec<u8>, CliError> {
+    let io_error = |source| {
+        CliError::from(ImageInputError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+    };
+    let file = std::fs::File::open(path).map_err(io_error)?;
+    let mut bytes = Vec::new();
+    file.take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io_error)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(CliError::input(format!(
+            "error[file_too_large]: {} is larger than {MAX_FILE_BYTES} bytes",
+            path.display()
+        )));
+    }
+    Ok(bytes)
+}
