@@ -13,12 +13,19 @@
 //! - **geometric** (eucentric tilt by a total vergence angle `alpha`, pixel size `s`
 //!   in micrometres per pixel at the specimen, reference disparity `d0` of the
 //!   height z = 0): `z = (d_axis - d0) * s / (2 sin(alpha / 2))`. At `alpha` = 10
-//!   degrees one pixel of disparity is 5.737 `s` of height.
+//!   degrees one pixel of disparity is 5.737 `s` of height. `s` and `alpha`
+//!   may each come from every pair's image metadata instead ([`PairMeta`],
+//!   read by [`crate::meta`]): `s` is then the pixel length across the tilt
+//!   axis, `alpha` the right image's stage tilt minus the left's (signed, so
+//!   a pair whose right image is tilted less gives heights of the other sign,
+//!   as with the views swapped), and [`Calibration::z_for_pair`] says why a
+//!   pair without usable metadata has no height.
 //! - **fit**: least squares through measured samples `(disparity_px, z_um)` (the
 //!   stage was moved to known heights), `z = c0 + c1 d (+ c2 d^2)`, with the residual
 //!   RMS and R^2 reported.
 //!
-//! Both carry `coefficients` `[c0, c1(, c2)]` so that `z_um = c0 + c1 d + c2 d^2`.
+//! Both carry `coefficients` `[c0, c1(, c2)]` so that `z_um = c0 + c1 d + c2 d^2`
+//! (none for a geometric calibration scaled from the images).
 //! A user submits a [`CalibrationSpec`]; [`build`] validates it, fits, and returns a
 //! [`Calibration`]. Every failure is a [`CalibError`] whose message says what was
 //! expected and whose [`CalibError::code`] is a stable snake_case string.
@@ -138,20 +145,235 @@ impl Sample {
     }
 }
 
-/// Parameters of a geometric calibration.
+/// Parameters of a geometric calibration. The pixel size and the vergence
+/// are each either given (`pixel_size_um`, `vergence_deg`) or taken from
+/// every pair's images (`pixel_size: "from_images"`,
+/// `vergence: "from_stage_tilt"`; see [`PairMeta`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GeometricSpec {
     /// Length of one pixel at the specimen, micrometres per pixel (> 0).
-    pub pixel_size_um: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_size_um: Option<f64>,
+    /// The pixel size from each pair's images instead.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_size: Option<PixelSizeSource>,
     /// Total vergence angle between the two views, degrees (0 < vergence_deg <= 90).
-    pub vergence_deg: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vergence_deg: Option<f64>,
+    /// The vergence from each pair's images instead.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vergence: Option<VergenceSource>,
     /// Disparity across the tilt axis at the reference height z = 0, pixels.
     #[serde(default)]
     pub reference_disparity_px: f64,
     /// Direction of the tilt axis in the image, degrees from +x towards +y.
     #[serde(default = "default_tilt_axis_deg")]
     pub tilt_axis_deg: f64,
+}
+
+impl GeometricSpec {
+    /// A typed pixel size and vergence, reference disparity 0, tilt axis
+    /// along the image y axis.
+    pub fn new(pixel_size_um: f64, vergence_deg: f64) -> Self {
+        Self {
+            pixel_size_um: Some(pixel_size_um),
+            pixel_size: None,
+            vergence_deg: Some(vergence_deg),
+            vergence: None,
+            reference_disparity_px: 0.0,
+            tilt_axis_deg: DEFAULT_TILT_AXIS_DEG,
+        }
+    }
+
+    /// True when the pixel size or the vergence comes from the images.
+    pub fn from_images(&self) -> bool {
+        self.pixel_size.is_some() || self.vergence.is_some()
+    }
+}
+
+/// Where a geometric calibration takes the pixel size from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum PixelSizeSource {
+    /// The pixel size in each pair's image metadata (both images must carry
+    /// it and agree within 1%).
+    FromImages,
+}
+
+/// Where a geometric calibration takes the vergence from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, utoipa::ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum VergenceSource {
+    /// The right image's stage tilt minus the left's (a stage-tilt pair).
+    FromStageTilt,
+}
+
+impl<'de> Deserialize<'de> for PixelSizeSource {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        one_word(
+            d,
+            "from_images",
+            "\"from_images\" (a number goes in pixel_size_um)",
+        )
+        .map(|()| Self::FromImages)
+    }
+}
+
+impl<'de> Deserialize<'de> for VergenceSource {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        one_word(
+            d,
+            "from_stage_tilt",
+            "\"from_stage_tilt\" (a number goes in vergence_deg)",
+        )
+        .map(|()| Self::FromStageTilt)
+    }
+}
+
+/// Accepts exactly the string `word`; any other value is refused with an
+/// error that says what was `expected`.
+fn one_word<'de, D: serde::Deserializer<'de>>(
+    d: D,
+    word: &'static str,
+    expected: &'static str,
+) -> Result<(), D::Error> {
+    struct Word(&'static str, &'static str);
+    impl serde::de::Visitor<'_> for Word {
+        type Value = ();
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            f.write_str(self.1)
+        }
+        fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<(), E> {
+            if v == self.0 {
+                Ok(())
+            } else {
+                Err(E::invalid_value(serde::de::Unexpected::Str(v), &self))
+            }
+        }
+    }
+    d.deserialize_any(Word(word, expected))
+}
+
+/// What a pair's two images say about how they were taken (see
+/// [`crate::meta`]), as far as depth needs it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct PairMeta {
+    /// The left image's.
+    pub left: ViewMeta,
+    /// The right image's.
+    pub right: ViewMeta,
+    /// Right stage tilt minus left, radians (null unless both are known).
+    pub stage_tilt_difference_rad: Option<f64>,
+}
+
+/// One image's pixel size and stage tilt.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ViewMeta {
+    /// Width of one pixel at the specimen, metres.
+    pub pixel_width_m: Option<f64>,
+    /// Height of one pixel at the specimen, metres.
+    pub pixel_height_m: Option<f64>,
+    /// Stage tilt, radians.
+    pub stage_tilt_rad: Option<f64>,
+}
+
+impl ViewMeta {
+    /// The fields of `meta` that depth needs.
+    pub fn of(meta: &crate::meta::ImageMeta) -> Self {
+        Self {
+            pixel_width_m: meta.pixel_width_m,
+            pixel_height_m: meta.pixel_height_m,
+            stage_tilt_rad: meta.stage_tilt_rad,
+        }
+    }
+
+    fn is_empty(&self) -> bool {
+        self.pixel_width_m.is_none() && self.pixel_height_m.is_none() && self.stage_tilt_rad.is_none()
+    }
+
+    /// Length of one pixel along the disparity direction across a tilt axis
+    /// at `tilt_axis_deg` (see [`axis_component`]), metres; a missing
+    /// height is taken as the width and vice versa (square pixels).
+    fn pixel_across_axis_m(&self, tilt_axis_deg: f64) -> Option<f64> {
+        let w = self.pixel_width_m.or(self.pixel_height_m)?;
+        let h = self.pixel_height_m.unwrap_or(w);
+        let (sin_t, cos_t) = sin_cos_deg(tilt_axis_deg);
+        Some((w * sin_t).hypot(h * cos_t))
+    }
+}
+
+impl PairMeta {
+    /// The pair's metadata, `None` when neither image carries any.
+    pub fn of(left: &crate::meta::ImageMeta, right: &crate::meta::ImageMeta) -> Option<Self> {
+        let (left, right) = (ViewMeta::of(left), ViewMeta::of(right));
+        if left.is_empty() && right.is_empty() {
+            return None;
+        }
+        let stage_tilt_difference_rad = match (left.stage_tilt_rad, right.stage_tilt_rad) {
+            (Some(l), Some(r)) => Some(r - l),
+            _ => None,
+        };
+        Some(Self {
+            left,
+            right,
+            stage_tilt_difference_rad,
+        })
+    }
+
+    /// The pixel size across the tilt axis both images agree on (within
+    /// [`PIXEL_SIZE_TOLERANCE`]), micrometres; the left image's.
+    pub fn pixel_size_um(&self, tilt_axis_deg: f64) -> Result<f64, String> {
+        let left = self.left.pixel_across_axis_m(tilt_axis_deg);
+        let right = self.right.pixel_across_axis_m(tilt_axis_deg);
+        match (left, right) {
+            (Some(l), Some(r)) if (l - r).abs() > PIXEL_SIZE_TOLERANCE * l => Err(format!(
+                "the left and right images' pixel sizes differ ({:.6e} m and {:.6e} m): the magnification changed within the pair",
+                l, r
+            )),
+            (Some(l), _) if l.is_finite() && l > 0.0 => Ok(l * 1e6),
+            (Some(l), _) => Err(format!("the left image's pixel size {l:e} m is not a positive length")),
+            (None, _) => Err("the left image carries no pixel size".into()),
+        }
+    }
+}
+
+/// Relative difference of two pixel sizes above which they count as
+/// different magnifications.
+pub const PIXEL_SIZE_TOLERANCE: f64 = 0.01;
+
+/// Warns once per change when a pair's pixel size contradicts a typed
+/// geometric calibration's (the magnification changed since it was made).
+#[derive(Clone, Debug, Default)]
+pub struct MetaWatch {
+    /// The pixel size (micrometres) of the last pair that carried one.
+    last_pixel_size_um: Option<f64>,
+}
+
+impl MetaWatch {
+    /// The warning for this pair, if its pixel size changed since the last
+    /// pair's (or is the first seen) and differs from the calibration's by
+    /// more than [`PIXEL_SIZE_TOLERANCE`].
+    pub fn check(&mut self, calibration: &Calibration, meta: Option<&PairMeta>) -> Option<String> {
+        let CalibrationSpec::Geometric(g) = calibration.spec() else {
+            return None;
+        };
+        let typed = g.pixel_size_um?;
+        let seen = meta?.pixel_size_um(g.tilt_axis_deg).ok()?;
+        let changed = self
+            .last_pixel_size_um
+            .is_none_or(|last| (seen - last).abs() > PIXEL_SIZE_TOLERANCE * last);
+        if !changed {
+            return None;
+        }
+        self.last_pixel_size_um = Some(seen);
+        ((seen - typed).abs() > PIXEL_SIZE_TOLERANCE * typed).then(|| {
+            format!(
+                "the images' pixel size {seen:.6} um differs from the calibration's {typed} um by {:.1}%: the magnification changed; z uses the calibration's",
+                100.0 * (seen - typed) / typed
+            )
+        })
+    }
 }
 
 /// Parameters of a fitted calibration.
@@ -223,8 +445,9 @@ pub struct Calibration {
     stats: Option<FitStats>,
     /// Evaluation form: `z = sum_k b_k u^k` with `u = (d - center_px) / scale_px`.
     /// Numerically better than the monomial form when the disparities are far
-    /// from 0 compared with their spread.
-    poly: CenteredPoly,
+    /// from 0 compared with their spread. `None` for a geometric calibration
+    /// that takes its scale from each pair's images.
+    poly: Option<CenteredPoly>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -395,16 +618,71 @@ impl Calibration {
 
     /// Height in micrometres for a 2-D disparity `[dx, dy]` in pixels: the
     /// component across the tilt axis ([`axis_component`]) through
-    /// [`Calibration::z_from_axis`]. Non-finite input gives a non-finite result.
+    /// [`Calibration::z_from_axis`]. Non-finite input gives a non-finite
+    /// result, and so does a calibration that takes its scale from the
+    /// images (see [`Calibration::z_for_pair`]).
     pub fn z_um(&self, disparity_px: [f64; 2]) -> f64 {
         self.z_from_axis(axis_component(self.tilt_axis_deg(), disparity_px))
     }
 
     /// Height in micrometres for a disparity component across the tilt axis, pixels.
     /// Evaluated in the centred form the fit was solved in, so it stays accurate
-    /// when the monomial coefficients are large and cancel.
+    /// when the monomial coefficients are large and cancel. NaN for a
+    /// calibration that takes its scale from the images.
     pub fn z_from_axis(&self, d_axis_px: f64) -> f64 {
-        self.poly.eval(d_axis_px)
+        self.poly.as_ref().map_or(f64::NAN, |p| p.eval(d_axis_px))
+    }
+
+    /// True when the pixel size or the vergence comes from each pair's images.
+    pub fn needs_images(&self) -> bool {
+        matches!(&self.spec, CalibrationSpec::Geometric(g) if g.from_images())
+    }
+
+    /// Height in micrometres for a pair's 2-D disparity, with the pair's
+    /// image metadata where the calibration takes its pixel size or
+    /// vergence from it: `z = (d_axis - d0) s / (2 sin(dt / 2))`, `s` the
+    /// pixel length across the tilt axis, `dt` the right image's stage tilt
+    /// minus the left's (signed: a pair whose right image is tilted less
+    /// gives heights of the other sign, as with the views swapped). The
+    /// error says why there is no height (metadata missing or unusable).
+    pub fn z_for_pair(&self, disparity_px: [f64; 2], meta: Option<&PairMeta>) -> Result<f64, String> {
+        let CalibrationSpec::Geometric(g) = &self.spec else {
+            return Ok(self.z_um(disparity_px));
+        };
+        if !g.from_images() {
+            return Ok(self.z_um(disparity_px));
+        }
+        let none = || {
+            "the images carry no metadata (raw frames, or files without the microscope's tags)".to_string()
+        };
+        let pixel_size_um = match g.pixel_size_um {
+            Some(s) => s,
+            None => meta.ok_or_else(none)?.pixel_size_um(g.tilt_axis_deg)?,
+        };
+        let vergence_rad = match g.vergence_deg {
+            Some(v) => v.to_radians(),
+            None => {
+                let dt = meta
+                    .ok_or_else(none)?
+                    .stage_tilt_difference_rad
+                    .ok_or("the images do not both carry a stage tilt")?;
+                if !(dt.is_finite() && dt != 0.0 && dt.abs() <= std::f64::consts::FRAC_PI_2) {
+                    return Err(format!(
+                        "the stage tilt difference {dt} rad is no vergence (expected 0 < |right - left| <= pi/2)"
+                    ));
+                }
+                dt
+            }
+        };
+        let d_axis = axis_component(g.tilt_axis_deg, disparity_px);
+        let z = (d_axis - g.reference_disparity_px) * geometric_scale(pixel_size_um, vergence_rad);
+        if z.is_finite() {
+            Ok(z)
+        } else {
+            Err(format!(
+                "pixel size {pixel_size_um} um with vergence {vergence_rad} rad gives no finite height"
+            ))
+        }
     }
 
     /// Appends a sample to a fitted calibration and refits. On error (invalid
@@ -442,17 +720,41 @@ fn check_tilt_axis(tilt_axis_deg: f64) -> Result<(), CalibError> {
 
 fn build_geometric(g: GeometricSpec) -> Result<Calibration, CalibError> {
     let bad = |m: String| Err(CalibError::Invalid(m));
-    if !(g.pixel_size_um.is_finite() && g.pixel_size_um > 0.0) {
-        return bad(format!(
-            "invalid pixel_size_um {} (expected a finite pixel_size_um > 0)",
-            g.pixel_size_um
-        ));
+    match (g.pixel_size_um, g.pixel_size) {
+        (Some(_), Some(_)) => {
+            return bad(
+                "both pixel_size_um and pixel_size given (expected one: a number, or \"from_images\")".into(),
+            )
+        }
+        (None, None) => {
+            return bad(
+                "missing pixel_size_um (expected a number > 0, or \"pixel_size\": \"from_images\")".into(),
+            )
+        }
+        (Some(s), None) if !(s.is_finite() && s > 0.0) => {
+            return bad(format!(
+                "invalid pixel_size_um {s} (expected a finite pixel_size_um > 0)"
+            ))
+        }
+        _ => {}
     }
-    if !(g.vergence_deg > 0.0 && g.vergence_deg <= 90.0) {
-        return bad(format!(
-            "invalid vergence_deg {} (expected 0 < vergence_deg <= 90)",
-            g.vergence_deg
-        ));
+    match (g.vergence_deg, g.vergence) {
+        (Some(_), Some(_)) => {
+            return bad(
+                "both vergence_deg and vergence given (expected one: a number, or \"from_stage_tilt\")"
+                    .into(),
+            )
+        }
+        (None, None) => return bad(
+            "missing vergence_deg (expected 0 < vergence_deg <= 90, or \"vergence\": \"from_stage_tilt\")"
+                .into(),
+        ),
+        (Some(v), None) if !(v > 0.0 && v <= 90.0) => {
+            return bad(format!(
+                "invalid vergence_deg {v} (expected 0 < vergence_deg <= 90)"
+            ))
+        }
+        _ => {}
     }
     if !(g.reference_disparity_px.is_finite() && g.reference_disparity_px.abs() <= MAX_ABS_DISPARITY_PX) {
         return bad(format!(
@@ -461,13 +763,21 @@ fn build_geometric(g: GeometricSpec) -> Result<Calibration, CalibError> {
         ));
     }
     check_tilt_axis(g.tilt_axis_deg)?;
-    let um_per_px = g.pixel_size_um / (2.0 * (g.vergence_deg.to_radians() / 2.0).sin());
+    let (Some(pixel_size_um), Some(vergence_deg)) = (g.pixel_size_um, g.vergence_deg) else {
+        // Scaled per pair from the images' metadata: no fixed coefficients.
+        return Ok(Calibration {
+            spec: CalibrationSpec::Geometric(g),
+            coefficients: Vec::new(),
+            stats: None,
+            poly: None,
+        });
+    };
+    let um_per_px = geometric_scale(pixel_size_um, vergence_deg.to_radians());
     // A subnormal vergence (or a huge pixel size) passes the range checks
     // but overflows the scale; such a calibration could not be stored.
     if !(um_per_px.is_finite() && (g.reference_disparity_px * um_per_px).is_finite()) {
         return bad(format!(
-            "pixel_size_um {} with vergence_deg {} gives a non-finite scale (expected a vergence of at least a few microdegrees)",
-            g.pixel_size_um, g.vergence_deg
+            "pixel_size_um {pixel_size_um} with vergence_deg {vergence_deg} gives a non-finite scale (expected a vergence of at least a few microdegrees)"
         ));
     }
     let poly = CenteredPoly {
@@ -479,8 +789,13 @@ fn build_geometric(g: GeometricSpec) -> Result<Calibration, CalibError> {
         spec: CalibrationSpec::Geometric(g),
         coefficients: vec![-g.reference_disparity_px * um_per_px, um_per_px],
         stats: None,
-        poly,
+        poly: Some(poly),
     })
+}
+
+/// Micrometres of height per pixel of disparity: `s / (2 sin(alpha / 2))`.
+fn geometric_scale(pixel_size_um: f64, vergence_rad: f64) -> f64 {
+    pixel_size_um / (2.0 * (vergence_rad / 2.0).sin())
 }
 
 fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
@@ -534,7 +849,7 @@ fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
         spec: CalibrationSpec::Fit(f),
         coefficients,
         stats: Some(stats),
-        poly,
+        poly: Some(poly),
     })
 }
 
@@ -674,8 +989,14 @@ fn condition_number_1(p: usize, r: &dyn Fn(usize, usize) -> f64) -> f64 {
 #[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
 enum CalibrationWire {
     Geometric {
-        pixel_size_um: f64,
-        vergence_deg: f64,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pixel_size_um: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        pixel_size: Option<PixelSizeSource>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        vergence_deg: Option<f64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        vergence: Option<VergenceSource>,
         #[serde(default)]
         reference_disparity_px: f64,
         #[serde(default = "default_tilt_axis_deg")]
@@ -703,10 +1024,13 @@ impl From<Calibration> for CalibrationWire {
         match c.spec {
             CalibrationSpec::Geometric(g) => Self::Geometric {
                 pixel_size_um: g.pixel_size_um,
+                pixel_size: g.pixel_size,
                 vergence_deg: g.vergence_deg,
+                vergence: g.vergence,
                 reference_disparity_px: g.reference_disparity_px,
                 tilt_axis_deg: g.tilt_axis_deg,
-                coefficients: Some(c.coefficients),
+                // Scaled per pair from the images: none to store.
+                coefficients: (!g.from_images()).then_some(c.coefficients),
             },
             CalibrationSpec::Fit(f) => Self::Fit {
                 degree: f.degree,
@@ -727,14 +1051,18 @@ impl TryFrom<CalibrationWire> for Calibration {
         let (spec, coefficients, rms, r2) = match w {
             CalibrationWire::Geometric {
                 pixel_size_um,
+                pixel_size,
                 vergence_deg,
+                vergence,
                 reference_disparity_px,
                 tilt_axis_deg,
                 coefficients,
             } => (
                 CalibrationSpec::Geometric(GeometricSpec {
                     pixel_size_um,
+                    pixel_size,
                     vergence_deg,
+                    vergence,
                     reference_disparity_px,
                     tilt_axis_deg,
                 }),
@@ -813,8 +1141,10 @@ mod tests {
 
     fn geometric(pixel_size_um: f64, vergence_deg: f64, d0: f64, tilt: f64) -> Calibration {
         build(CalibrationSpec::Geometric(GeometricSpec {
-            pixel_size_um,
-            vergence_deg,
+            pixel_size_um: Some(pixel_size_um),
+            pixel_size: None,
+            vergence_deg: Some(vergence_deg),
+            vergence: None,
             reference_disparity_px: d0,
             tilt_axis_deg: tilt,
         }))
@@ -985,8 +1315,10 @@ mod tests {
     fn refuses_invalid_and_non_finite_inputs() {
         let geo = |s: f64, v: f64, d0: f64, t: f64| {
             build(CalibrationSpec::Geometric(GeometricSpec {
-                pixel_size_um: s,
-                vergence_deg: v,
+                pixel_size_um: Some(s),
+                pixel_size: None,
+                vergence_deg: Some(v),
+                vergence: None,
                 reference_disparity_px: d0,
                 tilt_axis_deg: t,
             }))
@@ -1010,8 +1342,10 @@ mod tests {
             .contains("reference_disparity_px"));
         assert!(geo(1.0, 5.0, 0.0, f64::NAN).to_string().contains("tilt_axis_deg"));
         assert!(build(CalibrationSpec::Geometric(GeometricSpec {
-            pixel_size_um: 1.0,
-            vergence_deg: 90.0,
+            pixel_size_um: Some(1.0),
+            pixel_size: None,
+            vergence_deg: Some(90.0),
+            vergence: None,
             reference_disparity_px: 0.0,
             tilt_axis_deg: 90.0,
         }))
@@ -1098,8 +1432,10 @@ mod tests {
         assert_eq!(
             spec,
             CalibrationSpec::Geometric(GeometricSpec {
-                pixel_size_um: 0.5,
-                vergence_deg: 6.0,
+                pixel_size_um: Some(0.5),
+                pixel_size: None,
+                vergence_deg: Some(6.0),
+                vergence: None,
                 reference_disparity_px: 0.0,
                 tilt_axis_deg: 90.0
             })
@@ -1119,8 +1455,10 @@ mod tests {
         });
         for spec in [
             CalibrationSpec::Geometric(GeometricSpec {
-                pixel_size_um: 0.37,
-                vergence_deg: 7.5,
+                pixel_size_um: Some(0.37),
+                pixel_size: None,
+                vergence_deg: Some(7.5),
+                vergence: None,
                 reference_disparity_px: -1.25,
                 tilt_axis_deg: 30.0,
             }),
@@ -1230,13 +1568,172 @@ mod tests {
     #[test]
     fn geometric_scale_overflow_is_refused() {
         let spec = CalibrationSpec::Geometric(GeometricSpec {
-            pixel_size_um: 0.5,
-            vergence_deg: 5e-324,
+            pixel_size_um: Some(0.5),
+            pixel_size: None,
+            vergence_deg: Some(5e-324),
+            vergence: None,
             reference_disparity_px: 0.0,
             tilt_axis_deg: 90.0,
         });
         let e = build(spec).unwrap_err();
         assert_eq!(e.code(), "invalid_calibration");
         assert!(e.to_string().contains("non-finite"), "{e}");
+    }
+
+    fn view(pixel_m: f64, tilt_rad: f64) -> ViewMeta {
+        ViewMeta {
+            pixel_width_m: Some(pixel_m),
+            pixel_height_m: Some(pixel_m),
+            stage_tilt_rad: Some(tilt_rad),
+        }
+    }
+
+    fn pair(left: ViewMeta, right: ViewMeta) -> PairMeta {
+        let stage_tilt_difference_rad = match (left.stage_tilt_rad, right.stage_tilt_rad) {
+            (Some(l), Some(r)) => Some(r - l),
+            _ => None,
+        };
+        PairMeta {
+            left,
+            right,
+            stage_tilt_difference_rad,
+        }
+    }
+
+    #[test]
+    fn pixel_size_and_vergence_from_the_images_match_the_typed_calibration() {
+        let from_images = from_json(
+            r#"{"model": "geometric", "pixel_size": "from_images", "vergence": "from_stage_tilt",
+                "reference_disparity_px": 1.5, "tilt_axis_deg": 90}"#,
+        )
+        .unwrap();
+        assert!(from_images.needs_images());
+        assert!(from_images.coefficients().is_empty());
+        // Stored without coefficients, read back the same.
+        let text = serde_json::to_string(&from_images).unwrap();
+        assert!(!text.contains("coefficients"), "{text}");
+        assert_eq!(from_json(&text).unwrap(), from_images);
+        let (tilt_l, tilt_r) = (0.558473_f64, 0.558473_f64 + 7.0_f64.to_radians());
+        let meta = pair(view(9.76562e-8, tilt_l), view(9.76562e-8, tilt_r));
+        let typed = build(CalibrationSpec::Geometric(GeometricSpec {
+            reference_disparity_px: 1.5,
+            ..GeometricSpec::new(0.0976562, (tilt_r - tilt_l).to_degrees())
+        }))
+        .unwrap();
+        for d in [[-30.0, 2.0], [0.0, 0.0], [1.5, -4.0], [55.11, 4.26]] {
+            let z = from_images.z_for_pair(d, Some(&meta)).unwrap();
+            let expected = typed.z_um(d);
+            assert!((z - expected).abs() <= 1e-9, "d {d:?}: {z} against {expected}");
+        }
+        // Either one from the images, the other typed.
+        let half = build(CalibrationSpec::Geometric(GeometricSpec {
+            pixel_size_um: None,
+            pixel_size: Some(PixelSizeSource::FromImages),
+            ..GeometricSpec::new(0.0, 7.0)
+        }))
+        .unwrap();
+        let z = half.z_for_pair([10.0, 0.0], Some(&meta)).unwrap();
+        let typed_half = build(CalibrationSpec::Geometric(GeometricSpec::new(0.0976562, 7.0))).unwrap();
+        assert!((z - typed_half.z_um([10.0, 0.0])).abs() <= 1e-9);
+        // A right image tilted less: heights of the other sign.
+        let swapped = pair(view(9.76562e-8, tilt_r), view(9.76562e-8, tilt_l));
+        let z = from_images.z_for_pair([10.0, 0.0], Some(&swapped)).unwrap();
+        assert!((z + typed.z_um([10.0, 0.0])).abs() <= 1e-9, "{z}");
+    }
+
+    #[test]
+    fn missing_or_contradicting_metadata_gives_no_height_and_says_why() {
+        let cal = from_json(
+            r#"{"model": "geometric", "pixel_size": "from_images", "vergence": "from_stage_tilt"}"#,
+        )
+        .unwrap();
+        let no_height = |meta: Option<&PairMeta>| cal.z_for_pair([3.0, 0.0], meta).unwrap_err();
+        assert!(no_height(None).contains("no metadata"));
+        let no_tilt = pair(
+            ViewMeta {
+                stage_tilt_rad: None,
+                ..view(1e-7, 0.0)
+            },
+            view(1e-7, 0.1),
+        );
+        assert!(no_height(Some(&no_tilt)).contains("stage tilt"));
+        let same_tilt = pair(view(1e-7, 0.1), view(1e-7, 0.1));
+        assert!(no_height(Some(&same_tilt)).contains("no vergence"));
+        let zoomed = pair(view(1e-7, 0.0), view(1.05e-7, 0.1));
+        assert!(no_height(Some(&zoomed)).contains("magnification"));
+        let no_pixel = pair(
+            ViewMeta {
+                pixel_width_m: None,
+                pixel_height_m: None,
+                ..view(1e-7, 0.0)
+            },
+            view(1e-7, 0.1),
+        );
+        assert!(no_height(Some(&no_pixel)).contains("no pixel size"));
+        // Non-square pixels: the length across the tilt axis (axis along y:
+        // the width; along x: the height).
+        let wide = pair(
+            ViewMeta {
+                pixel_width_m: Some(2e-7),
+                pixel_height_m: Some(1e-7),
+                stage_tilt_rad: Some(0.0),
+            },
+            ViewMeta {
+                pixel_width_m: Some(2e-7),
+                pixel_height_m: Some(1e-7),
+                stage_tilt_rad: Some(0.1),
+            },
+        );
+        assert!((wide.pixel_size_um(90.0).unwrap() - 0.2).abs() < 1e-12);
+        assert!((wide.pixel_size_um(0.0).unwrap() - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_geometric_calibration_needs_one_pixel_size_and_one_vergence() {
+        for (text, expected) in [
+            (
+                r#"{"model": "geometric", "pixel_size_um": 0.5, "pixel_size": "from_images", "vergence_deg": 5}"#,
+                "both pixel_size_um and pixel_size",
+            ),
+            (
+                r#"{"model": "geometric", "vergence_deg": 5}"#,
+                "missing pixel_size_um",
+            ),
+            (
+                r#"{"model": "geometric", "pixel_size_um": 0.5}"#,
+                "missing vergence_deg",
+            ),
+            (
+                r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 5, "vergence": "from_stage_tilt"}"#,
+                "both vergence_deg and vergence",
+            ),
+            (
+                r#"{"model": "geometric", "pixel_size": "from_file", "vergence_deg": 5}"#,
+                "from_images",
+            ),
+        ] {
+            let e = from_json(text).unwrap_err();
+            assert!(e.to_string().contains(expected), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_magnification_change_is_warned_once_per_change() {
+        let cal = build(CalibrationSpec::Geometric(GeometricSpec::new(0.1, 6.0))).unwrap();
+        let at = |pixel_m: f64| pair(view(pixel_m, 0.0), view(pixel_m, 0.1));
+        let mut watch = MetaWatch::default();
+        let warned: Vec<bool> = [1e-7, 1e-7, 2e-7, 2e-7, 2.001e-7, 1e-7, 1.004e-7, 3e-7]
+            .iter()
+            .map(|&p| watch.check(&cal, Some(&at(p))).is_some())
+            .collect();
+        assert_eq!(warned, [false, false, true, false, false, false, false, true]);
+        let text = MetaWatch::default().check(&cal, Some(&at(2e-7)));
+        assert!(
+            text.as_ref()
+                .is_some_and(|t| t.contains("0.200000 um") && t.contains("100.0%")),
+            "{text:?}"
+        );
+        // Without metadata, or with a fit, nothing to compare.
+        assert_eq!(MetaWatch::default().check(&cal, None), None);
     }
 }

@@ -11,7 +11,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::calib::{axis_component, Calibration};
+use crate::calib::{axis_component, Calibration, MetaWatch, PairMeta};
 use crate::energy::{michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
     fit_free, fit_rigid, fit_rigid_on_line, line_polish, newton_polish, place, CompassSearch, FreeFitParams,
@@ -20,6 +20,7 @@ use crate::fit::{
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{initialise, InitParams};
+use crate::meta::ImageMeta;
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
 
@@ -229,15 +230,47 @@ pub struct PairResult {
     pub angle_diff_rad: Option<f64>,
     /// Height from the calibration, micrometres; null without one.
     pub z_um: Option<f64>,
+    /// What the two images' own metadata say (pixel size, stage tilt and
+    /// their difference); absent when neither carries any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metadata: Option<PairMeta>,
+    /// What in the images' metadata could not be read, contradicts the
+    /// calibration, or leaves a tracked pair without z; absent when none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
 }
 
 impl PairResult {
-    /// Fills `z_um` from a calibration (leaves it null for lost pairs).
-    pub fn apply_calibration(&mut self, calibration: Option<&Calibration>) {
-        self.z_um = match (calibration, self.disparity_px, self.status) {
-            (Some(c), Some(d), Status::Initialised | Status::Tracked) => Some(c.z_um(d)),
-            _ => None,
+    /// Records the two images' metadata (see [`crate::meta`]) and what
+    /// could not be read of it.
+    pub fn apply_metadata(&mut self, left: &ImageMeta, right: &ImageMeta) {
+        self.metadata = PairMeta::of(left, right);
+        for (side, meta) in [("left", left), ("right", right)] {
+            self.warnings
+                .extend(meta.warnings.iter().map(|w| format!("{side} image: {w}")));
+        }
+    }
+
+    /// Fills `z_um` from a calibration and the pair's metadata (leaves it
+    /// null for lost pairs, and for tracked ones whose metadata the
+    /// calibration needs but cannot use: a warning then says why). `watch`
+    /// carries the session's last pixel size, to warn once per
+    /// magnification change that contradicts a typed calibration.
+    pub fn apply_calibration(&mut self, calibration: Option<&Calibration>, watch: &mut MetaWatch) {
+        self.z_um = None;
+        let Some(c) = calibration else {
+            return;
         };
+        if let Some(w) = watch.check(c, self.metadata.as_ref()) {
+            self.warnings.push(w);
+        }
+        let (Some(d), Status::Initialised | Status::Tracked) = (self.disparity_px, self.status) else {
+            return;
+        };
+        match c.z_for_pair(d, self.metadata.as_ref()) {
+            Ok(z) => self.z_um = Some(z),
+            Err(why) => self.warnings.push(format!("no z: {why}")),
+        }
     }
 }
 
@@ -1125,6 +1158,8 @@ impl StereoTracker {
             relative_disparity_axis_px: Some(axis - state.first_disparity_axis_px),
             angle_diff_rad: Some(state.right.theta - state.left.theta),
             z_um: None,
+            metadata: None,
+            warnings: Vec::new(),
         }
     }
 }
@@ -1231,6 +1266,8 @@ fn lost_result(frame: u64, reason: String) -> PairResult {
         relative_disparity_axis_px: None,
         angle_diff_rad: None,
         z_um: None,
+        metadata: None,
+        warnings: Vec::new(),
     }
 }
 

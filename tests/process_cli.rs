@@ -164,6 +164,127 @@ fn process_with_a_geometric_calibration_fills_z() {
     }
 }
 
+/// `png` rewritten as an 8-bit TIFF carrying FEI metadata (tag 34682,
+/// `FEI_HELIOS`, as the microscope writes it) with this pixel size and
+/// stage tilt.
+fn fei_tiff(png: &Path, tiff: &Path, pixel_m: f64, tilt_rad: f64) {
+    use tiff::encoder::{colortype::Gray8, TiffEncoder};
+    use tiff::tags::Tag;
+    let image = image::open(png).unwrap().to_luma8();
+    let text = format!(
+        "[User]\r\nDate=11/25/2026\r\n[Beam]\r\nHV=5000\r\n[Scan]\r\nPixelWidth={pixel_m:e}\r\nPixelHeight={pixel_m:e}\r\n\
+         [Stage]\r\nStageT={tilt_rad}\r\nWorkingDistance=0.0165\r\n"
+    );
+    let mut file = std::fs::File::create(tiff).unwrap();
+    let mut encoder = TiffEncoder::new(&mut file).unwrap();
+    let mut page = encoder.new_image::<Gray8>(image.width(), image.height()).unwrap();
+    page.encoder()
+        .write_tag(Tag::Unknown(34682), text.as_str())
+        .unwrap();
+    page.write_data(image.as_raw()).unwrap();
+}
+
+/// Issue #20: a stage-tilt pair whose TIFFs carry the microscope's pixel
+/// size and stage tilts gives z with a calibration that takes both from the
+/// images, equal to the typed geometric calibration's to 1e-9 um; each
+/// record echoes the metadata; a pair whose two images disagree on the
+/// pixel size gets no z and says why; a typed calibration whose pixel size
+/// the images contradict is warned about once per change.
+#[test]
+fn process_takes_pixel_size_and_stage_tilt_from_the_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+    let tiffs = dir.path().join("tiffs");
+    std::fs::create_dir(&tiffs).unwrap();
+    let (pixel_m, tilt_l, vergence_deg) = (9.76562e-8, 0.558473, 7.0_f64);
+    let tilt_r = tilt_l + vergence_deg.to_radians();
+    for k in 0..10 {
+        let name = |side: &str, ext: &str| format!("{k:04}_{side}.{ext}");
+        // Pair 7's right image was taken at another magnification.
+        let right_pixel = if k == 7 { 1.05 * pixel_m } else { pixel_m };
+        fei_tiff(
+            &seq.join(name("left", "png")),
+            &tiffs.join(name("left", "tif")),
+            pixel_m,
+            tilt_l,
+        );
+        fei_tiff(
+            &seq.join(name("right", "png")),
+            &tiffs.join(name("right", "tif")),
+            right_pixel,
+            tilt_r,
+        );
+    }
+    let run = |calibration: &str| {
+        let path = dir.path().join("cal.json");
+        std::fs::write(&path, calibration).unwrap();
+        let out = semdepth(&[
+            "process",
+            path_str(&tiffs),
+            "--calibration",
+            path_str(&path),
+            "--no-contour",
+        ]);
+        assert_success(&out);
+        jsonl(&out)
+    };
+    let from_images =
+        run(r#"{"model": "geometric", "pixel_size": "from_images", "vergence": "from_stage_tilt"}"#);
+    let typed = run(&format!(
+        r#"{{"model": "geometric", "pixel_size_um": {}, "vergence_deg": {}}}"#,
+        pixel_m * 1e6,
+        (tilt_r - tilt_l).to_degrees()
+    ));
+    assert_eq!(from_images.len(), 10);
+    for (k, (a, b)) in from_images.iter().zip(&typed).enumerate() {
+        assert_eq!(a["status"], b["status"]);
+        let meta = &a["metadata"];
+        assert!(
+            (f(&meta["left"]["pixel_width_m"]) - pixel_m).abs() < 1e-9 * pixel_m,
+            "{meta}"
+        );
+        assert!(
+            (f(&meta["left"]["stage_tilt_rad"]) - tilt_l).abs() < 1e-12,
+            "{meta}"
+        );
+        assert!(
+            (f(&meta["stage_tilt_difference_rad"]) - (tilt_r - tilt_l)).abs() < 1e-12,
+            "{meta}"
+        );
+        if k == 7 {
+            assert!(a["z_um"].is_null(), "pair 7: {a}");
+            let warnings = a["warnings"].to_string();
+            assert!(
+                warnings.contains("no z") && warnings.contains("magnification"),
+                "{warnings}"
+            );
+            continue;
+        }
+        let (za, zb) = (f(&a["z_um"]), f(&b["z_um"]));
+        assert!(
+            (za - zb).abs() <= 1e-9,
+            "pair {k}: z {za} from the images, {zb} typed"
+        );
+        assert!(a.get("warnings").is_none(), "pair {k}: {a}");
+    }
+    // A typed pixel size the images contradict: warned on the first pair
+    // and where the magnification changes (pair 7's right image differs
+    // from its left: that pair's own pixel size is the left's, unchanged).
+    let off = run(r#"{"model": "geometric", "pixel_size_um": 0.2, "vergence_deg": 7}"#);
+    let warned: Vec<usize> = (0..10).filter(|&k| off[k].get("warnings").is_some()).collect();
+    assert_eq!(warned, [0], "{off:?}");
+    assert!(
+        off[0]["warnings"].to_string().contains("magnification changed"),
+        "{}",
+        off[0]
+    );
+    assert!(
+        !off[0]["z_um"].is_null(),
+        "the calibration's z still comes: {}",
+        off[0]
+    );
+}
+
 /// Splits one CSV line into cells (quoted cells may hold commas and `""`).
 fn csv_cells(line: &str) -> Vec<String> {
     let (mut cells, mut cell, mut quoted, mut chars) =
@@ -195,7 +316,8 @@ fn process_csv_has_the_documented_columns() {
     let header = csv_cells(lines.next().expect("header"));
     let expected = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,right_x,right_y,\
 right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,relative_disparity_axis_px,\
-angle_diff_rad,z_um";
+angle_diff_rad,z_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,right_pixel_width_m,\
+right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
     assert_eq!(header.join(","), expected);
     let rows: Vec<Vec<String>> = lines.map(csv_cells).collect();
     assert_eq!(rows.len(), 10);

@@ -606,3 +606,134 @@ async fn one_shot_depth_takes_hints_as_query_parameters() {
     }
     server.stop().await.unwrap();
 }
+
+/// Issue #20: a calibration that takes the pixel size and the vergence from
+/// the images (`from_images`, `from_stage_tilt`), used by a session fed
+/// FEI TIFFs over REST and over the WebSocket: z equals the typed geometric
+/// calibration's to 1e-9 um, and each result echoes the metadata. PNG
+/// pairs (no metadata) get no z and a warning saying why.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibration_from_image_metadata_gives_the_typed_z() {
+    use futures_util::SinkExt;
+    use server::{fei_tiff, next_reply, png, sdp1};
+    use tokio_tungstenite::tungstenite::Message;
+
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let http = reqwest::Client::new();
+    let base = &server.base;
+    let create = |body: Value| {
+        let http = http.clone();
+        async move {
+            json_of(
+                http.post(format!("{base}/v1/calibrations"))
+                    .json(&body)
+                    .send()
+                    .await
+                    .unwrap(),
+            )
+            .await
+        }
+    };
+    let (status, cal) =
+        create(json!({"model": "geometric", "pixel_size": "from_images", "vergence": "from_stage_tilt"}))
+            .await;
+    assert_eq!(status, 201, "{cal}");
+    assert_eq!(cal["pixel_size"], "from_images");
+    assert_eq!(cal["vergence"], "from_stage_tilt");
+    assert_eq!(cal["coefficients"], json!([]), "{cal}");
+    // Both ways at once is refused, naming the fields.
+    let (status, err) = create(
+        json!({"model": "geometric", "pixel_size": "from_images", "pixel_size_um": 0.1,
+        "vergence_deg": 5}),
+    )
+    .await;
+    assert!(status == 400 || status == 422, "{status} {err}");
+    assert!(
+        err["error"]["message"]
+            .as_str()
+            .unwrap()
+            .contains("pixel_size_um"),
+        "{err}"
+    );
+
+    let (pixel_m, tilt_l, vergence_deg) = (9.76562e-8, 0.3, 6.0_f64);
+    let tilt_r = tilt_l + vergence_deg.to_radians();
+    let typed = semdepth::calib::build(semdepth::calib::CalibrationSpec::Geometric(
+        semdepth::calib::GeometricSpec::new(pixel_m * 1e6, (tilt_r - tilt_l).to_degrees()),
+    ))
+    .unwrap();
+    let (_, session) = json_of(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"calibration_id": cal["id"]}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    let sid = session["id"].as_str().unwrap().to_string();
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 11, 6);
+    let check = |r: &Value, what: &str| {
+        let z = r["z_um"].as_f64().unwrap_or_else(|| panic!("{what}: no z: {r}"));
+        let expected = typed.z_um([
+            r["disparity_px"][0].as_f64().unwrap(),
+            r["disparity_px"][1].as_f64().unwrap(),
+        ]);
+        assert!((z - expected).abs() <= 1e-9, "{what}: z {z} against {expected}");
+        let meta = &r["metadata"];
+        assert!(
+            (meta["right"]["pixel_width_m"].as_f64().unwrap() - pixel_m).abs() < 1e-9 * pixel_m,
+            "{meta}"
+        );
+        assert!(
+            (meta["stage_tilt_difference_rad"].as_f64().unwrap() - (tilt_r - tilt_l)).abs() < 1e-12,
+            "{meta}"
+        );
+    };
+    for pair in &pairs[..3] {
+        let form = reqwest::multipart::Form::new()
+            .part(
+                "left",
+                reqwest::multipart::Part::bytes(fei_tiff(&pair.left, pixel_m, tilt_l)).file_name("l.tif"),
+            )
+            .part(
+                "right",
+                reqwest::multipart::Part::bytes(fei_tiff(&pair.right, pixel_m, tilt_r)).file_name("r.tif"),
+            );
+        let (status, r) = json_of(
+            http.post(format!("{base}/v1/sessions/{sid}/frames"))
+                .multipart(form)
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(status, 200, "{r}");
+        check(&r, "REST");
+    }
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    for (seq, pair) in pairs[3..5].iter().enumerate() {
+        let (l, r) = (
+            fei_tiff(&pair.left, pixel_m, tilt_l),
+            fei_tiff(&pair.right, pixel_m, tilt_r),
+        );
+        let header = json!({"seq": seq, "encoding": "tiff", "left_len": l.len(), "right_len": r.len()});
+        ws.send(Message::Binary(sdp1(&header, &l, &r).into()))
+            .await
+            .unwrap();
+        check(&next_reply(&mut ws).await, "WebSocket");
+    }
+    // PNG files carry no metadata: tracked, but no z, and the reason.
+    let (l, r) = (png(&pairs[5].left), png(&pairs[5].right));
+    let header = json!({"seq": 9, "encoding": "png", "left_len": l.len(), "right_len": r.len()});
+    ws.send(Message::Binary(sdp1(&header, &l, &r).into()))
+        .await
+        .unwrap();
+    let reply = next_reply(&mut ws).await;
+    assert_eq!(reply["status"], "tracked", "{reply}");
+    assert!(reply["z_um"].is_null(), "{reply}");
+    assert!(reply["warnings"].to_string().contains("no metadata"), "{reply}");
+    server.stop().await.unwrap();
+}

@@ -10,9 +10,10 @@ use std::time::{Duration, Instant};
 use clap::{Args, ValueEnum};
 
 use super::{hint_error, CliError};
-use crate::calib::{from_json, Calibration};
-use crate::imageio::{read_file, DecodeLimits, GrayFrame};
+use crate::calib::{from_json, Calibration, MetaWatch};
+use crate::imageio::{decode, DecodeLimits, GrayFrame, ImageInputError};
 use crate::init::{InitError, Polarity};
+use crate::meta::{read_meta, ImageMeta};
 use crate::report::{csv_record, CSV_HEADER};
 use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
 
@@ -276,10 +277,11 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     // The CSV header goes out with the first record, so that an error on
     // the first pair (e.g. hints that do not fit the images) prints nothing.
     let mut header_due = args.format == Format::Csv;
+    let mut watch = MetaWatch::default();
     for pair in &pairs {
         let started = Instant::now();
-        let left = read_image(&pair.left, &limits)?;
-        let right = read_image(&pair.right, &limits)?;
+        let (left, left_meta) = read_image(&pair.left, &limits)?;
+        let (right, right_meta) = read_image(&pair.right, &limits)?;
         let decoded = Instant::now();
         let mut result = tracker.process(&left, &right).map_err(|e| match &e {
             // The hints do not fit the images: name the flag or field.
@@ -297,7 +299,8 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
             )),
         })?;
         let tracked = Instant::now();
-        result.apply_calibration(calibration.as_ref());
+        result.apply_metadata(&left_meta, &right_meta);
+        result.apply_calibration(calibration.as_ref(), &mut watch);
         let timing = Timing {
             decode: ms(decoded - started),
             track: ms(tracked - decoded),
@@ -318,12 +321,19 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-fn read_image(path: &Path, limits: &DecodeLimits) -> Result<GrayFrame, CliError> {
-    read_file(path, limits).map_err(|e| match e {
+/// The image and what its microscope metadata say (see [`crate::meta`]).
+fn read_image(path: &Path, limits: &DecodeLimits) -> Result<(GrayFrame, ImageMeta), CliError> {
+    let bytes = std::fs::read(path).map_err(|source| {
+        let e = ImageInputError::Io {
+            path: path.display().to_string(),
+            source,
+        };
         // The I/O error names the path already.
-        crate::imageio::ImageInputError::Io { .. } => CliError::input(format!("error[{}]: {e}", e.code())),
-        _ => CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())),
-    })
+        CliError::input(format!("error[{}]: {e}", e.code()))
+    })?;
+    let frame = decode(&bytes, limits)
+        .map_err(|e| CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())))?;
+    Ok((frame, read_meta(&bytes)))
 }
 
 fn track_error_code(e: &TrackError) -> &'static str {

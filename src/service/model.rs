@@ -5,7 +5,8 @@ use serde::{Deserialize, Deserializer, Serialize};
 use utoipa::ToSchema;
 
 use crate::calib::{
-    CalibrationSpec, FitSpec, GeometricSpec, Sample, DEFAULT_FIT_DEGREE, DEFAULT_TILT_AXIS_DEG,
+    CalibrationSpec, FitSpec, GeometricSpec, PixelSizeSource, Sample, VergenceSource, DEFAULT_FIT_DEGREE,
+    DEFAULT_TILT_AXIS_DEG,
 };
 use crate::init::InitParams;
 use crate::tracker::{PairResult, TrackerParams};
@@ -18,17 +19,31 @@ use super::storage::{CalibrationRecord, SessionRecord};
 #[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
 pub enum CalibrationCreate {
     /// Eucentric tilt geometry: z = (d - reference) * pixel_size / (2 sin(vergence / 2)).
+    /// The pixel size is `pixel_size_um` or, with `"pixel_size": "from_images"`,
+    /// each pair's image metadata; the vergence is `vergence_deg` or, with
+    /// `"vergence": "from_stage_tilt"`, the right image's stage tilt minus the
+    /// left's.
     #[schema(example = json!({"name": "5 kx, 6 deg", "model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0, "reference_disparity_px": 0.0, "tilt_axis_deg": 90.0}))]
     Geometric {
         /// Free-text label.
         #[serde(default)]
         name: Option<String>,
-        /// Length of one pixel at the specimen, micrometres (> 0).
+        /// Length of one pixel at the specimen, micrometres (> 0). Give this
+        /// or `pixel_size`.
+        #[serde(default)]
         #[schema(exclusive_minimum = 0.0)]
-        pixel_size_um: f64,
+        pixel_size_um: Option<f64>,
+        /// `from_images`: the pixel size each pair's images carry.
+        #[serde(default)]
+        pixel_size: Option<PixelSizeSource>,
         /// Total vergence angle between the two views, degrees (0 < v <= 90).
+        /// Give this or `vergence`.
+        #[serde(default)]
         #[schema(exclusive_minimum = 0.0, maximum = 90.0)]
-        vergence_deg: f64,
+        vergence_deg: Option<f64>,
+        /// `from_stage_tilt`: the difference of each pair's stage tilts.
+        #[serde(default)]
+        vergence: Option<VergenceSource>,
         /// Disparity across the tilt axis at z = 0, pixels. Default 0.
         #[serde(default)]
         #[schema(minimum = -1e6, maximum = 1e6)]
@@ -74,14 +89,18 @@ impl CalibrationCreate {
             Self::Geometric {
                 name,
                 pixel_size_um,
+                pixel_size,
                 vergence_deg,
+                vergence,
                 reference_disparity_px,
                 tilt_axis_deg,
             } => (
                 name,
                 CalibrationSpec::Geometric(GeometricSpec {
                     pixel_size_um,
+                    pixel_size,
                     vergence_deg,
+                    vergence,
                     reference_disparity_px,
                     tilt_axis_deg,
                 }),
@@ -115,14 +134,21 @@ pub struct CalibrationView {
     pub model: String,
     /// Direction of the tilt axis, degrees from +x towards +y.
     pub tilt_axis_deg: f64,
-    /// z_um = c0 + c1 d (+ c2 d^2), d the disparity across the tilt axis in pixels.
+    /// z_um = c0 + c1 d (+ c2 d^2), d the disparity across the tilt axis in
+    /// pixels; empty when the scale comes from each pair's images.
     pub coefficients: Vec<f64>,
     /// Geometric: micrometres per pixel.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pixel_size_um: Option<f64>,
+    /// Geometric: `from_images` when the pixel size comes from each pair.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pixel_size: Option<PixelSizeSource>,
     /// Geometric: vergence angle, degrees.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vergence_deg: Option<f64>,
+    /// Geometric: `from_stage_tilt` when the vergence comes from each pair.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vergence: Option<VergenceSource>,
     /// Geometric: disparity at z = 0, pixels.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference_disparity_px: Option<f64>,
@@ -154,7 +180,9 @@ impl From<&CalibrationRecord> for CalibrationView {
             tilt_axis_deg: c.tilt_axis_deg(),
             coefficients: c.coefficients().to_vec(),
             pixel_size_um: None,
+            pixel_size: None,
             vergence_deg: None,
+            vergence: None,
             reference_disparity_px: None,
             degree: None,
             samples: None,
@@ -165,8 +193,10 @@ impl From<&CalibrationRecord> for CalibrationView {
         };
         match c.spec() {
             CalibrationSpec::Geometric(g) => {
-                view.pixel_size_um = Some(g.pixel_size_um);
-                view.vergence_deg = Some(g.vergence_deg);
+                view.pixel_size_um = g.pixel_size_um;
+                view.pixel_size = g.pixel_size;
+                view.vergence_deg = g.vergence_deg;
+                view.vergence = g.vergence;
                 view.reference_disparity_px = Some(g.reference_disparity_px);
             }
             CalibrationSpec::Fit(f) => {

@@ -14,7 +14,9 @@ use axum::extract::{FromRequest, Request};
 use axum::http::StatusCode;
 use tokio::sync::{OwnedMutexGuard, OwnedSemaphorePermit};
 
+use crate::calib::MetaWatch;
 use crate::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
+use crate::meta::{read_meta, ImageMeta};
 use crate::tracker::{PairResult, StereoTracker, TrackerParams};
 
 use super::error::ApiError;
@@ -50,6 +52,25 @@ pub enum PairInput {
 impl PairInput {
     /// Decodes both images (CPU-heavy: call on the blocking pool).
     pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame), ApiError> {
+        let (left, right, _) = self.decode_with_meta(limits)?;
+        Ok((left, right))
+    }
+
+    /// Decodes both images and reads their microscope metadata (raw
+    /// samples carry none).
+    pub fn decode_with_meta(
+        &self,
+        limits: &DecodeLimits,
+    ) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
+        let (left, right) = self.decode_frames(limits)?;
+        let meta = match self {
+            Self::Encoded { left, right } => Some((read_meta(left), read_meta(right))),
+            Self::Raw { .. } => None,
+        };
+        Ok((left, right, meta))
+    }
+
+    fn decode_frames(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame), ApiError> {
         let side = |which: &str, e: crate::imageio::ImageInputError| {
             let mut err = ApiError::from(e);
             err.message = format!("{which} image: {}", err.message);
@@ -73,6 +94,9 @@ impl PairInput {
         }
     }
 }
+
+/// The two images' metadata, when they came as files.
+pub type PairFiles = Option<(ImageMeta, ImageMeta)>;
 
 /// A pair tracked and queued for storage, not yet acknowledged.
 pub struct TrackedPair {
@@ -272,7 +296,7 @@ fn track_locked(
     let queue = ms(received.elapsed());
     let (mut result, decode_ms, track_ms) =
         decode_and_track(input, &state.config.decode_limits, &mut core.tracker)?;
-    result.apply_calibration(calibration.as_ref());
+    result.apply_calibration(calibration.as_ref(), &mut core.meta_watch);
     let now = now_rfc3339();
     core.state = if result.status == crate::tracker::Status::Lost {
         "lost".into()
@@ -335,7 +359,7 @@ pub async fn process_one_shot(
     .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
     drop(permit);
     let outcome = outcome.map(|(mut result, decode_ms, track_ms)| {
-        result.apply_calibration(calibration.as_ref());
+        result.apply_calibration(calibration.as_ref(), &mut MetaWatch::default());
         FrameResult {
             session_id: None,
             calibration_id,
@@ -389,9 +413,12 @@ fn decode_and_track(
     tracker: &mut StereoTracker,
 ) -> Result<(PairResult, f64, f64), ApiError> {
     let started = Instant::now();
-    let (left, right) = input.decode(limits)?;
+    let (left, right, meta) = input.decode_with_meta(limits)?;
     let decoded = Instant::now();
-    let result = tracker.process(&left, &right)?;
+    let mut result = tracker.process(&left, &right)?;
+    if let Some((l, r)) = meta {
+        result.apply_metadata(&l, &r);
+    }
     Ok((result, ms(decoded - started), ms(decoded.elapsed())))
 }
 

@@ -10,7 +10,7 @@ use tokio::sync::{Mutex, Semaphore};
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use crate::calib::Calibration;
+use crate::calib::{Calibration, MetaWatch};
 use crate::imageio::DecodeLimits;
 use crate::tracker::{StereoTracker, TrackerParams};
 
@@ -183,6 +183,9 @@ pub struct SessionCore {
     pub latest_disparity_px: Option<[f64; 2]>,
     /// Set when the session is deleted, so that streams still holding it stop.
     pub deleted: bool,
+    /// The last pixel size the pairs' metadata gave, to warn once per
+    /// magnification change (in memory: a restart warns again).
+    pub meta_watch: MetaWatch,
 }
 
 impl SessionCore {
@@ -204,6 +207,7 @@ impl SessionCore {
             tracker: StereoTracker::new(params),
             latest_disparity_px: None,
             deleted: false,
+            meta_watch: MetaWatch::default(),
         }
     }
 
@@ -219,6 +223,7 @@ impl SessionCore {
             tracker: StereoTracker::from_state(r.params, r.tracker_state, r.frames),
             latest_disparity_px,
             deleted: false,
+            meta_watch: MetaWatch::default(),
         }
     }
 

@@ -1048,8 +1048,10 @@ mod tests {
 
     fn calibration(pixel_size_um: f64) -> Calibration {
         build(CalibrationSpec::Geometric(GeometricSpec {
-            pixel_size_um,
-            vergence_deg: 6.0,
+            pixel_size_um: Some(pixel_size_um),
+            pixel_size: None,
+            vergence_deg: Some(6.0),
+            vergence: None,
             reference_disparity_px: 0.0,
             tilt_axis_deg: 90.0,
         }))
