@@ -22,6 +22,7 @@ fn main() {
         }
         let (mut sq_d, mut sq_c, mut n, mut lost, mut worst, mut flagged) =
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
+        let (mut sum_std, mut n_std) = (0.0f64, 0usize);
         let t = std::time::Instant::now();
         for shape in Shape::ALL {
             if std::env::var("SHAPE").is_ok_and(|v| v != shape.name()) {
@@ -101,6 +102,9 @@ fn main() {
                     let tc = pair.truth.left.centroid;
                     sq_c += (c[0] - tc[0]).powi(2) + (c[1] - tc[1]).powi(2);
                     errs.push(d);
+                    if let Some(std) = r.disparity_std_px {
+                        (sum_std, n_std) = (sum_std + std, n_std + 1);
+                    }
                 }
                 let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
                 if std::env::var("VERBOSE").is_ok() {
@@ -127,9 +131,11 @@ fn main() {
             }
         }
         println!(
-            "{:>9}: disparity RMS {:.4} px (max {:.3}), left centroid RMS {:.3} px, lost {lost}, occlusion flagged in {flagged}, {n} pairs, {:.1} ms/pair incl. rendering",
+            "{:>9}: disparity RMS {:.4} px, mean reported std {:.4} px (ratio {:.2}, {n_std} pairs), max {:.3}, left centroid RMS {:.3} px, lost {lost}, occlusion flagged in {flagged}, {n} pairs, {:.1} ms/pair incl. rendering",
             preset.name(),
             (sq_d / n as f64).sqrt(),
+            sum_std / n_std.max(1) as f64,
+            sum_std / n_std.max(1) as f64 / (sq_d / n as f64).sqrt(),
             worst,
             (sq_c / n as f64).sqrt(),
             t.elapsed().as_secs_f64() * 1e3 / (n + lost) as f64

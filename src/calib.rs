@@ -685,6 +685,54 @@ impl Calibration {
         }
     }
 
+    /// Standard error of [`Calibration::z_for_pair`]'s height for a
+    /// disparity whose component across the tilt axis has standard error
+    /// `std_px`: the slope dz/dd times `std_px` and, for a fit, its
+    /// prediction error at d, `s^2 (1 + h(d))` with `s^2 = SS_res / (n - p)`
+    /// and `h` the leverage of d. `None` when there is no height, or a fit
+    /// has no more samples than coefficients (its error is then unknown).
+    pub fn z_std_for_pair(
+        &self,
+        disparity_px: [f64; 2],
+        std_px: f64,
+        meta: Option<&PairMeta>,
+    ) -> Option<f64> {
+        // One pixel along the disparity direction, both ways: the central
+        // difference is exact for the polynomials used.
+        let (sin_t, cos_t) = sin_cos_deg(self.tilt_axis_deg());
+        let moved = |k: f64| [disparity_px[0] + k * sin_t, disparity_px[1] - k * cos_t];
+        let slope =
+            (self.z_for_pair(moved(1.0), meta).ok()? - self.z_for_pair(moved(-1.0), meta).ok()?) / 2.0;
+        let mut variance = (slope * std_px).powi(2);
+        if let (CalibrationSpec::Fit(f), Some(poly), Some(stats)) = (&self.spec, &self.poly, self.stats) {
+            let (n, p) = (f.samples.len(), f.degree as usize + 1);
+            if n <= p {
+                return None;
+            }
+            let s2 = stats.residual_rms_um.powi(2) * n as f64 / (n - p) as f64;
+            let u = |d: f64| (d - poly.center_px) / poly.scale_px;
+            let row = |d: f64| -> Vec<f64> { (0..p).map(|k| u(d).powi(k as i32)).collect() };
+            let mut xtx = vec![vec![0.0; p]; p];
+            for sample in &f.samples {
+                let x = row(sample.disparity_px);
+                for i in 0..p {
+                    for j in 0..p {
+                        xtx[i][j] += x[i] * x[j];
+                    }
+                }
+            }
+            let x0 = row(axis_component(f.tilt_axis_deg, disparity_px));
+            let leverage = solve(xtx, x0.clone())?
+                .iter()
+                .zip(&x0)
+                .map(|(a, b)| a * b)
+                .sum::<f64>();
+            variance += s2 * (1.0 + leverage);
+        }
+        let std = variance.sqrt();
+        std.is_finite().then_some(std)
+    }
+
     /// Appends a sample to a fitted calibration and refits. On error (invalid
     /// sample, too many samples, degenerate refit, or a geometric calibration:
     /// [`CalibError::NotAFit`]) the calibration is unchanged.
@@ -851,6 +899,35 @@ fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
         stats: Some(stats),
         poly: Some(poly),
     })
+}
+
+/// Solves the small symmetric system `a x = b` by Gaussian elimination with
+/// partial pivoting; `None` when it is singular.
+fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+    let n = b.len();
+    for k in 0..n {
+        let pivot = (k..n).max_by(|&i, &j| a[i][k].abs().total_cmp(&a[j][k].abs()))?;
+        if a[pivot][k].abs() < 1e-300 {
+            return None;
+        }
+        a.swap(k, pivot);
+        b.swap(k, pivot);
+        let (top, rest) = a.split_at_mut(k + 1);
+        let pivot_row = &top[k];
+        for (i, row) in rest.iter_mut().enumerate() {
+            let m = row[k] / pivot_row[k];
+            for (x, p) in row[k..].iter_mut().zip(&pivot_row[k..]) {
+                *x -= m * p;
+            }
+            b[k + 1 + i] -= m * b[k];
+        }
+    }
+    let mut x = vec![0.0; n];
+    for i in (0..n).rev() {
+        let s: f64 = (i + 1..n).map(|j| a[i][j] * x[j]).sum();
+        x[i] = (b[i] - s) / a[i][i];
+    }
+    Some(x)
 }
 
 /// Number of groups of values, where sorted neighbours closer than `tol` join a group.
@@ -1735,5 +1812,41 @@ mod tests {
         );
         // Without metadata, or with a fit, nothing to compare.
         assert_eq!(MetaWatch::default().check(&cal, None), None);
+    }
+
+    #[test]
+    fn height_errors_carry_the_slope_and_a_fit_s_own_error() {
+        // Geometric: the disparity error through the slope, nothing else.
+        let geometric = build(CalibrationSpec::Geometric(GeometricSpec::new(0.5, 10.0))).unwrap();
+        let slope = geometric.coefficients()[1];
+        let std = geometric.z_std_for_pair([3.0, 1.0], 0.1, None).unwrap();
+        assert!((std - 0.1 * slope).abs() < 1e-12, "{std} against {}", 0.1 * slope);
+        // A linear fit through scattered samples: the prediction error
+        // s^2 (1 + 1/n + (d - mean)^2 / Sxx) adds to the slope's term.
+        let d = [0.0, 1.0, 2.0, 3.0, 4.0];
+        let z = [0.1, 2.0, 3.9, 6.2, 7.8];
+        let fit = build(CalibrationSpec::Fit(FitSpec {
+            degree: 1,
+            samples: d.iter().zip(z).map(|(&d, z)| Sample::new(d, z)).collect(),
+            tilt_axis_deg: 90.0,
+        }))
+        .unwrap();
+        let (n, mean) = (5.0, 2.0);
+        let sxx: f64 = d.iter().map(|x| (x - mean).powi(2)).sum();
+        let s2 = fit.residual_rms_um().unwrap().powi(2) * n / (n - 2.0);
+        let c1 = fit.coefficients()[1];
+        for x in [-1.0, 2.0, 6.0] {
+            let expected = ((c1 * 0.05).powi(2) + s2 * (1.0 + 1.0 / n + (x - mean).powi(2) / sxx)).sqrt();
+            let got = fit.z_std_for_pair([x, 0.0], 0.05, None).unwrap();
+            assert!((got - expected).abs() < 1e-9, "d {x}: {got} against {expected}");
+        }
+        // As many samples as coefficients: the fit's error is unknown.
+        let exact = build(CalibrationSpec::Fit(FitSpec {
+            degree: 1,
+            samples: vec![Sample::new(0.0, 0.0), Sample::new(1.0, 2.0)],
+            tilt_axis_deg: 90.0,
+        }))
+        .unwrap();
+        assert_eq!(exact.z_std_for_pair([0.5, 0.0], 0.05, None), None);
     }
 }

@@ -15,6 +15,7 @@
 //! - [`fit`]: free (vertex-wise) and rigid (x, y, rotation) minimisation of the energy.
 //! - [`init`]: automatic initialisation (Gaussian, Canny, dilation, outer contours, size filter).
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
+//! - [`uncertainty`]: standard error of a fitted position along the disparity axis (sandwich estimate from the energy's curvature and the pixel noise).
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
 //! - [`report`]: CSV rows of pair results (shared by the CLI and the service).
 //! - [`cli`]: the command-line front end used by `main.rs`.
@@ -36,3 +37,4 @@ pub mod report;
 pub mod service;
 pub mod synth;
 pub mod tracker;
+pub mod uncertainty;

@@ -211,6 +211,36 @@ impl SectorTemplate {
             .collect()
     }
 
+    /// The contour arcs of the sectors not marked occluded, placed at
+    /// `pose`, in the template's orientation (consecutive visible sectors
+    /// joined into one arc); the whole contour, its first vertex repeated at
+    /// the end, when none is marked.
+    pub fn visible_arcs(&self, pose: Pose, occluded: &[bool]) -> Vec<Vec<Point>> {
+        let contour = place(&self.contour, pose);
+        let n = contour.len();
+        if !occluded.contains(&true) {
+            let mut closed = contour;
+            closed.push(closed[0]);
+            return vec![closed];
+        }
+        let mut arcs: Vec<Vec<Point>> = Vec::new();
+        let mut open = false;
+        for k in 0..self.starts.len() {
+            if occluded.get(k).copied().unwrap_or(false) {
+                open = false;
+                continue;
+            }
+            let (start, end) = (self.starts[k], self.starts.get(k + 1).copied().unwrap_or(n));
+            if !open {
+                arcs.push(vec![contour[start % n]]);
+                open = true;
+            }
+            let arc = arcs.last_mut().expect("an arc is open");
+            arc.extend((start + 1..=end).map(|i| contour[i % n]));
+        }
+        arcs
+    }
+
     /// Michelson contrast of every sector's inner band against its outer
     /// band; NaN for a sector that is not seen.
     pub fn contrasts(&self, sums: &PrefixSums, pose: Pose) -> Vec<f64> {

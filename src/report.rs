@@ -6,7 +6,7 @@ use crate::tracker::PairResult;
 /// The CSV header of [`csv_record`].
 pub const CSV_HEADER: &str = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,\
 right_x,right_y,right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,\
-relative_disparity_axis_px,angle_diff_rad,z_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,\
+relative_disparity_axis_px,angle_diff_rad,z_um,disparity_std_px,z_std_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,\
 right_pixel_width_m,right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
 
 /// One CSV row: `name` is the pair's name (file stem, or session id).
@@ -36,6 +36,8 @@ pub fn csv_record(r: &PairResult, name: &str) -> String {
     cells.push(num(r.relative_disparity_axis_px));
     cells.push(num(r.angle_diff_rad));
     cells.push(num(r.z_um));
+    cells.push(num(r.disparity_std_px));
+    cells.push(num(r.z_std_um));
     let meta = r.metadata.as_ref();
     for view in [meta.map(|m| m.left), meta.map(|m| m.right)] {
         cells.push(num(view.and_then(|v| v.pixel_width_m)));
@@ -81,7 +83,7 @@ mod tests {
         let line = csv_record(&r, "a,b");
         let expected = format!(
             "3,\"a,b\",lost,\"contrast \"\"collapsed\"\", left\"{}",
-            ",".repeat(22)
+            ",".repeat(24)
         );
         assert_eq!(line, expected);
         // Two of the commas are inside quoted cells.

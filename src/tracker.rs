@@ -23,8 +23,14 @@ use crate::init::{initialise, InitParams};
 use crate::meta::ImageMeta;
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
+use crate::uncertainty;
 
 pub use crate::energy::INTENSITY_OFFSET;
+
+/// Added in quadrature to the two views' standard errors: what the noise
+/// model leaves out (the rigid template's mismatch with the outline,
+/// sub-pixel discretisation), pixels.
+pub const DISPARITY_STD_FLOOR_PX: f64 = 0.02;
 
 /// All tracking parameters, with documented defaults.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -230,6 +236,15 @@ pub struct PairResult {
     pub angle_diff_rad: Option<f64>,
     /// Height from the calibration, micrometres; null without one.
     pub z_um: Option<f64>,
+    /// Standard error of `disparity_axis_px`, pixels (see
+    /// [`crate::uncertainty`]); null when the pair is not tracked.
+    #[serde(default)]
+    pub disparity_std_px: Option<f64>,
+    /// Standard error of `z_um`, micrometres: `disparity_std_px` through the
+    /// calibration's slope, and a fitted calibration's own prediction
+    /// error; null without `z_um`.
+    #[serde(default)]
+    pub z_std_um: Option<f64>,
     /// What the two images' own metadata say (pixel size, stage tilt and
     /// their difference); absent when neither carries any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -241,6 +256,20 @@ pub struct PairResult {
 }
 
 impl PairResult {
+    /// Marks the pair lost for `reason`: no disparity, z or uncertainty is
+    /// left for a script to use; the contours stay, for display.
+    pub fn mark_lost(&mut self, reason: String) {
+        self.status = Status::Lost;
+        self.reason = Some(reason);
+        self.disparity_px = None;
+        self.disparity_axis_px = None;
+        self.relative_disparity_axis_px = None;
+        self.angle_diff_rad = None;
+        self.disparity_std_px = None;
+        self.z_um = None;
+        self.z_std_um = None;
+    }
+
     /// Records the two images' metadata (see [`crate::meta`]) and what
     /// could not be read of it.
     pub fn apply_metadata(&mut self, left: &ImageMeta, right: &ImageMeta) {
@@ -258,6 +287,7 @@ impl PairResult {
     /// magnification change that contradicts a typed calibration.
     pub fn apply_calibration(&mut self, calibration: Option<&Calibration>, watch: &mut MetaWatch) {
         self.z_um = None;
+        self.z_std_um = None;
         let Some(c) = calibration else {
             return;
         };
@@ -268,7 +298,12 @@ impl PairResult {
             return;
         };
         match c.z_for_pair(d, self.metadata.as_ref()) {
-            Ok(z) => self.z_um = Some(z),
+            Ok(z) => {
+                self.z_um = Some(z);
+                self.z_std_um = self
+                    .disparity_std_px
+                    .and_then(|std| c.z_std_for_pair(d, std, self.metadata.as_ref()));
+            }
             Err(why) => self.warnings.push(format!("no z: {why}")),
         }
     }
@@ -526,8 +561,11 @@ impl StereoTracker {
             right_sector_contrasts,
             outline,
         };
-        let left_fit = ImageFit::full(left_pose, left_terms);
-        let right_fit = ImageFit::full(right_pose, right_terms);
+        let rim_px = rim_offset(&state);
+        let mut left_fit = ImageFit::full(left_pose, left_terms);
+        left_fit.axis_std_px = self.axis_std(left, &left_sums, &template, &sectors, &left_fit, rim_px);
+        let mut right_fit = ImageFit::full(right_pose, right_terms);
+        right_fit.axis_std_px = self.axis_std(right, &right_sums, &template, &sectors, &right_fit, rim_px);
         let mut result = self.pair_result(
             frame,
             Status::Initialised,
@@ -537,8 +575,7 @@ impl StereoTracker {
             &right_fit,
         );
         if let Some(reason) = self.loss_reason(&state, &template, &left_fit, &right_fit) {
-            result.status = Status::Lost;
-            result.reason = Some(reason);
+            result.mark_lost(reason);
             self.state = None;
             self.template = None;
             return result;
@@ -667,6 +704,7 @@ impl StereoTracker {
         templates: &(RigidTemplate, SectorTemplate),
     ) -> PairResult {
         let template = &templates.0;
+        let rim_px = rim_offset(&state);
         let v = state.left_velocity;
         let left_predicted = Pose {
             x: state.left.x + v[0],
@@ -696,6 +734,7 @@ impl StereoTracker {
             &state.left_sector_contrasts,
             left_predicted,
             left_search,
+            rim_px,
         );
         if !left_fit.terms.energy.is_finite() && v != [0.0; 3] {
             // The motion reversed (a tool moved in, then out): the last
@@ -706,6 +745,7 @@ impl StereoTracker {
                 &state.left_sector_contrasts,
                 state.left,
                 left_search,
+                rim_px,
             );
         }
         let right_predicted = Pose {
@@ -731,6 +771,7 @@ impl StereoTracker {
             &state.right_sector_contrasts,
             right_predicted,
             right_search,
+            rim_px,
         );
         let reach = self.params.rigid.search_radius_px;
         let candidate = TrackerState {
@@ -753,8 +794,7 @@ impl StereoTracker {
         );
         if let Some(reason) = self.loss_reason(&candidate, template, &left_fit, &right_fit) {
             // Keep the last good poses; the next pair initialises again.
-            result.status = Status::Lost;
-            result.reason = Some(reason);
+            result.mark_lost(reason);
             state.lost = true;
             self.state = Some(state);
         } else {
@@ -779,7 +819,75 @@ impl StereoTracker {
     /// with tilt), not an occluder: the full fit stands. `coarse_step_px`
     /// sets the first step of the coarse stage (the right view is predicted
     /// well from the left one and needs only a short search).
-    fn fit_view<'f>(
+    /// Standard error of `fit` along the disparity axis, pixels, for the
+    /// objective the fit minimised (the full energy, or the band energy
+    /// over the visible sectors when some were occluded), from its
+    /// curvature and the grey-level spread near it (see
+    /// [`crate::uncertainty`]); NaN when it cannot be measured.
+    /// `rim_px`: how far outside the template the object's outline runs.
+    fn axis_std(
+        &self,
+        frame: &GrayFrame,
+        sums: &PrefixSums,
+        template: &RigidTemplate,
+        sectors: &SectorTemplate,
+        fit: &ImageFit,
+        rim_px: f64,
+    ) -> f64 {
+        let t = self.params.tilt_axis_deg.to_radians();
+        let u = [t.sin(), -t.cos()];
+        let pose = fit.pose;
+        // The outline along the image border or a cut is no edge of the
+        // object: its sectors count like occluded ones.
+        let left_out: Vec<bool> = if template.cuts.is_empty() {
+            fit.occluded.clone()
+        } else {
+            let unseen = sectors.band_sums(sums, pose).into_iter().map(|b| b.is_none());
+            unseen
+                .enumerate()
+                .map(|(k, u)| u || fit.occluded.get(k).copied().unwrap_or(false))
+                .collect()
+        };
+        let arcs = sectors.visible_arcs(pose, &left_out);
+        let outward = Polygon::new(template.points.clone()).signed_area().signum();
+        let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward, rim_px) else {
+            return f64::NAN;
+        };
+        let shifted = |d: f64| Pose {
+            x: pose.x + d * u[0],
+            y: pose.y + d * u[1],
+            ..pose
+        };
+        let m_ref = sums.reference_mean();
+        let s = uncertainty::weighted_length(&arcs, u);
+        if fit.occluded.contains(&true) {
+            let (a, b) = sectors.visible_bands(sums, pose, &fit.occluded);
+            let energy = |d: f64| sectors.masked_energy(sums, shifted(d), &fit.occluded, m_ref);
+            uncertainty::axis_std(energy, m_ref, [a.mean(), b.mean()], s, sigma)
+        } else {
+            let terms = template.energy_at(sums, pose, &self.params.energy);
+            let energy = |d: f64| template.energy_at(sums, shifted(d), &self.params.energy).energy;
+            uncertainty::axis_std(energy, m_ref, [terms.mean_inside, terms.mean_outside], s, sigma)
+        }
+    }
+
+    /// [`Self::fit_view_on`] with the standard error of the result along
+    /// the disparity axis ([`Self::axis_std`]).
+    fn fit_view(
+        &self,
+        frame: &GrayFrame,
+        templates: &(RigidTemplate, SectorTemplate),
+        reference: &[f64],
+        predicted: Pose,
+        search: ViewSearch,
+        rim_px: f64,
+    ) -> ImageFit {
+        let (mut fit, sums) = self.fit_view_on(frame, templates, reference, predicted, search);
+        fit.axis_std_px = self.axis_std(frame, &sums, &templates.0, &templates.1, &fit, rim_px);
+        fit
+    }
+
+    fn fit_view_on<'f>(
         &self,
         frame: &'f GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
@@ -790,7 +898,7 @@ impl StereoTracker {
             rotate,
             line,
         }: ViewSearch,
-    ) -> ImageFit {
+    ) -> (ImageFit, PrefixSums<'f>) {
         let (energy, occlusion) = (&self.params.energy, &self.params.occlusion);
         let rigid = &RigidParams {
             coarse_step_px,
@@ -809,7 +917,8 @@ impl StereoTracker {
             }
         };
         if !occlusion.enabled || reference.len() != sectors.len() {
-            return full_fit(&full_reach(), predicted, rigid);
+            let sums = full_reach();
+            return (full_fit(&sums, predicted, rigid), sums);
         }
         let judge = |sums: &PrefixSums, pose: Pose| {
             judge_sectors(
@@ -842,7 +951,7 @@ impl StereoTracker {
             widen(&mut sums, &mut widened);
             let fit = full_fit(&sums, predicted, rigid);
             if !judge(&sums, fit.pose).occluded.contains(&true) {
-                return fit;
+                return (fit, sums);
             }
         } else {
             // Every sector still has its contrast at the prediction: it is
@@ -873,11 +982,11 @@ impl StereoTracker {
             // quarter of the band sums of a 1024x768 step (72 of 288 paths).
             let moved = (fit.pose.x - predicted.x).hypot(fit.pose.y - predicted.y);
             if !cut && median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
-                return fit;
+                return (fit, sums);
             }
             mask = judge(&sums, fit.pose).occluded;
             if !mask.contains(&true) || widespread(&mask) {
-                return fit;
+                return (fit, sums);
             }
             pose = fit.pose;
         }
@@ -915,12 +1024,15 @@ impl StereoTracker {
         // make a well-tracked object look faint.
         let (a, b) = sectors.visible_bands(&sums, pose, &mask);
         let (ma, mb) = (a.mean(), b.mean());
-        ImageFit {
+        let fit = ImageFit {
             pose,
             terms,
             contrast: michelson(ma, mb),
             occluded_fraction: fraction(&mask),
-        }
+            axis_std_px: f64::NAN,
+            occluded: mask,
+        };
+        (fit, sums)
     }
 
     /// Searches the right image along the disparity axis for the template
@@ -1147,10 +1259,14 @@ impl StereoTracker {
         };
         let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
+        let std =
+            (left.axis_std_px.powi(2) + right.axis_std_px.powi(2) + DISPARITY_STD_FLOOR_PX.powi(2)).sqrt();
         PairResult {
             frame,
             status,
             reason: None,
+            disparity_std_px: std.is_finite().then_some(std),
+            z_std_um: None,
             left: Some(image(left)),
             right: Some(image(right)),
             disparity_px: Some(disparity),
@@ -1177,7 +1293,7 @@ struct ViewSearch {
 }
 
 /// The fit of one view of a pair.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 struct ImageFit {
     /// Where the contour ended up.
     pose: Pose,
@@ -1187,6 +1303,11 @@ struct ImageFit {
     contrast: f64,
     /// Fraction of sectors found occluded.
     occluded_fraction: f64,
+    /// Standard error of the pose along the disparity axis, pixels (NaN:
+    /// not measured).
+    axis_std_px: f64,
+    /// The sectors left out of the fit as occluded (empty: none).
+    occluded: Vec<bool>,
 }
 
 impl ImageFit {
@@ -1197,6 +1318,8 @@ impl ImageFit {
             terms,
             contrast: terms.contrast(),
             occluded_fraction: 0.0,
+            axis_std_px: f64::NAN,
+            occluded: Vec::new(),
         }
     }
 }
@@ -1240,6 +1363,19 @@ fn shared_view_limits(
     ]
 }
 
+/// How far the object's reported outline runs outside its template on
+/// average (a dark object's bright rim), pixels; 0 without an outline.
+fn rim_offset(state: &TrackerState) -> f64 {
+    if state.outline.is_empty() {
+        return 0.0;
+    }
+    let (outline, template) = (
+        Polygon::new(state.outline.clone()),
+        Polygon::new(state.template.clone()),
+    );
+    ((outline.area() - template.area()) / template.length().max(1.0)).max(0.0)
+}
+
 /// The rigid template and its sectors from saved template vertices (which
 /// are relative to their centroid already).
 fn templates(state: &TrackerState, params: &TrackerParams) -> (RigidTemplate, SectorTemplate) {
@@ -1266,6 +1402,8 @@ fn lost_result(frame: u64, reason: String) -> PairResult {
         relative_disparity_axis_px: None,
         angle_diff_rad: None,
         z_um: None,
+        disparity_std_px: None,
+        z_std_um: None,
         metadata: None,
         warnings: Vec::new(),
     }
@@ -1307,11 +1445,38 @@ mod tests {
         let blank = GrayFrame::filled(pairs[1].right.width, pairs[1].right.height, 8, 70);
         let r = tracker.process(&pairs[1].left, &blank).unwrap();
         assert_eq!(r.status, Status::Lost, "{r:?}");
+        // Lost means no number (issue #17): nothing for a script to use,
+        // even with a calibration; the contours stay for display.
+        let mut r = r;
+        let calibration = crate::calib::build(crate::calib::CalibrationSpec::Geometric(
+            crate::calib::GeometricSpec::new(0.1, 6.0),
+        ))
+        .unwrap();
+        r.apply_calibration(Some(&calibration), &mut MetaWatch::default());
+        assert_eq!(
+            (
+                r.disparity_px,
+                r.disparity_axis_px,
+                r.relative_disparity_axis_px,
+                r.angle_diff_rad
+            ),
+            (None, None, None, None),
+            "{r:?}"
+        );
+        assert_eq!(
+            (r.disparity_std_px, r.z_um, r.z_std_um),
+            (None, None, None),
+            "{r:?}"
+        );
+        assert!(r.left.is_some(), "the left contour is kept for display");
         let reason = r.reason.unwrap();
         assert!(reason.contains("right image"), "{reason}");
-        // The next pair initialises again and measures normally.
+        // The next pair initialises again and measures normally, with a
+        // standard error.
         let again = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
         assert_eq!(again.status, Status::Initialised, "{:?}", again.reason);
+        let std = again.disparity_std_px.expect("a standard error");
+        assert!(std > 0.0 && std < 0.2, "clean sphere: {std}");
     }
 
     #[test]

@@ -316,7 +316,7 @@ fn process_csv_has_the_documented_columns() {
     let header = csv_cells(lines.next().expect("header"));
     let expected = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,right_x,right_y,\
 right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,relative_disparity_axis_px,\
-angle_diff_rad,z_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,right_pixel_width_m,\
+angle_diff_rad,z_um,disparity_std_px,z_std_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,right_pixel_width_m,\
 right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
     assert_eq!(header.join(","), expected);
     let rows: Vec<Vec<String>> = lines.map(csv_cells).collect();

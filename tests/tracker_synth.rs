@@ -18,6 +18,9 @@ const MAX_CENTROID_RMS_PX: f64 = 0.5;
 
 struct Accuracy {
     disparity_rms: f64,
+    /// Mean reported `disparity_std_px` over the tracked pairs divided by
+    /// `disparity_rms` (issue #17: calibrated within a factor of 1.5).
+    std_ratio: f64,
     centroid_rms: f64,
     /// Largest left centroid error of any pair.
     centroid_max: f64,
@@ -27,6 +30,7 @@ struct Accuracy {
 
 fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_count: usize) -> Accuracy {
     let (mut sq_disparity, mut sq_centroid, mut pairs, mut lost) = (0.0, 0.0, 0usize, 0usize);
+    let mut sum_std = 0.0;
     let mut centroid_max = 0.0f64;
     for &shape in shapes {
         for seed in seeds.clone() {
@@ -50,6 +54,9 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
                     continue;
                 }
                 errors.push(result.disparity_px.unwrap()[0] - pair.truth.disparity_px[0]);
+                sum_std += result
+                    .disparity_std_px
+                    .expect("a tracked pair has a standard error");
                 let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
                 let centroid_error = (c[0] - t[0]).hypot(c[1] - t[1]);
                 sq_centroid += centroid_error.powi(2);
@@ -60,17 +67,20 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
             pairs += errors.len();
         }
     }
+    let disparity_rms = (sq_disparity / pairs as f64).sqrt();
     let accuracy = Accuracy {
-        disparity_rms: (sq_disparity / pairs as f64).sqrt(),
+        disparity_rms,
+        std_ratio: sum_std / pairs as f64 / disparity_rms,
         centroid_rms: (sq_centroid / pairs as f64).sqrt(),
         centroid_max,
         lost,
         pairs,
     };
     eprintln!(
-        "{:>9}: disparity RMS {:.4} px, left centroid RMS {:.3} px (max {:.3}), {} pairs, {} lost",
+        "{:>9}: disparity RMS {:.4} px (reported std / RMS {:.2}), left centroid RMS {:.3} px (max {:.3}), {} pairs, {} lost",
         preset.name(),
         accuracy.disparity_rms,
+        accuracy.std_ratio,
         accuracy.centroid_rms,
         accuracy.centroid_max,
         accuracy.pairs,
@@ -79,9 +89,21 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
     accuracy
 }
 
+/// The reported standard error is calibrated (issue #17): its mean over
+/// the tracked pairs is within a factor of 1.5 of the observed RMS.
+fn assert_calibrated_std(preset: Preset, a: &Accuracy) {
+    assert!(
+        (1.0 / 1.5..=1.5).contains(&a.std_ratio),
+        "{}: mean reported std / observed RMS = {:.2} (expected 0.67..=1.5)",
+        preset.name(),
+        a.std_ratio
+    );
+}
+
 fn check(preset: Preset, max_disparity_rms: f64) {
     let a = measure(preset, &Shape::ALL, SEEDS, FRAMES);
     assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
+    assert_calibrated_std(preset, &a);
     assert_eq!(a.pairs, Shape::ALL.len() * SEEDS.count() * FRAMES);
     assert!(
         a.disparity_rms <= max_disparity_rms,
@@ -241,21 +263,24 @@ fn tools_entering_from_the_border_are_tracked() {
 }
 
 /// The other new scene classes of issue #16, 4 shapes x seeds 900..905 (not
-/// used while developing), 10 pairs each, no pair lost. Scratches and
-/// fibres under the object, and a dark object with a bright rim: within
-/// the issue's 0.15 px (measured 0.043 and 0.128). Defocus blur at low dose
+/// used while developing), 10 pairs each, no pair lost, the reported
+/// standard error calibrated within a factor of 1.5. Scratches and fibres
+/// under the object, a dark object with a bright rim and a relief substrate:
+/// within the issue's 0.15 px (measured 0.043, 0.128 and 0.108). Defocus blur at low dose
 /// (measured 0.252) misses the issue's 0.2 px; it is held to what it
 /// reaches so that it does not get worse: 15-30 electrons per pixel leave
 /// little to locate a slender object along its axis by.
 #[test]
-fn scratched_dark_and_blurred_scenes() {
+fn scratched_dark_blurred_and_relief_scenes() {
     for (preset, limit) in [
         (Preset::Scratched, 0.15),
         (Preset::Dark, 0.15),
         (Preset::Blurred, 0.3),
+        (Preset::Relief, 0.15),
     ] {
         let a = measure(preset, &Shape::ALL, 900..905, FRAMES);
         assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
+        assert_calibrated_std(preset, &a);
         assert!(
             a.disparity_rms <= limit,
             "{}: disparity RMS {:.4} px > {limit}",

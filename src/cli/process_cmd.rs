@@ -369,7 +369,7 @@ struct Timing {
 }
 
 /// Keys written first, in this order; any others follow alphabetically.
-const JSON_KEY_ORDER: [&str; 12] = [
+const JSON_KEY_ORDER: [&str; 14] = [
     "frame",
     "name",
     "status",
@@ -378,7 +378,9 @@ const JSON_KEY_ORDER: [&str; 12] = [
     "disparity_axis_px",
     "relative_disparity_axis_px",
     "angle_diff_rad",
+    "disparity_std_px",
     "z_um",
+    "z_std_um",
     "left",
     "right",
     "timing_ms",
