@@ -154,6 +154,10 @@ fn process_with_a_geometric_calibration_fills_z() {
         let z = f(&r["z_um"]);
         let expected = (f(&r["disparity_axis_px"]) - 0.0) * per_px;
         assert!((z - expected).abs() < 1e-6, "z_um {z} != {expected}: {r}");
+        // The standard error goes through the same slope (issue #17).
+        let std = f(&r["disparity_std_px"]);
+        assert!(std > 0.0 && std < 0.2, "clean blob: disparity_std_px {std}");
+        assert!((f(&r["z_std_um"]) - std * per_px).abs() < 1e-6, "{r}");
         for side in ["left", "right"] {
             assert!(
                 r[side].get("contour").is_none(),
