@@ -681,8 +681,14 @@ async fn calibration_from_image_metadata_gives_the_typed_z() {
         ]);
         assert!((z - expected).abs() <= 1e-9, "{what}: z {z} against {expected}");
         // With its standard error through the same slope (issue #17).
-        let (d_std, z_std) = (r["disparity_std_px"].as_f64().unwrap(), r["z_std_um"].as_f64().unwrap());
-        assert!(d_std > 0.0 && (z_std - d_std * typed.coefficients()[1]).abs() < 1e-9, "{what}: {r}");
+        let (d_std, z_std) = (
+            r["disparity_std_px"].as_f64().unwrap(),
+            r["z_std_um"].as_f64().unwrap(),
+        );
+        assert!(
+            d_std > 0.0 && (z_std - d_std * typed.coefficients()[1]).abs() < 1e-9,
+            "{what}: {r}"
+        );
         let meta = &r["metadata"];
         assert!(
             (meta["right"]["pixel_width_m"].as_f64().unwrap() - pixel_m).abs() < 1e-9 * pixel_m,
