@@ -5,7 +5,9 @@
 //! 10% larger than the visible object, or its pixel nearest the centroid).
 //! `SHAPE=tip` picks one shape, `SEED0=300` the first seed, `FRAMES_OUT=1`
 //! prints every pair (errors of both views against the truth's centroids),
-//! `NONOISE=1` renders with the clean preset's noise.
+//! `NONOISE=1` renders with the clean preset's noise. "Confident wrong":
+//! tracked pairs off by more than 1 px in disparity or 3 px in the left
+//! centroid, after removing the sequence's median offsets.
 use semdepth::synth::{frames, Preset, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
@@ -23,6 +25,7 @@ fn main() {
         let (mut sq_d, mut sq_c, mut n, mut lost, mut worst, mut flagged) =
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
         let (mut sum_std, mut n_std) = (0.0f64, 0usize);
+        let mut wrong = 0usize;
         let t = std::time::Instant::now();
         for shape in Shape::ALL {
             if std::env::var("SHAPE").is_ok_and(|v| v != shape.name()) {
@@ -62,6 +65,7 @@ fn main() {
                 }
                 let mut tracker = StereoTracker::new(params);
                 let mut errs = Vec::new();
+                let mut cents: Vec<[f64; 2]> = Vec::new();
                 for pair in pairs {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
                     if r.status == Status::Lost {
@@ -101,12 +105,30 @@ fn main() {
                     let c = r.left.as_ref().unwrap().centroid;
                     let tc = pair.truth.left.centroid;
                     sq_c += (c[0] - tc[0]).powi(2) + (c[1] - tc[1]).powi(2);
+                    cents.push([c[0] - tc[0], c[1] - tc[1]]);
                     errs.push(d);
                     if let Some(std) = r.disparity_std_px {
                         (sum_std, n_std) = (sum_std + std, n_std + 1);
                     }
                 }
                 let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
+                // Confident wrong (issue #17): tracked while the disparity
+                // is off by more than 1 px or the left centroid by more than
+                // 3 px, after removing the sequence's median offset.
+                let median = |mut v: Vec<f64>| {
+                    v.sort_by(f64::total_cmp);
+                    v.get(v.len() / 2).copied().unwrap_or(0.0)
+                };
+                let (md, mx, my) = (
+                    median(errs.clone()),
+                    median(cents.iter().map(|c| c[0]).collect()),
+                    median(cents.iter().map(|c| c[1]).collect()),
+                );
+                wrong += errs
+                    .iter()
+                    .zip(&cents)
+                    .filter(|(e, c)| (*e - md).abs() > 1.0 || (c[0] - mx).hypot(c[1] - my) > 3.0)
+                    .count();
                 if std::env::var("VERBOSE").is_ok() {
                     let rms = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>()
                         / errs.len().max(1) as f64)
@@ -131,7 +153,7 @@ fn main() {
             }
         }
         println!(
-            "{:>9}: disparity RMS {:.4} px, mean reported std {:.4} px (ratio {:.2}, {n_std} pairs), max {:.3}, left centroid RMS {:.3} px, lost {lost}, occlusion flagged in {flagged}, {n} pairs, {:.1} ms/pair incl. rendering",
+            "{:>9}: disparity RMS {:.4} px, mean reported std {:.4} px (ratio {:.2}, {n_std} pairs), max {:.3}, confident wrong {wrong}, left centroid RMS {:.3} px, lost {lost}, occlusion flagged in {flagged}, {n} pairs, {:.1} ms/pair incl. rendering",
             preset.name(),
             (sq_d / n as f64).sqrt(),
             sum_std / n_std.max(1) as f64,
