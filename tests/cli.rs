@@ -195,3 +195,60 @@ fn init_hints_pick_the_object_and_bad_hints_exit_2() {
     let out = semdepth(&["init", image, "--point", "10"]);
     assert_input_error(&out, &["--point"]);
 }
+
+/// Issue #22: the placeholder token of `docker/semdepth.env.example` is
+/// refused at start-up with a message (exit 2), before anything listens;
+/// the file and the server agree on what the placeholder is.
+#[test]
+fn serve_refuses_the_example_token() {
+    let example = std::fs::read_to_string("docker/semdepth.env.example").unwrap();
+    let placeholder = example
+        .lines()
+        .find_map(|l| l.strip_prefix("SEMDEPTH_TOKEN="))
+        .expect("the example sets SEMDEPTH_TOKEN");
+    assert_eq!(placeholder, semdepth::service::state::EXAMPLE_TOKEN);
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("db.sqlite3");
+    let out = semdepth(&[
+        "serve",
+        "--listen",
+        "127.0.0.1:0",
+        "--db",
+        db.to_str().unwrap(),
+        "--token",
+        placeholder,
+    ]);
+    assert_input_error(&out, &["token", "example"]);
+    assert!(!db.exists(), "no database is created before the check");
+}
+
+/// Issue #22: `--roi` and `--point` take their numbers with spaces or with
+/// commas, with the same result; a wrong count names the flag (exit 2).
+#[test]
+fn hints_take_commas_as_well_as_spaces() {
+    let image = common::quartz_path(1);
+    let image = image.to_str().unwrap();
+    let spaced = stdout_json(&semdepth(&[
+        "init",
+        image,
+        "--no-contour",
+        "--roi",
+        "100",
+        "80",
+        "900",
+        "700",
+    ]));
+    let commas = stdout_json(&semdepth(&[
+        "init",
+        image,
+        "--no-contour",
+        "--roi",
+        "100,80,900,700",
+    ]));
+    assert_eq!(spaced["centroid"], commas["centroid"]);
+    assert_eq!(spaced["area_px"], commas["area_px"]);
+    let short = semdepth(&["init", image, "--roi", "100,80,900"]);
+    assert_input_error(&short, &["--roi", "4 numbers", "got 3"]);
+    let point = semdepth(&["init", image, "--point", "100,80,7"]);
+    assert_input_error(&point, &["--point"]);
+}

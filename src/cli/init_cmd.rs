@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::CliError;
+use super::{exactly, CliError};
 use crate::imageio::{read_file, DecodeLimits};
 use crate::init::{initialise, InitParams, Polarity};
 
@@ -20,12 +20,14 @@ pub struct InitArgs {
     /// Largest expected object area in pixels.
     #[arg(long)]
     pub max_area: Option<f64>,
-    /// Hint: the box the object lies in, X Y WIDTH HEIGHT in pixels (clipped
+    /// Hint: the box the object lies in, X Y WIDTH HEIGHT in pixels (spaces
+    /// or commas between them; with commas a negative X needs `--roi=-20,..`;
+    /// clipped
     /// to the image: it may run past the border, for a tool entering there).
-    #[arg(long, num_args = 4, value_names = ["X", "Y", "WIDTH", "HEIGHT"], allow_negative_numbers = true)]
+    #[arg(long, num_args = 1..=4, value_delimiter = ',', value_names = ["X", "Y", "WIDTH", "HEIGHT"], allow_negative_numbers = true)]
     pub roi: Option<Vec<i64>>,
-    /// Hint: a point on the object, X Y in pixels.
-    #[arg(long, num_args = 2, value_names = ["X", "Y"], allow_negative_numbers = true)]
+    /// Hint: a point on the object, X Y in pixels (spaces or commas).
+    #[arg(long, num_args = 1..=2, value_delimiter = ',', value_names = ["X", "Y"], allow_negative_numbers = true)]
     pub point: Option<Vec<f64>>,
     /// Hint: the object is brighter or darker than its surroundings.
     #[arg(long, value_enum, default_value_t = Polarity::Any)]
@@ -67,8 +69,8 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         dilation_radius: args.dilation_radius,
         min_area_px: args.min_area,
         max_area_px: args.max_area,
-        roi: args.roi.map(|r| [r[0], r[1], r[2], r[3]]),
-        point: args.point.map(|p| [p[0], p[1]]),
+        roi: args.roi.as_deref().map(|r| exactly("roi", r)).transpose()?,
+        point: args.point.as_deref().map(|p| exactly("point", p)).transpose()?,
         polarity: args.polarity,
         contour_spacing_px: args.contour_spacing,
     };

@@ -110,3 +110,15 @@ pub fn run(cli: Cli) -> Result<(), CliError> {
         Command::Healthcheck(args) => serve_cmd::run_healthcheck(args),
     }
 }
+
+/// The `N` numbers of flag `--name`, given as `N` values or comma-separated
+/// (`--roi 10 20 30 40` or `--roi 10,20,30,40`); exit 2 naming the flag
+/// otherwise.
+pub(crate) fn exactly<const N: usize, T: Copy>(name: &str, values: &[T]) -> Result<[T; N], CliError> {
+    <[T; N]>::try_from(values).map_err(|_| {
+        CliError::input(format!(
+            "error[invalid_hint]: --{name} takes {N} numbers, separated by spaces or commas (got {})",
+            values.len()
+        ))
+    })
+}

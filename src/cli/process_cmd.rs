@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use super::{hint_error, CliError};
+use super::{exactly, hint_error, CliError};
 use crate::calib::{from_json, Calibration, MetaWatch};
 use crate::imageio::{decode, DecodeLimits, GrayFrame, ImageInputError};
 use crate::init::{InitError, Polarity};
@@ -61,13 +61,15 @@ pub struct ProcessArgs {
     #[arg(long)]
     pub max_area: Option<f64>,
     /// Hint: the box the object lies in on the first pair, X Y WIDTH HEIGHT
-    /// in pixels (clipped to the image: it may run past the border, for a
-    /// tool entering there) [default: the params file's init.roi].
-    #[arg(long, num_args = 4, value_names = ["X", "Y", "WIDTH", "HEIGHT"], allow_negative_numbers = true)]
+    /// in pixels, spaces or commas between them (with commas a negative X
+    /// needs `--roi=-20,..`; clipped to the image: it may run past the
+    /// border, for a tool entering there) [default: the params file's
+    /// init.roi].
+    #[arg(long, num_args = 1..=4, value_delimiter = ',', value_names = ["X", "Y", "WIDTH", "HEIGHT"], allow_negative_numbers = true)]
     pub roi: Option<Vec<i64>>,
     /// Hint: a point on the object on the first pair, X Y in pixels
     /// [default: the params file's init.point].
-    #[arg(long, num_args = 2, value_names = ["X", "Y"], allow_negative_numbers = true)]
+    #[arg(long, num_args = 1..=2, value_delimiter = ',', value_names = ["X", "Y"], allow_negative_numbers = true)]
     pub point: Option<Vec<f64>>,
     /// Hint: the object is brighter or darker than its surroundings
     /// [default: the params file's init.polarity, else any].
@@ -209,10 +211,10 @@ impl ProcessArgs {
             params.init.max_area_px = Some(v);
         }
         if let Some(r) = &self.roi {
-            params.init.roi = Some([r[0], r[1], r[2], r[3]]);
+            params.init.roi = Some(exactly("roi", r)?);
         }
         if let Some(p) = &self.point {
-            params.init.point = Some([p[0], p[1]]);
+            params.init.point = Some(exactly("point", p)?);
         }
         if let Some(p) = self.polarity {
             params.init.polarity = p;

@@ -81,6 +81,10 @@ impl Default for ServiceConfig {
     }
 }
 
+/// The placeholder token of `docker/semdepth.env.example`, refused as a
+/// real token.
+pub const EXAMPLE_TOKEN: &str = "change-me-to-a-long-random-string";
+
 impl ServiceConfig {
     /// Checks ranges; the message names the setting and what was expected.
     pub fn validate(&self) -> Result<(), String> {
@@ -114,6 +118,11 @@ impl ServiceConfig {
         if let Some(t) = &self.token {
             if t.is_empty() {
                 return Err("empty token (expected a non-empty string, or no token)".into());
+            }
+            if t == EXAMPLE_TOKEN {
+                return Err(format!(
+                    "the token is the example from docker/semdepth.env.example ({EXAMPLE_TOKEN:?}), which anyone can read (expected a long random one, e.g. python3 -c 'import secrets; print(secrets.token_urlsafe(32))')"
+                ));
             }
         }
         Ok(())
