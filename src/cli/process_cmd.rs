@@ -464,7 +464,7 @@ impl Progress {
             Status::Tracked => self.tracked += 1,
             Status::Lost => self.lost += 1,
         }
-        if self.enabled && self.done % 10 == 0 && self.done < self.total {
+        if self.enabled && self.done.is_multiple_of(10) && self.done < self.total {
             let rate = self.done as f64 / self.started.elapsed().as_secs_f64().max(1e-9);
             eprintln!("processed {}/{} pairs ({rate:.1} pairs/s)", self.done, self.total);
         }

@@ -200,7 +200,7 @@ pub fn estimate_noise(image: &FloatImage) -> f32 {
     for y in 1..h - 1 {
         for x in 1..w - 1 {
             k += 1;
-            if k % step != 0 {
+            if !k.is_multiple_of(step) {
                 continue;
             }
             let p = |dx: isize, dy: isize| src[(y as isize + dy) as usize * w + (x as isize + dx) as usize];
