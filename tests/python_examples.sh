@@ -109,6 +109,9 @@ STREAM_SID=$(sed -n 's/^session \([^ ]*\) .*/\1/p' "$TMP/stream.out")
 run ws_badtoken "$PYTHON" "$EXAMPLES/stream_folder.py" "$TMP/pairs" --server "$SERVER" --token wrong \
     --session-id "${STREAM_SID:-none}"
 run upload_badtoken "$PYTHON" "$EXAMPLES/upload_folder.py" "$TMP/pairs" --server "$SERVER" --token wrong
+# The token from the environment instead of the command line (issue #22).
+run upload_envtoken env SEMDEPTH_TOKEN="$TOKEN" "$PYTHON" "$EXAMPLES/upload_folder.py" "$TMP/pairs" --server "$SERVER" \
+    --calibration-id "$CAL_ID"
 run stream_badtoken "$PYTHON" "$EXAMPLES/stream_folder.py" "$TMP/pairs" --server "$SERVER" --token wrong
 
 for name in upload stream; do
@@ -221,6 +224,11 @@ for line in stdout.splitlines():
 last = seqs.get(len(frames) - 1)
 check(sorted(seqs) == list(range(len(frames))) and last in ("initialised", "tracked"),
       f"policy latest: every seq answered once, the last one measured ({sum(s == 'skipped' for s in seqs.values())} skipped)")
+
+stdout, stderr, rc = out("upload_envtoken")
+check(rc == 0 and len(rows(stdout, 0)) == len(frames),
+      f"upload_folder.py with the token in SEMDEPTH_TOKEN: exit {rc}, {len(rows(stdout, 0))} rows"
+      f"{': ' + stderr.strip() if rc else ''}")
 
 for name, label in (("upload_badtoken", "upload_folder.py"), ("stream_badtoken", "stream_folder.py"),
                     ("ws_badtoken", "stream_folder.py --session-id (WebSocket upgrade)")):

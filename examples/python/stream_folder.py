@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import importlib.util
 import sys
 from pathlib import Path
 from typing import List, Optional
@@ -80,6 +81,10 @@ def main(argv: Optional[List[str]] = None) -> int:
 
     pairs = folder_pairs(args.folder)
     if pairs is None:
+        return 2
+    # Before anything is created on the server.
+    if importlib.util.find_spec("websockets") is None:
+        print("error: streaming needs the websockets package: pip install 'websockets>=12'", file=sys.stderr)
         return 2
     try:
         return asyncio.run(run(args, pairs))

@@ -20,6 +20,7 @@ arguments.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import List, Optional, Tuple
@@ -48,7 +49,8 @@ def folder_parser(doc: str) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="folder of NAME_left.EXT / NAME_right.EXT pairs")
     parser.add_argument("--server", default="http://127.0.0.1:8080", help="server address (default %(default)s)")
-    parser.add_argument("--token", default=None, help="bearer token, when the server has one")
+    parser.add_argument("--token", default=os.environ.get("SEMDEPTH_TOKEN") or None,
+                        help="bearer token, when the server has one (default: $SEMDEPTH_TOKEN, which keeps it out of ps)")
     parser.add_argument("--name", default=None, help="session name (default: the folder's name)")
     return parser
 
