@@ -307,18 +307,20 @@ impl PairMeta {
     /// The pair's metadata, `None` when neither image carries any.
     pub fn of(left: &crate::meta::ImageMeta, right: &crate::meta::ImageMeta) -> Option<Self> {
         let (left, right) = (ViewMeta::of(left), ViewMeta::of(right));
-        if left.is_empty() && right.is_empty() {
-            return None;
-        }
+        (!(left.is_empty() && right.is_empty())).then(|| Self::new(left, right))
+    }
+
+    /// The two views' metadata and their stage tilt difference.
+    pub fn new(left: ViewMeta, right: ViewMeta) -> Self {
         let stage_tilt_difference_rad = match (left.stage_tilt_rad, right.stage_tilt_rad) {
             (Some(l), Some(r)) => Some(r - l),
             _ => None,
         };
-        Some(Self {
+        Self {
             left,
             right,
             stage_tilt_difference_rad,
-        })
+        }
     }
 
     /// The pixel size across the tilt axis both images agree on (within
@@ -1665,18 +1667,6 @@ mod tests {
         }
     }
 
-    fn pair(left: ViewMeta, right: ViewMeta) -> PairMeta {
-        let stage_tilt_difference_rad = match (left.stage_tilt_rad, right.stage_tilt_rad) {
-            (Some(l), Some(r)) => Some(r - l),
-            _ => None,
-        };
-        PairMeta {
-            left,
-            right,
-            stage_tilt_difference_rad,
-        }
-    }
-
     #[test]
     fn pixel_size_and_vergence_from_the_images_match_the_typed_calibration() {
         let from_images = from_json(
@@ -1691,7 +1681,7 @@ mod tests {
         assert!(!text.contains("coefficients"), "{text}");
         assert_eq!(from_json(&text).unwrap(), from_images);
         let (tilt_l, tilt_r) = (0.558473_f64, 0.558473_f64 + 7.0_f64.to_radians());
-        let meta = pair(view(9.76562e-8, tilt_l), view(9.76562e-8, tilt_r));
+        let meta = PairMeta::new(view(9.76562e-8, tilt_l), view(9.76562e-8, tilt_r));
         let typed = build(CalibrationSpec::Geometric(GeometricSpec {
             reference_disparity_px: 1.5,
             ..GeometricSpec::new(0.0976562, (tilt_r - tilt_l).to_degrees())
@@ -1713,7 +1703,7 @@ mod tests {
         let typed_half = build(CalibrationSpec::Geometric(GeometricSpec::new(0.0976562, 7.0))).unwrap();
         assert!((z - typed_half.z_um([10.0, 0.0])).abs() <= 1e-9);
         // A right image tilted less: heights of the other sign.
-        let swapped = pair(view(9.76562e-8, tilt_r), view(9.76562e-8, tilt_l));
+        let swapped = PairMeta::new(view(9.76562e-8, tilt_r), view(9.76562e-8, tilt_l));
         let z = from_images.z_for_pair([10.0, 0.0], Some(&swapped)).unwrap();
         assert!((z + typed.z_um([10.0, 0.0])).abs() <= 1e-9, "{z}");
     }
@@ -1726,7 +1716,7 @@ mod tests {
         .unwrap();
         let no_height = |meta: Option<&PairMeta>| cal.z_for_pair([3.0, 0.0], meta).unwrap_err();
         assert!(no_height(None).contains("no metadata"));
-        let no_tilt = pair(
+        let no_tilt = PairMeta::new(
             ViewMeta {
                 stage_tilt_rad: None,
                 ..view(1e-7, 0.0)
@@ -1734,11 +1724,11 @@ mod tests {
             view(1e-7, 0.1),
         );
         assert!(no_height(Some(&no_tilt)).contains("stage tilt"));
-        let same_tilt = pair(view(1e-7, 0.1), view(1e-7, 0.1));
+        let same_tilt = PairMeta::new(view(1e-7, 0.1), view(1e-7, 0.1));
         assert!(no_height(Some(&same_tilt)).contains("no vergence"));
-        let zoomed = pair(view(1e-7, 0.0), view(1.05e-7, 0.1));
+        let zoomed = PairMeta::new(view(1e-7, 0.0), view(1.05e-7, 0.1));
         assert!(no_height(Some(&zoomed)).contains("magnification"));
-        let no_pixel = pair(
+        let no_pixel = PairMeta::new(
             ViewMeta {
                 pixel_width_m: None,
                 pixel_height_m: None,
@@ -1749,7 +1739,7 @@ mod tests {
         assert!(no_height(Some(&no_pixel)).contains("no pixel size"));
         // Non-square pixels: the length across the tilt axis (axis along y:
         // the width; along x: the height).
-        let wide = pair(
+        let wide = PairMeta::new(
             ViewMeta {
                 pixel_width_m: Some(2e-7),
                 pixel_height_m: Some(1e-7),
@@ -1797,7 +1787,7 @@ mod tests {
     #[test]
     fn a_magnification_change_is_warned_once_per_change() {
         let cal = build(CalibrationSpec::Geometric(GeometricSpec::new(0.1, 6.0))).unwrap();
-        let at = |pixel_m: f64| pair(view(pixel_m, 0.0), view(pixel_m, 0.1));
+        let at = |pixel_m: f64| PairMeta::new(view(pixel_m, 0.0), view(pixel_m, 0.1));
         let mut watch = MetaWatch::default();
         let warned: Vec<bool> = [1e-7, 1e-7, 2e-7, 2e-7, 2.001e-7, 1e-7, 1.004e-7, 3e-7]
             .iter()

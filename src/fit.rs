@@ -7,9 +7,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::energy::{
     combine, evaluate, evaluate_cut, evaluate_with_length, window_of, EnergyParams, EnergyTerms,
+    INTENSITY_OFFSET,
 };
 use crate::geometry::{dist, HalfPlane, Point, Polygon};
-use crate::region::PrefixSums;
+use crate::imageio::GrayFrame;
+use crate::region::{PixelRect, PrefixSums};
 
 /// Parameters of the free (vertex-wise) fit.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -85,6 +87,31 @@ pub struct FreeFitOutcome {
     /// True when it stopped because no move of `min_step_px` helped (false:
     /// stopped at `max_sweeps`).
     pub converged: bool,
+}
+
+/// Slack around a contour's window for the tables of a free fit, pixels:
+/// room for the outline to move out.
+pub const FREE_FIT_SLACK_PX: f64 = 16.0;
+
+/// Tables for a free fit from `contour` in `frame`: its bounding box grown
+/// by the energy's window margin and [`FREE_FIT_SLACK_PX`], clipped to the
+/// image; `None` when the contour lies outside it.
+pub fn free_fit_tables<'f>(
+    frame: &'f GrayFrame,
+    contour: &Polygon,
+    energy: &EnergyParams,
+) -> Option<PrefixSums<'f>> {
+    let slack = energy.margin_for_area(contour.area()) + FREE_FIT_SLACK_PX;
+    let [x0, y0, x1, y1] = contour.bounds();
+    let rect = PixelRect::covering(
+        x0 - slack,
+        y0 - slack,
+        x1 + slack,
+        y1 + slack,
+        frame.width,
+        frame.height,
+    )?;
+    Some(PrefixSums::new(frame, rect, INTENSITY_OFFSET))
 }
 
 /// Free minimisation: each vertex in turn tries a move of `step` along its

@@ -285,13 +285,25 @@ pub fn decode(bytes: &[u8], limits: &DecodeLimits) -> Result<GrayFrame, ImageInp
     Ok(from_dynamic(image))
 }
 
+/// Mean of `value` over the pixel box centred on (`x`, `y`), sampled 4x4:
+/// an anti-aliased rendering of a scene for tests.
+#[cfg(test)]
+pub(crate) fn pixel_mean(x: f64, y: f64, value: impl Fn(f64, f64) -> f64) -> f64 {
+    let at = |k: u32| -0.375 + f64::from(k) * 0.25;
+    (0..16).map(|k| value(x + at(k % 4), y + at(k / 4))).sum::<f64>() / 16.0
+}
+
 /// Reads and decodes an image file (see [`decode`]).
 pub fn read_file(path: &Path, limits: &DecodeLimits) -> Result<GrayFrame, ImageInputError> {
-    let bytes = std::fs::read(path).map_err(|source| ImageInputError::Io {
+    decode(&read_bytes(path)?, limits)
+}
+
+/// The bytes of a file, with an I/O error that names it.
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>, ImageInputError> {
+    std::fs::read(path).map_err(|source| ImageInputError::Io {
         path: path.display().to_string(),
         source,
-    })?;
-    decode(&bytes, limits)
+    })
 }
 
 /// Interprets a raw little-endian, row-major buffer of 8- or 16-bit samples.

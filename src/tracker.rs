@@ -14,8 +14,8 @@ use serde::{Deserialize, Serialize};
 use crate::calib::{axis_component, Calibration, MetaWatch, PairMeta};
 use crate::energy::{michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
-    fit_free, fit_rigid, fit_rigid_on_line, line_polish, newton_polish, place, CompassSearch, FreeFitParams,
-    Pose, RigidParams, RigidTemplate,
+    fit_free, fit_rigid, fit_rigid_on_line, free_fit_tables, line_polish, newton_polish, place,
+    CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
@@ -595,18 +595,7 @@ impl StereoTracker {
         contour: &Polygon,
     ) -> Option<(RigidTemplate, Pose, EnergyTerms, PrefixSums<'f>)> {
         let energy = &self.params.energy;
-        let margin = energy.margin_for_area(contour.area());
-        let [bx0, by0, bx1, by1] = contour.bounds();
-        let slack = margin + 16.0;
-        let rect = PixelRect::covering(
-            bx0 - slack,
-            by0 - slack,
-            bx1 + slack,
-            by1 + slack,
-            frame.width,
-            frame.height,
-        )?;
-        let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
+        let sums = free_fit_tables(frame, contour, energy)?;
         // An outline along the image border lies on the border itself, the
         // edge of the last pixels' boxes, so that the region takes them in.
         let image = PixelRect::full(frame).extent();
@@ -839,14 +828,15 @@ impl StereoTracker {
         let pose = fit.pose;
         // The outline along the image border or a cut is no edge of the
         // object: its sectors count like occluded ones.
-        let left_out: Vec<bool> = if template.cuts.is_empty() {
-            fit.occluded.clone()
+        let left_out: std::borrow::Cow<[bool]> = if template.cuts.is_empty() {
+            (&fit.occluded[..]).into()
         } else {
             let unseen = sectors.band_sums(sums, pose).into_iter().map(|b| b.is_none());
-            unseen
+            let marks: Vec<bool> = unseen
                 .enumerate()
                 .map(|(k, u)| u || fit.occluded.get(k).copied().unwrap_or(false))
-                .collect()
+                .collect();
+            marks.into()
         };
         let arcs = sectors.visible_arcs(pose, &left_out);
         let outward = Polygon::new(template.points.clone()).signed_area().signum();
@@ -1028,7 +1018,6 @@ impl StereoTracker {
             pose,
             terms,
             contrast: michelson(ma, mb),
-            occluded_fraction: fraction(&mask),
             axis_std_px: f64::NAN,
             occluded: mask,
         };
@@ -1200,10 +1189,10 @@ impl StereoTracker {
             if !fit.terms.energy.is_finite() {
                 return Some(format!("no valid contour position in the {name} image"));
             }
-            if fit.occluded_fraction > self.params.occlusion.max_occluded_fraction {
+            if fit.occluded_fraction() > self.params.occlusion.max_occluded_fraction {
                 return Some(format!(
                     "{:.0}% of the outline is occluded in the {name} image (limit {:.0}%)",
-                    100.0 * fit.occluded_fraction,
+                    100.0 * fit.occluded_fraction(),
                     100.0 * self.params.occlusion.max_occluded_fraction
                 ));
             }
@@ -1254,7 +1243,7 @@ impl StereoTracker {
                 angle_rad: angle,
                 energy: fit.terms.energy,
                 contrast: fit.contrast,
-                occluded_fraction: fit.occluded_fraction,
+                occluded_fraction: fit.occluded_fraction(),
             }
         };
         let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
@@ -1301,8 +1290,6 @@ struct ImageFit {
     terms: EnergyTerms,
     /// Contrast (over the visible sectors when some are occluded).
     contrast: f64,
-    /// Fraction of sectors found occluded.
-    occluded_fraction: f64,
     /// Standard error of the pose along the disparity axis, pixels (NaN:
     /// not measured).
     axis_std_px: f64,
@@ -1317,10 +1304,14 @@ impl ImageFit {
             pose,
             terms,
             contrast: terms.contrast(),
-            occluded_fraction: 0.0,
             axis_std_px: f64::NAN,
             occluded: Vec::new(),
         }
+    }
+
+    /// Fraction of sectors found occluded.
+    fn occluded_fraction(&self) -> f64 {
+        fraction(&self.occluded)
     }
 }
 

@@ -166,18 +166,14 @@ mod tests {
         let data = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f64, (i / w) as f64);
-                let mut v = 0.0;
-                for sy in 0..4 {
-                    for sx in 0..4 {
-                        let (px, py) = (x - 0.375 + sx as f64 * 0.25, y - 0.375 + sy as f64 * 0.25);
-                        v += if (px - cx).hypot(py - 100.0) < 30.0 {
-                            160.0
-                        } else {
-                            80.0
-                        };
+                let v = crate::imageio::pixel_mean(x, y, |px, py| {
+                    if (px - cx).hypot(py - 100.0) < 30.0 {
+                        160.0
+                    } else {
+                        80.0
                     }
-                }
-                (v / 16.0 + noise.sample(&mut rng) + rng.gen_range(-0.5..0.5))
+                });
+                (v + noise.sample(&mut rng) + rng.gen_range(-0.5..0.5))
                     .round()
                     .clamp(0.0, 255.0) as u16
             })

@@ -168,24 +168,10 @@ fn process_with_a_geometric_calibration_fills_z() {
     }
 }
 
-/// `png` rewritten as an 8-bit TIFF carrying FEI metadata (tag 34682,
-/// `FEI_HELIOS`, as the microscope writes it) with this pixel size and
-/// stage tilt.
+/// `png` rewritten as an FEI TIFF (see [`common::fei_tiff`]).
 fn fei_tiff(png: &Path, tiff: &Path, pixel_m: f64, tilt_rad: f64) {
-    use tiff::encoder::{colortype::Gray8, TiffEncoder};
-    use tiff::tags::Tag;
     let image = image::open(png).unwrap().to_luma8();
-    let text = format!(
-        "[User]\r\nDate=11/25/2026\r\n[Beam]\r\nHV=5000\r\n[Scan]\r\nPixelWidth={pixel_m:e}\r\nPixelHeight={pixel_m:e}\r\n\
-         [Stage]\r\nStageT={tilt_rad}\r\nWorkingDistance=0.0165\r\n"
-    );
-    let mut file = std::fs::File::create(tiff).unwrap();
-    let mut encoder = TiffEncoder::new(&mut file).unwrap();
-    let mut page = encoder.new_image::<Gray8>(image.width(), image.height()).unwrap();
-    page.encoder()
-        .write_tag(Tag::Unknown(34682), text.as_str())
-        .unwrap();
-    page.write_data(image.as_raw()).unwrap();
+    std::fs::write(tiff, common::fei_tiff(&image, pixel_m, tilt_rad)).unwrap();
 }
 
 /// Issue #20: a stage-tilt pair whose TIFFs carry the microscope's pixel

@@ -2,6 +2,7 @@
 //! 0 with a temporary SQLite file, driven by a real HTTP client, on
 //! synthetic sequences whose true disparities are known.
 
+mod common;
 #[path = "common/discs.rs"]
 mod discs;
 #[path = "common/server.rs"]
@@ -615,7 +616,7 @@ async fn one_shot_depth_takes_hints_as_query_parameters() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibration_from_image_metadata_gives_the_typed_z() {
     use futures_util::SinkExt;
-    use server::{fei_tiff, next_reply, png, sdp1};
+    use server::{next_reply, png, sdp1};
     use tokio_tungstenite::tungstenite::Message;
 
     let dir = tempfile::tempdir().unwrap();
@@ -703,11 +704,13 @@ async fn calibration_from_image_metadata_gives_the_typed_z() {
         let form = reqwest::multipart::Form::new()
             .part(
                 "left",
-                reqwest::multipart::Part::bytes(fei_tiff(&pair.left, pixel_m, tilt_l)).file_name("l.tif"),
+                reqwest::multipart::Part::bytes(common::fei_tiff(&pair.left.to_gray8(), pixel_m, tilt_l))
+                    .file_name("l.tif"),
             )
             .part(
                 "right",
-                reqwest::multipart::Part::bytes(fei_tiff(&pair.right, pixel_m, tilt_r)).file_name("r.tif"),
+                reqwest::multipart::Part::bytes(common::fei_tiff(&pair.right.to_gray8(), pixel_m, tilt_r))
+                    .file_name("r.tif"),
             );
         let (status, r) = json_of(
             http.post(format!("{base}/v1/sessions/{sid}/frames"))
@@ -725,8 +728,8 @@ async fn calibration_from_image_metadata_gives_the_typed_z() {
         .unwrap();
     for (seq, pair) in pairs[3..5].iter().enumerate() {
         let (l, r) = (
-            fei_tiff(&pair.left, pixel_m, tilt_l),
-            fei_tiff(&pair.right, pixel_m, tilt_r),
+            common::fei_tiff(&pair.left.to_gray8(), pixel_m, tilt_l),
+            common::fei_tiff(&pair.right.to_gray8(), pixel_m, tilt_r),
         );
         let header = json!({"seq": seq, "encoding": "tiff", "left_len": l.len(), "right_len": r.len()});
         ws.send(Message::Binary(sdp1(&header, &l, &r).into()))

@@ -11,7 +11,7 @@ use clap::{Args, ValueEnum};
 
 use super::{exactly, hint_error, CliError};
 use crate::calib::{from_json, Calibration, MetaWatch};
-use crate::imageio::{decode, DecodeLimits, GrayFrame, ImageInputError};
+use crate::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
 use crate::init::{InitError, Polarity};
 use crate::meta::{read_meta, ImageMeta};
 use crate::report::{csv_record, CSV_HEADER};
@@ -325,14 +325,8 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
 
 /// The image and what its microscope metadata say (see [`crate::meta`]).
 fn read_image(path: &Path, limits: &DecodeLimits) -> Result<(GrayFrame, ImageMeta), CliError> {
-    let bytes = std::fs::read(path).map_err(|source| {
-        let e = ImageInputError::Io {
-            path: path.display().to_string(),
-            source,
-        };
-        // The I/O error names the path already.
-        CliError::input(format!("error[{}]: {e}", e.code()))
-    })?;
+    // The I/O error names the path already.
+    let bytes = read_bytes(path).map_err(|e| CliError::input(format!("error[{}]: {e}", e.code())))?;
     let frame = decode(&bytes, limits)
         .map_err(|e| CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())))?;
     Ok((frame, read_meta(&bytes)))

@@ -28,11 +28,10 @@ use std::cell::OnceCell;
 use image::{GrayImage, ImageBuffer, Luma};
 use serde::{Deserialize, Serialize};
 
-use crate::energy::{EnergyParams, INTENSITY_OFFSET};
-use crate::fit::{fit_free, FreeFitParams};
+use crate::energy::EnergyParams;
+use crate::fit::{fit_free, free_fit_tables, FreeFitParams};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
-use crate::region::{PixelRect, PrefixSums};
 
 mod candidates;
 mod edges;
@@ -546,17 +545,7 @@ fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
 /// what the fit settles on. `None` when the contour lies outside the image.
 fn fitted_core(frame: &GrayFrame, contour: &Polygon) -> Option<Polygon> {
     let energy = EnergyParams::default();
-    let slack = energy.margin_for_area(contour.area()) + 16.0;
-    let [x0, y0, x1, y1] = contour.bounds();
-    let rect = PixelRect::covering(
-        x0 - slack,
-        y0 - slack,
-        x1 + slack,
-        y1 + slack,
-        frame.width,
-        frame.height,
-    )?;
-    let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
+    let sums = free_fit_tables(frame, contour, &energy)?;
     Some(fit_free(&sums, contour, &energy, &FreeFitParams::default()).polygon)
 }
 

@@ -208,21 +208,17 @@ mod tests {
         let data = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f64, (i / w) as f64);
-                let mut v = 0.0;
-                for sy in 0..4 {
-                    for sx in 0..4 {
-                        let (px, py) = (x - 0.375 + sx as f64 * 0.25, y - 0.375 + sy as f64 * 0.25);
-                        let r = (px - 100.0).hypot(py - 100.0);
-                        v += if r > radius {
-                            substrate
-                        } else if r > radius - 2.0 {
-                            rim
-                        } else {
-                            core
-                        };
+                let v = crate::imageio::pixel_mean(x, y, |px, py| {
+                    let r = (px - 100.0).hypot(py - 100.0);
+                    if r > radius {
+                        substrate
+                    } else if r > radius - 2.0 {
+                        rim
+                    } else {
+                        core
                     }
-                }
-                (v / 16.0).round() as u16
+                });
+                v.round() as u16
             })
             .collect();
         GrayFrame::new(w, h, 8, data).unwrap()

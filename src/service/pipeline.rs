@@ -50,27 +50,9 @@ pub enum PairInput {
 }
 
 impl PairInput {
-    /// Decodes both images (CPU-heavy: call on the blocking pool).
-    pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame), ApiError> {
-        let (left, right, _) = self.decode_with_meta(limits)?;
-        Ok((left, right))
-    }
-
     /// Decodes both images and reads their microscope metadata (raw
-    /// samples carry none).
-    pub fn decode_with_meta(
-        &self,
-        limits: &DecodeLimits,
-    ) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
-        let (left, right) = self.decode_frames(limits)?;
-        let meta = match self {
-            Self::Encoded { left, right } => Some((read_meta(left), read_meta(right))),
-            Self::Raw { .. } => None,
-        };
-        Ok((left, right, meta))
-    }
-
-    fn decode_frames(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame), ApiError> {
+    /// samples carry none). CPU-heavy: call on the blocking pool.
+    pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
         let side = |which: &str, e: crate::imageio::ImageInputError| {
             let mut err = ApiError::from(e);
             err.message = format!("{which} image: {}", err.message);
@@ -80,6 +62,7 @@ impl PairInput {
             Self::Encoded { left, right } => Ok((
                 decode(left, limits).map_err(|e| side("left", e))?,
                 decode(right, limits).map_err(|e| side("right", e))?,
+                Some((read_meta(left), read_meta(right))),
             )),
             Self::Raw {
                 left,
@@ -90,6 +73,7 @@ impl PairInput {
             } => Ok((
                 decode_raw(left, *width, *height, *bit_depth, limits).map_err(|e| side("left", e))?,
                 decode_raw(right, *width, *height, *bit_depth, limits).map_err(|e| side("right", e))?,
+                None,
             )),
         }
     }
@@ -413,7 +397,7 @@ fn decode_and_track(
     tracker: &mut StereoTracker,
 ) -> Result<(PairResult, f64, f64), ApiError> {
     let started = Instant::now();
-    let (left, right, meta) = input.decode_with_meta(limits)?;
+    let (left, right, meta) = input.decode(limits)?;
     let decoded = Instant::now();
     let mut result = tracker.process(&left, &right)?;
     if let Some((l, r)) = meta {
