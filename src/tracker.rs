@@ -19,7 +19,7 @@ use crate::fit::{
 };
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
-use crate::init::{initialise, InitParams};
+use crate::init::{balanced, initialise, InitParams};
 use crate::meta::ImageMeta;
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
@@ -364,9 +364,11 @@ pub struct TrackerState {
     #[serde(default)]
     pub template_cuts: Vec<HalfPlane>,
     /// The object's outline in template coordinates, reported in place of
-    /// the template where the two differ: a dark object's template is the
-    /// region inside its bright edge rim, the outline runs along the rim's
-    /// outer edge (see [`crate::init::InitResult::core`]). Empty: the
+    /// the template: a dark object's template is the region inside its
+    /// bright edge rim, the outline runs along the rim's outer edge (see
+    /// [`crate::init::InitResult::core`]); any other template lies where
+    /// the region energy is lowest, up to 1 px outside a blurred edge, the
+    /// outline on the edge (see [`crate::init::balanced`]). Empty: the
     /// template is the outline.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub outline: Vec<Point>,
@@ -488,11 +490,22 @@ impl StereoTracker {
         let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted) else {
             return lost_result(frame, "initial contour lies outside the image".into());
         };
-        // The outline moves with the template's pose.
+        // The reported outline: a dark object's runs over its rim; any
+        // other's is the fitted template moved onto the object's edge,
+        // where the region energy leaves it 0.2-1 px outside a blurred
+        // edge (see `init::balance`). It moves with the template's pose.
         let outline = match found.core {
-            Some(_) => {
+            Some(_) => Some(found.contour.clone()),
+            // Where its edge cannot be measured (a strong blur), the
+            // initialisation's outline, which lies closer to it.
+            None => balanced(left, &Polygon::new(place(&template.points, left_pose)))
+                .map(|(p, _)| p)
+                .or_else(|| found.border.is_empty().then(|| found.contour.clone())),
+        };
+        let outline = match outline {
+            Some(outline) => {
                 let (s, c) = (-left_pose.theta).sin_cos();
-                let outline = found.contour.points.iter().map(|p| {
+                let outline = outline.points.iter().map(|p| {
                     let [dx, dy] = [p[0] - left_pose.x, p[1] - left_pose.y];
                     [c * dx - s * dy, s * dx + c * dy]
                 });
@@ -606,12 +619,13 @@ impl StereoTracker {
             energy,
             &self.params.free,
         );
+        let fitted = fitted.polygon;
         let outline = match self.params.template_spacing_px {
             Some(spacing) => {
-                let n = ((fitted.polygon.length() / spacing).round() as usize).max(16);
-                fitted.polygon.resampled(n)
+                let n = ((fitted.length() / spacing).round() as usize).max(16);
+                fitted.resampled(n)
             }
-            None => fitted.polygon,
+            None => fitted,
         }
         .snapped_to_box(image, on_border);
         let (template, fitted_pose) = RigidTemplate::new(&outline, self.params.rigid.coarse_vertices, energy);

@@ -18,7 +18,9 @@
 //! replace it where the paper's rule fails: clutter joined to the outline,
 //! an object cut by the image border, a hint it misses (see [`initialise`]).
 //! A dark object's outline is then settled by the region-based free fit
-//! and grown over the object's bright edge rim ([`rim`]).
+//! and grown over the object's bright edge rim ([`rim`]). Last, the
+//! outline is moved onto the object's edge to a fraction of a pixel, where
+//! the thresholds left it 0.2-0.5 px outside ([`balance`]).
 //!
 //! The output contour is in full-resolution pixel coordinates (centre of the
 //! top-left pixel at (0, 0)).
@@ -33,12 +35,14 @@ use crate::fit::{fit_free, free_fit_tables, FreeFitParams};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 
+mod balance;
 mod candidates;
 mod edges;
 mod morphology;
 mod prompted;
 mod rim;
 
+pub use balance::balanced;
 pub use candidates::{Score, Source};
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
@@ -508,8 +512,27 @@ impl InitParams {
 /// tool entering from the image border).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
-    let found = find_object(frame, params)?;
-    Ok(grown_over_rim(frame, found))
+    let found = grown_over_rim(frame, find_object(frame, params)?);
+    // The outline on the object's edge to a fraction of a pixel, where the
+    // pipeline's thresholds left it 0.2-0.5 px outside (see [`balance`]).
+    Ok(match balanced(frame, &found.contour) {
+        Some((contour, _)) => found.with_contour(contour),
+        None => found,
+    })
+}
+
+impl InitResult {
+    /// The result with `contour` as its outline, and its area, box and
+    /// centroid.
+    pub fn with_contour(self, contour: Polygon) -> Self {
+        InitResult {
+            area_px: contour.area(),
+            bbox: contour.bounds(),
+            centroid: contour.centroid(),
+            contour,
+            ..self
+        }
+    }
 }
 
 /// A dark object's outline grown over its bright edge rim (see [`rim`]);
@@ -526,16 +549,12 @@ fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
     let Some(grown) = rim::grow_over_rim(frame, &core, reach, RIM_MIN_EXCESS) else {
         return found;
     };
-    let contour = grown.outline;
     InitResult {
-        area_px: contour.area(),
-        bbox: contour.bounds(),
-        centroid: contour.centroid(),
         rim_px: grown.mean_px,
         core: Some(core),
-        contour,
         ..found
     }
+    .with_contour(grown.outline)
 }
 
 /// `contour` after the region-based active contour's free fit with the

@@ -171,26 +171,7 @@ pub(super) fn grow_over_rim(
     if growth.iter().all(|&g| g == 0.0) {
         return None;
     }
-    // Linear between sector centres, per vertex.
-    let centre = |k: usize| (starts[k] + starts[k + 1]) as f64 / 2.0;
-    let offsets: Vec<f64> = (0..n)
-        .map(|i| {
-            let x = i as f64;
-            // The sector whose centre is at or before vertex i (cyclically).
-            let k = (0..count).rev().find(|&k| centre(k) <= x).unwrap_or(count - 1);
-            let next = (k + 1) % count;
-            let (c0, mut c1) = (centre(k), centre(next));
-            let mut x = x;
-            if c1 <= c0 {
-                c1 += n as f64;
-            }
-            if x < c0 {
-                x += n as f64;
-            }
-            let t = (x - c0) / (c1 - c0);
-            growth[k] + t * (growth[next] - growth[k])
-        })
-        .collect();
+    let offsets = super::balance::per_vertex(&starts, &growth, n);
     let outline = Polygon::new((0..n).map(|i| at(i, offsets[i])).collect());
     let mean_px = offsets.iter().sum::<f64>() / n as f64;
     Some(Grown { outline, mean_px })

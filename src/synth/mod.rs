@@ -26,6 +26,8 @@ mod raster;
 mod scene;
 mod shapes;
 mod substrate;
+#[cfg(test)]
+pub(crate) use substrate::gaussian_blur;
 mod truth;
 
 #[cfg(test)]
