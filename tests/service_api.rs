@@ -8,9 +8,10 @@ mod discs;
 #[path = "common/server.rs"]
 mod server;
 
+use semdepth::service::state::ServiceConfig;
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{frames_form, offset_free_rms, pair_form, synth_pairs, test_config, TestServer};
+use server::{frames_form, get_json, offset_free_rms, pair_form, synth_pairs, test_config, TestServer};
 
 /// Disparity RMS limit (px, offset removed) for a clean sequence uploaded
 /// over REST: the tracker reaches about 0.04 px on clean data (issue #3);
@@ -747,5 +748,225 @@ async fn calibration_from_image_metadata_gives_the_typed_z() {
     assert_eq!(reply["status"], "tracked", "{reply}");
     assert!(reply["z_um"].is_null(), "{reply}");
     assert!(reply["warnings"].to_string().contains("no metadata"), "{reply}");
+    server.stop().await.unwrap();
+}
+
+/// Issue #22: sessions idle for `--session-expiry-h` are deleted, with their
+/// results, unless created with `keep`; a session that changes is not
+/// idle. Bulk deletes take sessions by name prefix or idle time and leave
+/// kept ones unless told otherwise.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_sessions_expire_and_kept_ones_stay() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("expiry.sqlite3");
+    let config = ServiceConfig {
+        session_expiry: Some(std::time::Duration::from_secs(3)),
+        ..test_config(&db)
+    };
+    let server = TestServer::start(config).await;
+    let base = server.base.clone();
+    let http = reqwest::Client::new();
+    let create = |body: Value| {
+        let (http, base) = (http.clone(), base.clone());
+        async move {
+            let (code, v) = json_of(
+                http.post(format!("{base}/v1/sessions"))
+                    .json(&body)
+                    .send()
+                    .await
+                    .unwrap(),
+            )
+            .await;
+            assert_eq!(code, 201, "{v}");
+            v
+        }
+    };
+    let scratch = create(json!({"name": "scratch"})).await;
+    let kept = create(json!({"name": "overnight", "keep": true})).await;
+    assert_eq!(scratch["keep"], json!(false));
+    assert_eq!(kept["keep"], json!(true));
+    let ids = |v: &Value| -> Vec<String> {
+        v["sessions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["id"].as_str().unwrap().to_string())
+            .collect()
+    };
+    // A second session kept active by a change every second outlives the
+    // expiry.
+    let active = create(json!({"name": "active"})).await;
+    let active_id = active["id"].as_str().unwrap().to_string();
+    for k in 0..6 {
+        tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+        let r = http
+            .patch(format!("{base}/v1/sessions/{active_id}"))
+            .json(&json!({"name": format!("active {k}")}))
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    let list = get_json(&format!("{base}/v1/sessions")).await;
+    let mut left = ids(&list);
+    left.sort();
+    let mut expected = vec![kept["id"].as_str().unwrap().to_string(), active_id.clone()];
+    expected.sort();
+    assert_eq!(left, expected, "after 6 s with a 3-s expiry: {list}");
+    let r = http
+        .get(format!("{base}/v1/sessions/{}", scratch["id"].as_str().unwrap()))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 404, "the expired session is gone");
+    server.stop().await.unwrap();
+
+    // Bulk deletes, on a server without expiry over the same database.
+    let server = TestServer::start(test_config(&db)).await;
+    let base = server.base.clone();
+    for name in ["demo 1", "demo 2", "experiment"] {
+        let (code, v) = json_of(
+            http.post(format!("{base}/v1/sessions"))
+                .json(&json!({"name": name}))
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(code, 201, "{v}");
+    }
+    let (code, v) = json_of(http.delete(format!("{base}/v1/sessions")).send().await.unwrap()).await;
+    assert_eq!(code, 400, "a bulk delete needs a filter: {v}");
+    assert!(
+        v["error"]["message"].as_str().unwrap().contains("name_prefix"),
+        "{v}"
+    );
+    let (code, v) = json_of(
+        http.delete(format!("{base}/v1/sessions?name_prefix=demo"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 200, "{v}");
+    assert_eq!(v["deleted"].as_array().unwrap().len(), 2, "{v}");
+    // Idle for an hour: none. Idle for 0 s: all but the kept one.
+    let (_, v) = json_of(
+        http.delete(format!("{base}/v1/sessions?idle_for_s=3600"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(v["deleted"], json!([]), "{v}");
+    let (_, v) = json_of(
+        http.delete(format!("{base}/v1/sessions?idle_for_s=0"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(
+        v["deleted"].as_array().unwrap().len(),
+        2,
+        "active and experiment: {v}"
+    );
+    let list = get_json(&format!("{base}/v1/sessions")).await;
+    assert_eq!(
+        ids(&list),
+        vec![kept["id"].as_str().unwrap().to_string()],
+        "{list}"
+    );
+    let (_, v) = json_of(
+        http.delete(format!("{base}/v1/sessions?idle_for_s=0&include_kept=true"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(v["deleted"].as_array().unwrap().len(), 1, "{v}");
+    server.stop().await.unwrap();
+}
+
+/// Issue #22: `contours=false` leaves the contours out of the upload's
+/// reply and of a results page (their arrays empty, every number the same),
+/// which makes a page of 4 results several times smaller.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn results_without_contours_are_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("light.sqlite3"))).await;
+    let base = server.base.clone();
+    let http = reqwest::Client::new();
+    let sid = server::new_session(&base).await;
+    for (k, pair) in synth_pairs(Preset::Clean, Shape::Blob, 3, 4).iter().enumerate() {
+        let query = if k % 2 == 0 { "" } else { "?contours=false" };
+        let (code, v) = json_of(
+            http.post(format!("{base}/v1/sessions/{sid}/frames{query}"))
+                .multipart(pair_form(pair))
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(code, 200, "{v}");
+        let contour = v["left"]["contour"].as_array().unwrap();
+        assert_eq!(
+            contour.is_empty(),
+            k % 2 == 1,
+            "pair {k}: {} contour vertices",
+            contour.len()
+        );
+    }
+    let full = http
+        .get(format!("{base}/v1/sessions/{sid}/results"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let light = http
+        .get(format!("{base}/v1/sessions/{sid}/results?contours=false"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    eprintln!(
+        "4 results: {} bytes with contours, {} without",
+        full.len(),
+        light.len()
+    );
+    assert!(
+        light.len() * 3 < full.len(),
+        "{} bytes without contours, {} with",
+        light.len(),
+        full.len()
+    );
+    let (full, light): (Value, Value) = (
+        serde_json::from_str(&full).unwrap(),
+        serde_json::from_str(&light).unwrap(),
+    );
+    for (a, b) in full["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(light["results"].as_array().unwrap())
+    {
+        assert!(!a["left"]["contour"].as_array().unwrap().is_empty());
+        assert_eq!(b["left"]["contour"], json!([]));
+        assert_eq!(b["right"]["contour"], json!([]));
+        assert_eq!(a["disparity_axis_px"], b["disparity_axis_px"]);
+        assert_eq!(a["left"]["centroid"], b["left"]["centroid"]);
+    }
+    let (code, v) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}/results?contours=maybe"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 400, "{v}");
     server.stop().await.unwrap();
 }

@@ -40,6 +40,10 @@ pub struct DemoArgs {
     /// Scene seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Keep the demo's session and calibration on `--server` (default:
+    /// deleted when the demo ends, so that runs do not pile up).
+    #[arg(long)]
+    pub keep: bool,
 }
 
 /// Runs the demo and prints the table.
@@ -209,7 +213,25 @@ async fn demo(args: DemoArgs) -> Result<(), CliError> {
             1.0 / d.px_per_um
         );
     }
-    println!("session {sid}; done in {:.1} s", started.elapsed().as_secs_f64());
+    if local.is_none() && !args.keep {
+        let cal_id = cal["id"].as_str().unwrap_or_default();
+        for path in [
+            format!("/v1/sessions/{sid}"),
+            format!("/v1/calibrations/{cal_id}"),
+        ] {
+            match http_json(&authority, token.as_deref(), "DELETE", &path, &Value::Null).await {
+                Ok((204, _)) => {}
+                Ok((status, body)) => eprintln!("warning: DELETE {path}: {status} {body}"),
+                Err(e) => eprintln!("warning: DELETE {path}: {e}"),
+            }
+        }
+        println!(
+            "session {sid} and its calibration deleted (--keep keeps them); done in {:.1} s",
+            started.elapsed().as_secs_f64()
+        );
+    } else {
+        println!("session {sid}; done in {:.1} s", started.elapsed().as_secs_f64());
+    }
     if let Some((stop, task)) = local {
         let _ = stop.send(());
         let _ = task.await;

@@ -12,7 +12,8 @@ use super::CliError;
 use crate::imageio::DecodeLimits;
 use crate::service::state::{
     ServiceConfig, DEFAULT_DB_PATH, DEFAULT_LISTEN, DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_MESSAGE_MIB,
-    DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_WS_QUEUE,
+    DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H,
+    DEFAULT_WS_QUEUE,
 };
 
 /// Log output format.
@@ -63,6 +64,10 @@ pub struct ServeArgs {
     /// Pairs that may wait per WebSocket under policy=all.
     #[arg(long, env = "SEMDEPTH_WS_QUEUE", default_value_t = DEFAULT_WS_QUEUE)]
     pub ws_queue: usize,
+    /// Delete sessions without a pair or a change for this many hours,
+    /// except those created with `keep`; 0: never.
+    #[arg(long, env = "SEMDEPTH_SESSION_EXPIRY_H", default_value_t = DEFAULT_SESSION_EXPIRY_H)]
+    pub session_expiry_h: f64,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -75,6 +80,12 @@ impl ServeArgs {
             return Err(CliError::input(format!(
                 "invalid --request-timeout-s {} (expected 0.1..=86400)",
                 self.request_timeout_s
+            )));
+        }
+        if !(self.session_expiry_h.is_finite() && (0.0..=100_000.0).contains(&self.session_expiry_h)) {
+            return Err(CliError::input(format!(
+                "invalid --session-expiry-h {} (expected 0..=100000, 0: never)",
+                self.session_expiry_h
             )));
         }
         let defaults = ServiceConfig::default();
@@ -93,6 +104,8 @@ impl ServeArgs {
             default_retention: self.retention,
             request_timeout: Duration::from_secs_f64(self.request_timeout_s),
             ws_queue: self.ws_queue,
+            session_expiry: (self.session_expiry_h > 0.0)
+                .then(|| Duration::from_secs_f64(self.session_expiry_h * 3600.0)),
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

@@ -120,6 +120,12 @@ impl IntoResponse for ApiError {
             tracing::error!(code = %self.code, message = %self.message, "server error");
         }
         let mut response = (self.status, axum::Json(self.body())).into_response();
+        if self.status.is_client_error() {
+            response.extensions_mut().insert(ClientError {
+                code: self.code.clone(),
+                message: self.message.clone(),
+            });
+        }
         if self.status == StatusCode::UNAUTHORIZED {
             response
                 .headers_mut()
@@ -127,6 +133,63 @@ impl IntoResponse for ApiError {
         }
         response
     }
+}
+
+/// A 4xx answer's code and message, attached to the response for the
+/// request log (see [`log_client_errors`]).
+#[derive(Clone, Debug)]
+pub struct ClientError {
+    code: String,
+    message: String,
+}
+
+/// Most client errors logged per [`CLIENT_ERROR_WINDOW`]; the rest are
+/// counted and the count logged when the next window opens, so that a
+/// misbehaving client cannot flood the log.
+const CLIENT_ERRORS_PER_WINDOW: u32 = 20;
+const CLIENT_ERROR_WINDOW: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Logs (at info, rate-limited) every 4xx answer to a request that changes
+/// something (not GET, HEAD or OPTIONS), with its code and message: what a
+/// lab's script did wrong shows in the server's log too.
+pub async fn log_client_errors(req: axum::extract::Request, next: axum::middleware::Next) -> Response {
+    use axum::http::Method;
+    let mutating = !matches!(*req.method(), Method::GET | Method::HEAD | Method::OPTIONS);
+    let response = next.run(req).await;
+    if !mutating || !response.status().is_client_error() {
+        return response;
+    }
+    static WINDOW: std::sync::Mutex<Option<(std::time::Instant, u32)>> = std::sync::Mutex::new(None);
+    let (log, suppressed) = {
+        let Ok(mut window) = WINDOW.lock() else {
+            return response;
+        };
+        let now = std::time::Instant::now();
+        match window.as_mut() {
+            Some((start, count)) if now.duration_since(*start) < CLIENT_ERROR_WINDOW => {
+                *count += 1;
+                (*count <= CLIENT_ERRORS_PER_WINDOW, 0)
+            }
+            other => {
+                let suppressed = other
+                    .as_ref()
+                    .map_or(0, |(_, c)| c.saturating_sub(CLIENT_ERRORS_PER_WINDOW));
+                *window = Some((now, 1));
+                (true, suppressed)
+            }
+        }
+    };
+    if suppressed > 0 {
+        tracing::info!(suppressed, "client errors not logged in the last window");
+    }
+    if log {
+        let status = response.status().as_u16();
+        match response.extensions().get::<ClientError>() {
+            Some(e) => tracing::info!(status, code = %e.code, detail = %e.message, "client error"),
+            None => tracing::info!(status, "client error"),
+        }
+    }
+    response
 }
 
 impl From<ImageInputError> for ApiError {

@@ -82,7 +82,17 @@ pub async fn serve(
         shutdown.await;
         cancel.cancel();
     });
-    tracing::info!(address = %listener.local_addr()?, "semdepth listening");
+    if let Some(expiry) = state.config.session_expiry {
+        tokio::spawn(expire_sessions(state.clone(), expiry));
+    }
+    tracing::info!(
+        address = %listener.local_addr()?,
+        database = %state.config.db_path,
+        token = if state.config.token.is_some() { "required" } else { "none" },
+        workers = state.config.workers,
+        session_expiry_h = state.config.session_expiry.map_or(0.0, |d| d.as_secs_f64() / 3600.0),
+        "semdepth listening"
+    );
     let stop = state.shutdown.clone();
     axum::serve(listener, app)
         .with_graceful_shutdown(async move { stop.cancelled().await })
@@ -94,6 +104,34 @@ pub async fn serve(
     state.storage.close().await?;
     tracing::info!("semdepth stopped");
     Ok(())
+}
+
+/// Deletes sessions idle for `expiry` (not those marked `keep`), checking
+/// every tenth of it (1 s to 1 min), until shutdown.
+async fn expire_sessions(state: AppState, expiry: Duration) {
+    let period = (expiry / 10).clamp(Duration::from_secs(1), Duration::from_secs(60));
+    loop {
+        tokio::select! {
+            _ = state.shutdown.cancelled() => return,
+            _ = tokio::time::sleep(period) => {}
+        }
+        let ids = match state.matching_sessions(Some(expiry), None, false) {
+            Ok(ids) => ids,
+            Err(e) => {
+                tracing::warn!(error = %e.message, "session expiry: cannot list sessions");
+                continue;
+            }
+        };
+        for id in ids {
+            match state.remove_session(&id).await {
+                Ok(()) => {
+                    tracing::info!(session = %id, idle_h = expiry.as_secs_f64() / 3600.0, "session expired")
+                }
+                Err(e) if e.status == axum::http::StatusCode::NOT_FOUND => {}
+                Err(e) => tracing::warn!(session = %id, error = %e.message, "session expiry: delete failed"),
+            }
+        }
+    }
 }
 
 /// Restores calibrations and sessions from storage.
@@ -162,6 +200,7 @@ pub fn app(state: AppState) -> Router {
         .layer(middleware::from_fn(move |req: Request, next: Next| {
             declared_length_limit(max_body, req, next)
         }))
+        .layer(middleware::from_fn(error::log_client_errors))
         .layer(PropagateRequestIdLayer::new(REQUEST_ID))
         .layer(TraceLayer::new_for_http().make_span_with(|req: &Request| {
             let id = req

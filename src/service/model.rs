@@ -231,6 +231,10 @@ pub struct SessionCreate {
     #[serde(default)]
     #[schema(minimum = 1)]
     pub retention: Option<u64>,
+    /// Exempt from the idle-session expiry (`--session-expiry-h`) and from
+    /// bulk deletes unless they include kept sessions. Default false.
+    #[serde(default)]
+    pub keep: bool,
 }
 
 /// Body of `PATCH /v1/sessions/{id}`: the fields to change.
@@ -256,6 +260,9 @@ pub struct SessionPatch {
     #[serde(default)]
     #[schema(minimum = 1)]
     pub retention: Option<u64>,
+    /// Exempt from the idle-session expiry, or not.
+    #[serde(default)]
+    pub keep: Option<bool>,
 }
 
 /// The `init` fields that name the object: `POST /v1/sessions/{id}/reinit`
@@ -328,6 +335,8 @@ pub struct SessionView {
     pub frames: u64,
     /// Most results kept.
     pub retention: u64,
+    /// Exempt from the idle-session expiry.
+    pub keep: bool,
     /// Initialisation parameters.
     pub init: InitParams,
     /// Tracker parameters (its `init` equals the top-level one).
@@ -351,6 +360,7 @@ impl SessionView {
             calibration_id: r.calibration_id.clone(),
             frames: r.frames,
             retention: r.retention.unwrap_or(default_retention),
+            keep: r.keep,
             init: r.params.init.clone(),
             tracker: r.params.clone(),
             latest_disparity_px,
@@ -415,6 +425,36 @@ pub struct FrameResult {
     pub seq: Option<u64>,
 }
 
+impl FrameResult {
+    /// The result with empty contour arrays (`contours=false`: a light
+    /// reply; a quartz result is 41.6 KB with its contours).
+    pub fn without_contours(mut self) -> Self {
+        for image in [&mut self.result.left, &mut self.result.right]
+            .into_iter()
+            .flatten()
+        {
+            image.contour = Vec::new();
+        }
+        self
+    }
+}
+
+/// `contours=false` leaves the contours out of a result (their arrays are
+/// empty); default true.
+#[derive(Clone, Copy, Debug, Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct ContoursQuery {
+    /// Include the contours (default true).
+    #[serde(default = "yes")]
+    pub contours: bool,
+}
+
+/// `true`, for serde defaults.
+pub fn yes() -> bool {
+    true
+}
+
 /// A session's results (`GET /v1/sessions/{id}/results`, JSON).
 #[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
 pub struct ResultsPage {
@@ -432,6 +472,13 @@ pub struct ResultsPage {
 pub struct CalibrationList {
     /// Oldest first.
     pub calibrations: Vec<CalibrationView>,
+}
+
+/// Reply of `DELETE /v1/sessions` (a bulk delete).
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct SessionsDeleted {
+    /// Ids of the sessions deleted, sorted.
+    pub deleted: Vec<String>,
 }
 
 /// List of sessions.

@@ -283,6 +283,12 @@ fn track_locked(
     result.apply_calibration(calibration.as_ref(), &mut core.meta_watch);
     let now = now_rfc3339();
     core.state = if result.status == crate::tracker::Status::Lost {
+        tracing::info!(
+            session = session_id,
+            frame = result.frame,
+            reason = result.reason.as_deref().unwrap_or("-"),
+            "pair lost"
+        );
         "lost".into()
     } else {
         if let Some(d) = result.disparity_px {

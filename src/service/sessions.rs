@@ -23,8 +23,8 @@ use crate::tracker::TrackerParams;
 use super::calibrations::{add_sample, check_name};
 use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
 use super::model::{
-    CalibrationView, FrameResult, PairUpload, ResultsPage, SessionCreate, SessionList, SessionPatch,
-    SessionReinit, SessionSampleCreate, SessionView,
+    CalibrationView, ContoursQuery, FrameResult, PairUpload, ResultsPage, SessionCreate, SessionList,
+    SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted,
 };
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
 use super::state::{new_id, now_rfc3339, AppState, Session, SessionCore};
@@ -35,7 +35,7 @@ pub const MAX_RESULTS_PAGE: usize = 10_000;
 /// The session and one-shot routes (the stream route lives in `ws`).
 pub fn router() -> OpenApiRouter<AppState> {
     OpenApiRouter::new()
-        .routes(routes!(create_session, list_sessions))
+        .routes(routes!(create_session, list_sessions, delete_sessions))
         .routes(routes!(get_session, patch_session, delete_session))
         .routes(routes!(upload_pair))
         .routes(routes!(reset_session))
@@ -80,6 +80,7 @@ pub async fn create_session(
         body.name,
         body.calibration_id,
         body.retention,
+        body.keep,
         params,
         now_rfc3339(),
     );
@@ -220,6 +221,9 @@ pub async fn patch_session(
     if let Some(r) = body.retention {
         core.retention = Some(r);
     }
+    if let Some(keep) = body.keep {
+        core.keep = keep;
+    }
     core.updated_at = now_rfc3339();
     state.storage.upsert_session(core.record(&id)).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
@@ -244,22 +248,73 @@ pub async fn delete_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
-    let session = state.session(&id)?;
-    // Waits for a pair in flight; streams holding the session see `deleted`.
-    let mut core = session.core.lock().await;
-    if core.deleted {
-        return Err(ApiError::not_found("session", &id));
-    }
-    state.storage.delete_session(&id).await?;
-    core.deleted = true;
-    drop(core);
-    state
-        .sessions
-        .write()
-        .map_err(|_| ApiError::internal("session table lock poisoned"))?
-        .remove(&id);
-    state.metrics.active_sessions.dec();
+    state.remove_session(&id).await?;
     Ok(StatusCode::NO_CONTENT)
+}
+
+/// Query of `DELETE /v1/sessions`: which sessions to delete (at least one
+/// of `name_prefix` and `idle_for_s`).
+#[derive(Clone, Debug, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct BulkDeleteQuery {
+    /// Sessions whose name starts with this.
+    pub name_prefix: Option<String>,
+    /// Sessions without a pair or a change for at least this many seconds.
+    #[param(minimum = 0)]
+    pub idle_for_s: Option<f64>,
+    /// Include sessions marked `keep`. Default false.
+    #[serde(default)]
+    pub include_kept: bool,
+}
+
+/// Delete the sessions that match: by name prefix, by idle time, or both
+/// (sessions busy with a pair and, unless included, those marked `keep`
+/// are left).
+#[utoipa::path(
+    delete,
+    path = "/v1/sessions",
+    operation_id = "delete_sessions",
+    tag = "sessions",
+    params(BulkDeleteQuery),
+    responses(
+        (status = 200, description = "The sessions deleted", body = SessionsDeleted),
+        (status = 400, description = "Neither name_prefix nor idle_for_s given, or an invalid value", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn delete_sessions(
+    State(state): State<AppState>,
+    ApiQuery(query): ApiQuery<BulkDeleteQuery>,
+) -> Result<ApiJson<SessionsDeleted>, ApiError> {
+    if query.name_prefix.is_none() && query.idle_for_s.is_none() {
+        return Err(ApiError::bad_request(
+            "invalid_query",
+            "give name_prefix, idle_for_s or both (a bulk delete of every session is not offered)",
+        ));
+    }
+    let idle_for = match query.idle_for_s {
+        Some(s) if s.is_finite() && (0.0..=1e9).contains(&s) => Some(std::time::Duration::from_secs_f64(s)),
+        Some(s) => {
+            return Err(ApiError::bad_request(
+                "invalid_query",
+                format!("invalid idle_for_s {s} (expected 0..=1e9)"),
+            ))
+        }
+        None => None,
+    };
+    let ids = state.matching_sessions(idle_for, query.name_prefix.as_deref(), query.include_kept)?;
+    let mut deleted = Vec::with_capacity(ids.len());
+    for id in ids {
+        match state.remove_session(&id).await {
+            Ok(()) => deleted.push(id),
+            // Deleted meanwhile by another request.
+            Err(e) if e.status == StatusCode::NOT_FOUND => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(ApiJson(SessionsDeleted { deleted }))
 }
 
 /// Upload one stereo pair; the first pair initialises the tracker.
@@ -268,7 +323,7 @@ pub async fn delete_session(
     path = "/v1/sessions/{id}/frames",
     operation_id = "upload_pair",
     tag = "sessions",
-    params(("id" = String, Path, description = "Session id")),
+    params(("id" = String, Path, description = "Session id"), ContoursQuery),
     request_body(content = PairUpload, content_type = "multipart/form-data", description = "Parts `left` and `right`: PNG, TIFF (8/16-bit), JPEG or BMP of equal size"),
     responses(
         (status = 200, description = "The pair's result (status initialised, tracked or lost)", body = FrameResult),
@@ -285,13 +340,18 @@ pub async fn delete_session(
 pub async fn upload_pair(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
+    ApiQuery(query): ApiQuery<ContoursQuery>,
     request: Request,
 ) -> Result<ApiJson<FrameResult>, ApiError> {
     let received = Instant::now();
     let session = state.session(&id)?;
     let input = read_pair_upload(request).await?;
     let result = process_session_pair(&state, &session, input, received, None).await?;
-    Ok(ApiJson(result))
+    Ok(ApiJson(if query.contours {
+        result
+    } else {
+        result.without_contours()
+    }))
 }
 
 /// Forget the object: the next pair initialises again.
@@ -393,6 +453,9 @@ pub struct ResultsQuery {
     /// Most results returned (default and maximum 10000).
     #[param(minimum = 1, maximum = 10000)]
     pub limit: Option<usize>,
+    /// Include the contours (default true; false empties their arrays).
+    #[serde(default = "super::model::yes")]
+    pub contours: bool,
 }
 
 /// The session's results, oldest first.
@@ -441,7 +504,7 @@ pub async fn session_results(
                 "stored result {frame} of session {id} is unreadable: {e}"
             ))
         })?;
-        results.push(r);
+        results.push(if query.contours { r } else { r.without_contours() });
     }
     let next_since = if more {
         results.last().map(|r| r.result.frame + 1)

@@ -37,6 +37,11 @@ pub const DEFAULT_RETENTION: u64 = 100_000;
 pub const DEFAULT_REQUEST_TIMEOUT_S: f64 = 60.0;
 /// Default number of pairs waiting per WebSocket under `policy=all`.
 pub const DEFAULT_WS_QUEUE: usize = 4;
+/// Default time after which a session without activity is deleted, hours
+/// (sessions marked `keep` stay): a week, so that a weekend's pause does
+/// not lose an experiment, and scripts' forgotten sessions do not pile up
+/// to the session limit.
+pub const DEFAULT_SESSION_EXPIRY_H: f64 = 168.0;
 
 /// Everything `semdepth serve` can be configured with (flags and
 /// environment variables map onto it in `cli::serve_cmd`).
@@ -62,6 +67,9 @@ pub struct ServiceConfig {
     pub request_timeout: Duration,
     /// Pairs that may wait per WebSocket before the policy applies.
     pub ws_queue: usize,
+    /// Sessions idle this long (no pair, no change) are deleted unless
+    /// marked `keep`; None: never.
+    pub session_expiry: Option<Duration>,
 }
 
 impl Default for ServiceConfig {
@@ -77,6 +85,7 @@ impl Default for ServiceConfig {
             default_retention: DEFAULT_RETENTION,
             request_timeout: Duration::from_secs_f64(DEFAULT_REQUEST_TIMEOUT_S),
             ws_queue: DEFAULT_WS_QUEUE,
+            session_expiry: Some(Duration::from_secs_f64(DEFAULT_SESSION_EXPIRY_H * 3600.0)),
         }
     }
 }
@@ -180,6 +189,8 @@ pub struct SessionCore {
     pub calibration_id: Option<String>,
     /// Most results kept (None: server default).
     pub retention: Option<u64>,
+    /// Exempt from the idle-session expiry.
+    pub keep: bool,
     /// `awaiting_first_pair`, `tracking` or `lost`.
     pub state: String,
     /// RFC 3339 UTC.
@@ -203,6 +214,7 @@ impl SessionCore {
         name: Option<String>,
         calibration_id: Option<String>,
         retention: Option<u64>,
+        keep: bool,
         params: TrackerParams,
         now: String,
     ) -> Self {
@@ -210,6 +222,7 @@ impl SessionCore {
             name,
             calibration_id,
             retention,
+            keep,
             state: "awaiting_first_pair".into(),
             created_at: now.clone(),
             updated_at: now,
@@ -226,6 +239,7 @@ impl SessionCore {
             name: r.name,
             calibration_id: r.calibration_id,
             retention: r.retention,
+            keep: r.keep,
             state: r.state,
             created_at: r.created_at,
             updated_at: r.updated_at,
@@ -260,6 +274,7 @@ impl SessionCore {
             tracker_state: self.tracker.state().cloned(),
             created_at: self.created_at.clone(),
             updated_at: self.updated_at.clone(),
+            keep: self.keep,
         }
     }
 
@@ -278,6 +293,72 @@ impl Inner {
             .get(id)
             .cloned()
             .ok_or_else(|| ApiError::not_found("session", id))
+    }
+
+    /// Deletes the session with this id and its results: waits for a pair
+    /// in flight, and streams still holding it stop. 404 when unknown.
+    pub async fn remove_session(&self, id: &str) -> Result<(), ApiError> {
+        let session = self.session(id)?;
+        let mut core = session.core.lock().await;
+        if core.deleted {
+            return Err(ApiError::not_found("session", id));
+        }
+        self.storage.delete_session(id).await?;
+        core.deleted = true;
+        drop(core);
+        self.sessions
+            .write()
+            .map_err(|_| ApiError::internal("session table lock poisoned"))?
+            .remove(id);
+        self.metrics.active_sessions.dec();
+        Ok(())
+    }
+
+    /// Ids of the sessions that match: last active at least `idle_for` ago
+    /// (when given), named with `name_prefix` (when given), and not marked
+    /// `keep` unless `include_kept`. A session busy with a pair is active.
+    pub fn matching_sessions(
+        &self,
+        idle_for: Option<Duration>,
+        name_prefix: Option<&str>,
+        include_kept: bool,
+    ) -> Result<Vec<String>, ApiError> {
+        let now = time::OffsetDateTime::now_utc();
+        let all: Vec<Arc<Session>> = self
+            .sessions
+            .read()
+            .map_err(|_| ApiError::internal("session table lock poisoned"))?
+            .values()
+            .cloned()
+            .collect();
+        let mut out = Vec::new();
+        for session in all {
+            let Ok(core) = session.core.try_lock() else {
+                continue;
+            };
+            if core.deleted || (core.keep && !include_kept) {
+                continue;
+            }
+            if let Some(prefix) = name_prefix {
+                if !core.name.as_deref().is_some_and(|n| n.starts_with(prefix)) {
+                    continue;
+                }
+            }
+            if let Some(idle_for) = idle_for {
+                let last = time::OffsetDateTime::parse(
+                    &core.updated_at,
+                    &time::format_description::well_known::Rfc3339,
+                );
+                // An unreadable time is no reason to delete.
+                let Ok(last) = last else { continue };
+                if now - last < idle_for {
+                    continue;
+                }
+            }
+            out.push(session.id.clone());
+        }
+        out.sort();
+        Ok(out)
     }
 
     /// The calibration with this id, or 404.

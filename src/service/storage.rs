@@ -179,6 +179,8 @@ pub struct SessionRecord {
     pub created_at: String,
     /// Time of the last change (RFC 3339 text, chosen by the caller).
     pub updated_at: String,
+    /// Exempt from the idle-session expiry.
+    pub keep: bool,
 }
 
 /// What is stored after every pair: its result and the session's new state.
@@ -371,13 +373,14 @@ impl Storage {
             // Not INSERT OR REPLACE: that deletes the row, cascading to its results.
             c.execute(
                 "INSERT INTO sessions (id, name, calibration_id, params, retention, frames,
-                                       state, tracker_state, created_at, updated_at)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)
+                                       state, tracker_state, created_at, updated_at, keep)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)
                  ON CONFLICT (id) DO UPDATE SET
                      name = excluded.name, calibration_id = excluded.calibration_id,
                      params = excluded.params, retention = excluded.retention,
                      frames = excluded.frames, state = excluded.state,
-                     tracker_state = excluded.tracker_state, updated_at = excluded.updated_at",
+                     tracker_state = excluded.tracker_state, updated_at = excluded.updated_at,
+                     keep = excluded.keep",
                 params![
                     rec.id,
                     rec.name,
@@ -388,7 +391,8 @@ impl Storage {
                     rec.state,
                     tracker_json,
                     rec.created_at,
-                    rec.updated_at
+                    rec.updated_at,
+                    rec.keep
                 ],
             )?;
             Ok(())
@@ -584,6 +588,8 @@ const MIGRATIONS: &[&str] = &[
          body TEXT NOT NULL,            -- JSON of the FrameResult
          PRIMARY KEY (session_id, frame)
      ) WITHOUT ROWID;",
+    // 1 -> 2: sessions exempt from the idle expiry.
+    "ALTER TABLE sessions ADD COLUMN keep INTEGER NOT NULL DEFAULT 0;",
 ];
 
 struct Inner {
@@ -886,7 +892,7 @@ fn load_calibrations(c: &Connection) -> Result<Vec<CalibrationRecord>, StorageEr
 fn load_sessions(c: &Connection) -> Result<Vec<SessionRecord>, StorageError> {
     let mut stmt = c.prepare_cached(
         "SELECT id, name, calibration_id, params, retention, frames, state, tracker_state,
-                created_at, updated_at
+                created_at, updated_at, keep
          FROM sessions ORDER BY created_at, id",
     )?;
     let rows = stmt.query_map([], |r| {
@@ -904,6 +910,7 @@ fn load_sessions(c: &Connection) -> Result<Vec<SessionRecord>, StorageError> {
                 r.get::<_, Option<String>>(7)?,
                 r.get::<_, String>(8)?,
                 r.get::<_, String>(9)?,
+                r.get::<_, bool>(10)?,
             ),
         ))
     })?;
@@ -911,7 +918,7 @@ fn load_sessions(c: &Connection) -> Result<Vec<SessionRecord>, StorageError> {
     for row in rows {
         let (
             (id, name, calibration_id, params, retention),
-            (frames, state, tracker_state, created_at, updated_at),
+            (frames, state, tracker_state, created_at, updated_at, keep),
         ) = row?;
         let params = parse_json(&params, "session", &id, "params")?;
         let tracker_state = match tracker_state {
@@ -934,6 +941,7 @@ fn load_sessions(c: &Connection) -> Result<Vec<SessionRecord>, StorageError> {
             tracker_state,
             created_at,
             updated_at,
+            keep,
         });
     }
     Ok(out)
@@ -1111,6 +1119,7 @@ mod tests {
             tracker_state: None,
             created_at: created_at.into(),
             updated_at: created_at.into(),
+            keep: false,
         }
     }
 
@@ -1349,6 +1358,37 @@ mod tests {
              PRAGMA user_version = 999;",
         )
         .unwrap();
+    }
+
+    /// A database written by a build of schema version 1 (before `keep`)
+    /// opens, migrates, and reads its sessions as not kept.
+    #[tokio::test]
+    async fn version_1_sessions_migrate_unkept() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("v1.db");
+        let path = path.to_str().unwrap();
+        {
+            let c = Connection::open(path).unwrap();
+            c.execute_batch(MIGRATIONS[0]).unwrap();
+            c.execute_batch(
+                "INSERT INTO sessions (id, name, calibration_id, params, retention, frames, state,
+                                       tracker_state, created_at, updated_at)
+                 VALUES ('s_old', 'old', NULL, '{}', NULL, 0, 'awaiting_first_pair', NULL,
+                         '2025-01-01T00:00:00Z', '2025-01-01T00:00:00Z');
+                 PRAGMA user_version = 1;",
+            )
+            .unwrap();
+        }
+        let storage = Storage::open(path, StorageOptions::default()).unwrap();
+        let sessions = storage.sessions().await.unwrap();
+        assert_eq!(sessions.len(), 1);
+        assert_eq!(sessions[0].id, "s_old");
+        assert!(!sessions[0].keep);
+        let mut kept = sessions[0].clone();
+        kept.keep = true;
+        storage.upsert_session(kept).await.unwrap();
+        assert!(storage.sessions().await.unwrap()[0].keep);
+        storage.close().await.unwrap();
     }
 
     fn dir_listing(dir: &Path) -> Vec<String> {

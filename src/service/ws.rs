@@ -69,6 +69,10 @@ pub struct StreamQuery {
     /// `latest` (default) or `all`.
     #[serde(default)]
     pub policy: Policy,
+    /// Include the contours in each reply (default true; false empties
+    /// their arrays).
+    #[serde(default = "super::model::yes")]
+    pub contours: bool,
 }
 
 /// Encoding of the images in a pair message.
@@ -166,7 +170,7 @@ pub async fn stream_session(
     Ok(upgrade
         .max_message_size(limit)
         .max_frame_size(limit)
-        .on_upgrade(move |socket| tracker.track_future(run_stream(state, session, query.policy, socket))))
+        .on_upgrade(move |socket| tracker.track_future(run_stream(state, session, query, socket))))
 }
 
 /// Builds a pair message: [`MAGIC`], the header's length (u32 little
@@ -343,7 +347,8 @@ impl Job {
     }
 }
 
-async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, socket: WebSocket) {
+async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, socket: WebSocket) {
+    let (policy, contours) = (query.policy, query.contours);
     state.metrics.active_websockets.inc();
     let (mut sink, mut stream) = socket.split();
     let (reply_tx, mut reply_rx) = mpsc::channel::<Message>(64);
@@ -397,7 +402,8 @@ async fn run_stream(state: AppState, session: Arc<Session>, policy: Policy, sock
                     Err(e) => Err(e),
                 };
                 let reply = match outcome {
-                    Ok(result) => serde_json::to_string(&result),
+                    Ok(result) if contours => serde_json::to_string(&result),
+                    Ok(result) => serde_json::to_string(&result.without_contours()),
                     Err(e) => serde_json::to_string(&StreamErrorReply {
                         seq: Some(seq),
                         error: e.body().error,
