@@ -109,6 +109,14 @@ pub enum CalibError {
     /// The JSON text is malformed or has the wrong shape (unknown or missing fields).
     #[error("invalid calibration JSON: {0}")]
     Json(String),
+    /// A sample index past the end of the samples.
+    #[error("no sample {index} (expected 0..{count}: the calibration has {count} samples)")]
+    NoSuchSample {
+        /// The index asked for.
+        index: usize,
+        /// Samples present.
+        count: usize,
+    },
 }
 
 impl CalibError {
@@ -121,13 +129,14 @@ impl CalibError {
             Self::DegenerateFit(_) => "degenerate_fit",
             Self::NotAFit { .. } => "not_a_fit",
             Self::Json(_) => "invalid_calibration_json",
+            Self::NoSuchSample { .. } => "sample_not_found",
         }
     }
 }
 
 /// One calibration measurement: the disparity across the tilt axis observed
 /// with the object at a known height.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Sample {
     /// Disparity component across the tilt axis, pixels (see [`axis_component`]).
@@ -136,12 +145,32 @@ pub struct Sample {
     /// Known height, micrometres.
     #[schema(minimum = -1e6, maximum = 1e6)]
     pub z_um: f64,
+    /// The session whose tracked pair gave the disparity (absent: typed in).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub session_id: Option<String>,
+    /// That pair's frame index in the session.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<u64>,
 }
 
 impl Sample {
     /// A sample from a disparity (pixels) and a height (micrometres).
     pub fn new(disparity_px: f64, z_um: f64) -> Self {
-        Self { disparity_px, z_um }
+        Self {
+            disparity_px,
+            z_um,
+            session_id: None,
+            frame: None,
+        }
+    }
+
+    /// The sample marked as measured on `frame` of session `session_id`.
+    pub fn from_pair(self, session_id: &str, frame: u64) -> Self {
+        Self {
+            session_id: Some(session_id.to_owned()),
+            frame: Some(frame),
+            ..self
+        }
     }
 }
 
@@ -748,6 +777,38 @@ impl Calibration {
         fit.samples.push(sample);
         *self = build_fit(fit)?;
         Ok(())
+    }
+
+    /// Removes sample `index` (0-based, in the order given) from a fitted
+    /// calibration and refits; returns the sample. On error (no such
+    /// sample: [`CalibError::NoSuchSample`], too few left, degenerate refit,
+    /// a geometric calibration) the calibration is unchanged.
+    pub fn remove_sample(&mut self, index: usize) -> Result<Sample, CalibError> {
+        let CalibrationSpec::Fit(fit) = &self.spec else {
+            return Err(CalibError::NotAFit {
+                model: self.model_name(),
+            });
+        };
+        if index >= fit.samples.len() {
+            return Err(CalibError::NoSuchSample {
+                index,
+                count: fit.samples.len(),
+            });
+        }
+        let mut fit = fit.clone();
+        let removed = fit.samples.remove(index);
+        *self = build_fit(fit)?;
+        Ok(removed)
+    }
+
+    /// Per sample of a fitted calibration, its height minus the fit's at
+    /// its disparity, micrometres (in the samples' order; empty for a
+    /// geometric calibration): an outlier stands out.
+    pub fn residuals_um(&self) -> Vec<f64> {
+        self.samples()
+            .iter()
+            .map(|s| s.z_um - self.z_from_axis(s.disparity_px))
+            .collect()
     }
 }
 

@@ -11,7 +11,9 @@ mod server;
 use semdepth::service::state::ServiceConfig;
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{frames_form, get_json, offset_free_rms, pair_form, synth_pairs, test_config, TestServer};
+use server::{
+    frames_form, get_json, offset_free_rms, pair_form, post_json, synth_pairs, test_config, TestServer,
+};
 
 /// Disparity RMS limit (px, offset removed) for a clean sequence uploaded
 /// over REST: the tracker reaches about 0.04 px on clean data (issue #3);
@@ -968,5 +970,120 @@ async fn results_without_contours_are_light() {
     )
     .await;
     assert_eq!(code, 400, "{v}");
+    server.stop().await.unwrap();
+}
+
+/// Issue #22: a calibration sample takes the latest pair's disparity only
+/// when that pair was tracked (after a lost pair: 409, the calibration
+/// unchanged), and records the session and frame it came from; every
+/// sample's residual is shown, and removing an outlier refits and restores
+/// R^2.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn calibration_samples_are_traced_and_outliers_removable() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("samples.sqlite3"))).await;
+    let base = server.base.clone();
+    let http = reqwest::Client::new();
+    let cal = post_json(
+        &format!("{base}/v1/calibrations"),
+        json!({"model": "fit", "degree": 1, "samples": [
+            {"disparity_px": 0.0, "z_um": 0.0}, {"disparity_px": 1.0, "z_um": 10.0}, {"disparity_px": 2.0, "z_um": 20.0}]}),
+    )
+    .await;
+    let cal_id = cal["id"].as_str().unwrap().to_string();
+    let sid = post_json(&format!("{base}/v1/sessions"), json!({"calibration_id": cal_id})).await["id"]
+        .as_str()
+        .unwrap()
+        .to_string();
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 2, 1);
+    let (code, first) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(pair_form(&pairs[0]))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(
+        (code, first["status"].as_str()),
+        (200, Some("initialised")),
+        "{first}"
+    );
+    let sample = |z: f64| {
+        let (http, url) = (
+            http.clone(),
+            format!("{base}/v1/sessions/{sid}/calibration-samples"),
+        );
+        let body = json!({"calibration_id": cal_id, "z_um": z});
+        async move { json_of(http.post(url).json(&body).send().await.unwrap()).await }
+    };
+    // The disparity there is about 3 px; on the line z = 10 d.
+    let d0 = first["disparity_axis_px"].as_f64().unwrap();
+    let (code, refit) = sample(10.0 * d0).await;
+    assert_eq!(code, 200, "{refit}");
+    let last = &refit["samples"][3];
+    assert_eq!(last["session_id"], json!(sid), "{refit}");
+    assert_eq!(last["frame"], json!(0), "{refit}");
+    assert_eq!(refit["residuals_um"].as_array().unwrap().len(), 4, "{refit}");
+
+    // A pair without the object: lost. A sample now is refused.
+    let (w, h) = (pairs[0].left.width, pairs[0].left.height);
+    let blank = semdepth::imageio::GrayFrame::new(w, h, 8, vec![120; (w * h) as usize]).unwrap();
+    let (code, lost) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(frames_form(&blank, &blank))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!((code, lost["status"].as_str()), (200, Some("lost")), "{lost}");
+    let (code, refused) = sample(250.0).await;
+    assert_eq!(code, 409, "{refused}");
+    assert_eq!(refused["error"]["code"], json!("latest_pair_lost"), "{refused}");
+    let unchanged = get_json(&format!("{base}/v1/calibrations/{cal_id}")).await;
+    assert_eq!(unchanged["samples"].as_array().unwrap().len(), 4, "{unchanged}");
+
+    // A mistyped height: R^2 falls and its residual stands out.
+    let r2_before = unchanged["r_squared"].as_f64().unwrap();
+    let bad = post_json(
+        &format!("{base}/v1/calibrations/{cal_id}/samples"),
+        json!({"disparity_px": 1.5, "z_um": 60.0}),
+    )
+    .await;
+    let r2_bad = bad["r_squared"].as_f64().unwrap();
+    assert!(r2_bad < r2_before - 0.1, "R^2 {r2_before:.4} -> {r2_bad:.4}");
+    let residuals: Vec<f64> = bad["residuals_um"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap().abs())
+        .collect();
+    let worst = (0..residuals.len())
+        .max_by(|&a, &b| residuals[a].total_cmp(&residuals[b]))
+        .unwrap();
+    assert_eq!(worst, 4, "the outlier's residual is the largest: {residuals:?}");
+    let (code, fixed) = json_of(
+        http.delete(format!("{base}/v1/calibrations/{cal_id}/samples/{worst}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 200, "{fixed}");
+    assert_eq!(fixed["samples"].as_array().unwrap().len(), 4);
+    assert!(
+        (fixed["r_squared"].as_f64().unwrap() - r2_before).abs() < 1e-12,
+        "{fixed}"
+    );
+    let (code, missing) = json_of(
+        http.delete(format!("{base}/v1/calibrations/{cal_id}/samples/9"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 404, "{missing}");
+    assert_eq!(missing["error"]["code"], json!("sample_not_found"), "{missing}");
     server.stop().await.unwrap();
 }

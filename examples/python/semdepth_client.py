@@ -279,6 +279,12 @@ class SemdepthClient:
         return self.request("POST", f"/v1/calibrations/{self._id(calibration_id)}/samples",
                             {"disparity_px": disparity_px, "z_um": z_um})
 
+    def remove_calibration_sample(self, calibration_id: str, index: int) -> Dict[str, Any]:
+        """``DELETE /v1/calibrations/{id}/samples/{index}``: removes sample
+        ``index`` (its position in ``samples``, from 0; ``residuals_um`` shows
+        which one is off), refits; returns the calibration."""
+        return self.request("DELETE", f"/v1/calibrations/{self._id(calibration_id)}/samples/{int(index)}")
+
     # sessions
 
     def create_session(self, name: Optional[str] = None, calibration_id: Optional[str] = None,
@@ -316,6 +322,16 @@ class SemdepthClient:
     def delete_session(self, session_id: str) -> Any:
         """``DELETE /v1/sessions/{id}``."""
         return self.request("DELETE", f"/v1/sessions/{self._id(session_id)}")
+
+    def delete_sessions(self, name_prefix: Optional[str] = None, idle_for_s: Optional[float] = None,
+                        include_kept: bool = False) -> List[str]:
+        """``DELETE /v1/sessions``: deletes the sessions named with
+        ``name_prefix`` and/or idle for ``idle_for_s`` seconds (those created
+        with ``keep=True`` only with ``include_kept``); returns their ids."""
+        query: Dict[str, Any] = {"name_prefix": name_prefix, "idle_for_s": idle_for_s}
+        if include_kept:
+            query["include_kept"] = "true"
+        return self.request("DELETE", "/v1/sessions", query=query)["deleted"]
 
     def reset(self, session_id: str) -> Dict[str, Any]:
         """``POST /v1/sessions/{id}/reset``: the next pair initialises again."""

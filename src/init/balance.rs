@@ -236,7 +236,7 @@ const RIM_DECAYS: [f64; 6] = [0.7, 1.0, 1.4, 2.0, 2.8, 4.0];
 const GRID_PX: f64 = 0.05;
 
 /// The tabulated model reaches this far from the edge, pixels.
-const TABLE_REACH_PX: f64 = 12.0;
+const TABLE_REACH_PX: f64 = 8.0;
 
 /// The edge model for one width and rim decay: the step's share inside the
 /// edge and the rim's profile, tabulated at signed distances

@@ -20,6 +20,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(create_calibration, list_calibrations))
         .routes(routes!(get_calibration, delete_calibration))
         .routes(routes!(add_calibration_sample))
+        .routes(routes!(remove_calibration_sample))
 }
 
 /// Create a calibration.
@@ -172,20 +173,61 @@ pub async fn add_calibration_sample(
     Ok(ApiJson(view))
 }
 
+/// Remove a sample from a fitted calibration (an outlier, a mistyped
+/// height) and refit.
+#[utoipa::path(
+    delete,
+    path = "/v1/calibrations/{id}/samples/{index}",
+    operation_id = "remove_calibration_sample",
+    tag = "calibrations",
+    params(
+        ("id" = String, Path, description = "Calibration id"),
+        ("index" = usize, Path, description = "The sample's position in `samples`, from 0"),
+    ),
+    responses(
+        (status = 200, description = "The refitted calibration", body = CalibrationView),
+        (status = 400, description = "Invalid path: the id is not UTF-8 or the index not a number", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such calibration, or no such sample (`sample_not_found`)", body = ErrorBody),
+        (status = 409, description = "Not a fitted calibration", body = ErrorBody),
+        (status = 422, description = "Too few distinct samples would be left, or the refit is degenerate", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn remove_calibration_sample(
+    State(state): State<AppState>,
+    ApiPath((id, index)): ApiPath<(String, usize)>,
+) -> Result<ApiJson<CalibrationView>, ApiError> {
+    let view = refit(&state, &id, |c| c.remove_sample(index).map(drop)).await?;
+    Ok(ApiJson(view))
+}
+
 /// Adds a sample to the fitted calibration `id`, refits and stores it.
 pub async fn add_sample(state: &AppState, id: &str, sample: Sample) -> Result<CalibrationView, ApiError> {
-    // Serialise refits of one calibration: two concurrent appends must not
+    refit(state, id, |c| c.add_sample(sample)).await
+}
+
+/// Changes the samples of the fitted calibration `id` by `change` (which
+/// refits), and stores it; on any error it stays as it was.
+async fn refit(
+    state: &AppState,
+    id: &str,
+    change: impl FnOnce(&mut crate::calib::Calibration) -> Result<(), crate::calib::CalibError>,
+) -> Result<CalibrationView, ApiError> {
+    // Serialise refits of one calibration: two concurrent changes must not
     // both start from the same sample list.
     let _guard = state.calibration_writes.lock().await;
     let mut record = state.calibration(id)?;
     if !record.calibration.is_fit() {
         return Err(ApiError::conflict(
             "not_a_fit_calibration",
-            format!("calibration {id:?} is geometric (expected a \"fit\" calibration to add samples to)"),
+            format!(
+                "calibration {id:?} is geometric (expected a \"fit\" calibration, whose samples can change)"
+            ),
         ));
     }
     let mut calibration = record.calibration.clone();
-    calibration.add_sample(sample)?;
+    change(&mut calibration)?;
     record.calibration = calibration;
     record.updated_at = now_rfc3339();
     if !state.storage.update_calibration(record.clone()).await? {

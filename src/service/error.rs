@@ -217,8 +217,13 @@ impl From<TrackError> for ApiError {
 
 impl From<CalibError> for ApiError {
     fn from(e: CalibError) -> Self {
-        // Every calibration error is about the submitted values or samples.
-        Self::new(StatusCode::UNPROCESSABLE_ENTITY, e.code(), e.to_string())
+        // Every calibration error is about the submitted values or samples,
+        // or names a sample that is not there.
+        let status = match e {
+            CalibError::NoSuchSample { .. } => StatusCode::NOT_FOUND,
+            _ => StatusCode::UNPROCESSABLE_ENTITY,
+        };
+        Self::new(status, e.code(), e.to_string())
     }
 }
 

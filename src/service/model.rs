@@ -158,6 +158,10 @@ pub struct CalibrationView {
     /// Fit: the samples, in the order they were given.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub samples: Option<Vec<Sample>>,
+    /// Fit: per sample, its height minus the fit's at its disparity,
+    /// micrometres (in the samples' order): an outlier stands out.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub residuals_um: Option<Vec<f64>>,
     /// Fit: RMS of the residuals, micrometres.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub residual_rms_um: Option<f64>,
@@ -186,6 +190,7 @@ impl From<&CalibrationRecord> for CalibrationView {
             reference_disparity_px: None,
             degree: None,
             samples: None,
+            residuals_um: None,
             residual_rms_um: c.residual_rms_um(),
             r_squared: c.r_squared(),
             created_at: r.created_at.clone(),
@@ -202,6 +207,7 @@ impl From<&CalibrationRecord> for CalibrationView {
             CalibrationSpec::Fit(f) => {
                 view.degree = Some(f.degree);
                 view.samples = Some(f.samples.clone());
+                view.residuals_um = Some(c.residuals_um());
             }
         }
         view

@@ -545,7 +545,7 @@ pub async fn session_results(
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session or calibration", body = ErrorBody),
         (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
-        (status = 409, description = "No disparity measured yet, or not a fitted calibration", body = ErrorBody),
+        (status = 409, description = "No tracked pair yet (`no_disparity_yet`), the latest pair was lost (`latest_pair_lost`), or not a fitted calibration", body = ErrorBody),
         (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
         (status = 422, description = "Invalid height, or the refit is degenerate", body = ErrorBody),
@@ -559,21 +559,36 @@ pub async fn add_session_calibration_sample(
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
     let session = state.session(&id)?;
     let calibration = state.calibration(&body.calibration_id)?;
-    let disparity = {
+    let (disparity, frame) = {
         let core = session.core.lock().await;
         if core.deleted {
             return Err(ApiError::not_found("session", &id));
         }
-        core.latest_disparity_px
-    }
-    .ok_or_else(|| {
-        ApiError::conflict(
-            "no_disparity_yet",
-            format!("session {id:?} has no measured disparity yet (upload a pair that is tracked first)"),
-        )
-    })?;
+        // Only the latest pair's own disparity: after a lost pair (or a
+        // reset) the height would be paired with an older pair's.
+        let frames = core.tracker.frames();
+        match (core.state.as_str(), core.latest_disparity_px, frames.checked_sub(1)) {
+            ("tracking", Some(d), Some(last)) => (d, last),
+            ("lost", _, _) => {
+                return Err(ApiError::conflict(
+                    "latest_pair_lost",
+                    format!(
+                        "session {id:?} cannot give a sample: its latest pair (frame {}) was lost, and an older pair's disparity would be paired with this height (upload a pair that is tracked first)",
+                        frames.saturating_sub(1)
+                    ),
+                ))
+            }
+            _ => {
+                return Err(ApiError::conflict(
+                    "no_disparity_yet",
+                    format!("session {id:?} has no tracked pair since its start or reset (upload a pair that is tracked first)"),
+                ))
+            }
+        }
+    };
     let d_axis = axis_component(calibration.calibration.tilt_axis_deg(), disparity);
-    let view = add_sample(&state, &body.calibration_id, Sample::new(d_axis, body.z_um)).await?;
+    let sample = Sample::new(d_axis, body.z_um).from_pair(&id, frame);
+    let view = add_sample(&state, &body.calibration_id, sample).await?;
     Ok(ApiJson(view))
 }
 
