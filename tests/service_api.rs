@@ -1087,3 +1087,83 @@ async fn calibration_samples_are_traced_and_outliers_removable() {
     assert_eq!(missing["error"]["code"], json!("sample_not_found"), "{missing}");
     server.stop().await.unwrap();
 }
+
+/// Issue #22: every result says when the pair arrived and was processed
+/// (RFC 3339 UTC), what the client called it (`label`, `timestamp` form
+/// fields; the file names), and the CSV's `name` column is the pair's own
+/// name, not the session's id. A timestamp that is not RFC 3339 is a 400.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn results_carry_their_provenance() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("trace.sqlite3"))).await;
+    let base = server.base.clone();
+    let http = reqwest::Client::new();
+    let sid = server::new_session(&base).await;
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 4, 2);
+    let before = time::OffsetDateTime::now_utc();
+    let labelled = pair_form(&pairs[0])
+        .text("label", "z=120um step 3")
+        .text("timestamp", "2026-11-25T09:30:00Z");
+    let (code, first) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(labelled)
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 200, "{first}");
+    assert_eq!(first["label"], json!("z=120um step 3"));
+    assert_eq!(first["timestamp"], json!("2026-11-25T09:30:00Z"));
+    assert_eq!(first["left_file"], json!("left.png"));
+    assert_eq!(first["right_file"], json!("right.png"));
+    let rfc3339 = &time::format_description::well_known::Rfc3339;
+    let received = time::OffsetDateTime::parse(first["received_at"].as_str().unwrap(), rfc3339).unwrap();
+    let processed = time::OffsetDateTime::parse(first["processed_at"].as_str().unwrap(), rfc3339).unwrap();
+    let after = time::OffsetDateTime::now_utc();
+    assert!(
+        before <= received && received <= processed && processed <= after,
+        "{first}"
+    );
+    // Without a label, the CSV row is named after the left file.
+    let (code, _) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(pair_form(&pairs[1]))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 200);
+    let csv = http
+        .get(format!("{base}/v1/sessions/{sid}/results?format=csv"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let names: Vec<&str> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(1).unwrap())
+        .collect();
+    assert_eq!(names, ["z=120um step 3", "left.png"], "{csv}");
+    // Stored results keep it all.
+    let page = get_json(&format!("{base}/v1/sessions/{sid}/results")).await;
+    assert_eq!(page["results"][0]["label"], json!("z=120um step 3"));
+    assert_eq!(page["results"][0]["received_at"], first["received_at"]);
+    // A timestamp that is not RFC 3339.
+    let bad = pair_form(&pairs[1]).text("timestamp", "yesterday");
+    let (code, v) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(bad)
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 400, "{v}");
+    assert_eq!(v["error"]["code"], json!("invalid_timestamp"), "{v}");
+    server.stop().await.unwrap();
+}

@@ -488,3 +488,51 @@ async fn a_pair_the_hints_do_not_fit_gets_an_error_and_the_socket_stays_open() {
     ws.close(None).await.unwrap();
     server.stop().await.unwrap();
 }
+
+/// Issue #22: a stream's pair header may carry `label` and `timestamp`; the
+/// reply and the stored result echo them with the times of receipt and
+/// processing. A timestamp that is not RFC 3339 is answered with an error
+/// for that pair, and the stream goes on.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stream_headers_label_their_results() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let sid = new_session(&server.base).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 5, 2);
+    let message = |seq: u64, pair: &semdepth::synth::SynthPair, label: &str, timestamp: &str| {
+        let (l, r) = (pair.left.to_gray8().into_raw(), pair.right.to_gray8().into_raw());
+        sdp1(
+            &json!({"seq": seq, "encoding": "raw", "width": pair.left.width, "height": pair.left.height,
+                "bit_depth": 8, "left_len": l.len(), "right_len": r.len(), "label": label, "timestamp": timestamp}),
+            &l,
+            &r,
+        )
+    };
+    ws.send(Message::Binary(
+        message(1, &pairs[0], "stage 0", "2026-11-25T08:00:00.5Z").into(),
+    ))
+    .await
+    .unwrap();
+    let reply = next_reply(&mut ws).await;
+    assert_eq!(reply["label"], json!("stage 0"), "{reply}");
+    assert_eq!(reply["timestamp"], json!("2026-11-25T08:00:00.5Z"), "{reply}");
+    assert!(
+        reply["received_at"].as_str().is_some_and(|t| t.ends_with('Z')),
+        "{reply}"
+    );
+    assert!(reply["processed_at"].as_str().is_some(), "{reply}");
+    ws.send(Message::Binary(message(2, &pairs[1], "stage 1", "soon").into()))
+        .await
+        .unwrap();
+    let reply = next_reply(&mut ws).await;
+    assert_eq!(reply["seq"], json!(2), "{reply}");
+    assert_eq!(reply["error"]["code"], json!("invalid_timestamp"), "{reply}");
+    let page = server::get_json(&format!("{}/v1/sessions/{sid}/results", server.base)).await;
+    assert_eq!(page["results"].as_array().unwrap().len(), 1, "{page}");
+    assert_eq!(page["results"][0]["label"], json!("stage 0"), "{page}");
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}

@@ -220,9 +220,15 @@ class SemdepthClient:
         return json.loads(payload.decode("utf-8")) if payload else None
 
     def _multipart(self, method: str, path: str, left: ImageInput, right: ImageInput,
-                   query: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+                   query: Optional[Dict[str, Any]] = None,
+                   fields: Optional[Dict[str, str]] = None) -> Dict[str, Any]:
         boundary = "semdepth-" + uuid.uuid4().hex
         chunks: List[bytes] = []
+        for name, value in (fields or {}).items():
+            chunks.append(
+                (f"--{boundary}\r\nContent-Disposition: form-data; name=\"{name}\"\r\n\r\n"
+                 f"{value}\r\n").encode("utf-8")
+            )
         for field, image in (("left", left), ("right", right)):
             content, filename, encoding = _read_image(image)
             ctype = _CONTENT_TYPES.get(encoding or "", "application/octet-stream")
@@ -352,10 +358,15 @@ class SemdepthClient:
                                  min_area_px=min_area_px, max_area_px=max_area_px)}
         return self.request("POST", f"/v1/sessions/{self._id(session_id)}/reinit", {"init": body})
 
-    def upload_pair(self, session_id: str, left: ImageInput, right: ImageInput) -> Dict[str, Any]:
+    def upload_pair(self, session_id: str, left: ImageInput, right: ImageInput,
+                    label: Optional[str] = None, timestamp: Optional[str] = None) -> Dict[str, Any]:
         """``POST /v1/sessions/{id}/frames``: uploads one pair (paths or
-        bytes of PNG, TIFF, JPEG or BMP files); returns its FrameResult."""
-        return self._multipart("POST", f"/v1/sessions/{self._id(session_id)}/frames", left, right)
+        bytes of PNG, TIFF, JPEG or BMP files); returns its FrameResult.
+        ``label`` names the pair (the CSV's ``name``; default: the left file
+        name) and ``timestamp`` (RFC 3339) is when it was acquired."""
+        fields = {k: v for k, v in (("label", label), ("timestamp", timestamp)) if v is not None}
+        return self._multipart("POST", f"/v1/sessions/{self._id(session_id)}/frames", left, right,
+                               fields=fields)
 
     def results(self, session_id: str, since: int = 0, format: str = "json",
                 limit: Optional[int] = None) -> Any:

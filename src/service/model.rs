@@ -11,6 +11,7 @@ use crate::calib::{
 use crate::init::InitParams;
 use crate::tracker::{PairResult, TrackerParams};
 
+use super::error::ApiError;
 use super::storage::{CalibrationRecord, SessionRecord};
 
 /// Body of `POST /v1/calibrations`: a geometric model or a least-squares
@@ -414,6 +415,66 @@ pub struct TimingMs {
     pub total: f64,
 }
 
+/// Where a pair came from and when: what makes a stored result traceable.
+/// Every field is optional (results stored before it have none).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Provenance {
+    /// When the server received the pair, RFC 3339 UTC.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub received_at: Option<String>,
+    /// When its result was made, RFC 3339 UTC.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub processed_at: Option<String>,
+    /// The client's name for the pair (form field or SDP1 header `label`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub label: Option<String>,
+    /// The client's time of acquisition (form field or SDP1 header
+    /// `timestamp`), RFC 3339.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timestamp: Option<String>,
+    /// File name of the uploaded left image (multipart), if given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub left_file: Option<String>,
+    /// File name of the uploaded right image, if given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub right_file: Option<String>,
+}
+
+impl Provenance {
+    /// Received now, with the client's `label` and `timestamp` checked: a
+    /// label of at most 200 characters, a timestamp in RFC 3339.
+    pub fn received(label: Option<String>, timestamp: Option<String>) -> Result<Self, ApiError> {
+        if let Some(l) = &label {
+            if l.chars().count() > 200 {
+                return Err(ApiError::bad_request(
+                    "invalid_label",
+                    format!("label of {} characters (expected at most 200)", l.chars().count()),
+                ));
+            }
+        }
+        if let Some(t) = &timestamp {
+            if time::OffsetDateTime::parse(t, &time::format_description::well_known::Rfc3339).is_err() {
+                return Err(ApiError::bad_request(
+                    "invalid_timestamp",
+                    format!("invalid timestamp {t:?} (expected RFC 3339, e.g. 2026-11-25T10:00:00Z)"),
+                ));
+            }
+        }
+        Ok(Self {
+            received_at: Some(super::state::now_rfc3339()),
+            label,
+            timestamp,
+            ..Self::default()
+        })
+    }
+
+    /// The pair's name for a CSV row: its label, else its left file name,
+    /// else empty.
+    pub fn name(&self) -> &str {
+        self.label.as_deref().or(self.left_file.as_deref()).unwrap_or("")
+    }
+}
+
 /// The result of one pair (contract, "FrameResult").
 #[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
 pub struct FrameResult {
@@ -426,6 +487,9 @@ pub struct FrameResult {
     pub calibration_id: Option<String>,
     /// Time spent, milliseconds.
     pub timing_ms: TimingMs,
+    /// Where the pair came from and when.
+    #[serde(flatten)]
+    pub provenance: Provenance,
     /// WebSocket only: the `seq` of the pair's header.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seq: Option<u64>,

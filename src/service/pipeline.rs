@@ -20,7 +20,7 @@ use crate::meta::{read_meta, ImageMeta};
 use crate::tracker::{PairResult, StereoTracker, TrackerParams};
 
 use super::error::ApiError;
-use super::model::{FrameResult, TimingMs};
+use super::model::{FrameResult, Provenance, TimingMs};
 use super::state::{now_rfc3339, AppState, Session, SessionCore};
 use super::storage::{PairRecord, StorageError};
 
@@ -97,10 +97,11 @@ pub async fn process_session_pair(
     state: &AppState,
     session: &Arc<Session>,
     input: PairInput,
+    provenance: Provenance,
     received: Instant,
     seq: Option<u64>,
 ) -> Result<FrameResult, ApiError> {
-    let tracked = track_session_pair(state, session, input, received, seq).await?;
+    let tracked = track_session_pair(state, session, input, provenance, received, seq).await?;
     acknowledge(state, tracked, received).await
 }
 
@@ -115,14 +116,16 @@ async fn track_session_pair(
     state: &AppState,
     session: &Arc<Session>,
     input: PairInput,
+    provenance: Provenance,
     received: Instant,
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
     let (task_state, task_session) = (state.clone(), session.clone());
-    let outcome =
-        tokio::spawn(async move { run_session_pair(&task_state, &task_session, input, received, seq).await })
-            .await
-            .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
+    let outcome = tokio::spawn(async move {
+        run_session_pair(&task_state, &task_session, input, provenance, received, seq).await
+    })
+    .await
+    .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
     if let Err(e) = &outcome {
         state.metrics.failed(&e.code);
     }
@@ -156,6 +159,7 @@ async fn run_session_pair(
     state: &AppState,
     session: &Session,
     input: PairInput,
+    provenance: Provenance,
     received: Instant,
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
@@ -163,7 +167,15 @@ async fn run_session_pair(
     let (task_state, session_id) = (state.clone(), session.id.clone());
     let outcome = tokio::task::spawn_blocking(move || {
         let mut core = core;
-        track_locked(&task_state, &session_id, &mut core, &input, received, seq)
+        track_locked(
+            &task_state,
+            &session_id,
+            &mut core,
+            &input,
+            provenance,
+            received,
+            seq,
+        )
     })
     .await
     .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
@@ -175,6 +187,8 @@ async fn run_session_pair(
 pub struct StreamPair {
     /// The images.
     pub input: PairInput,
+    /// Where it came from and when.
+    pub provenance: Provenance,
     /// When the reader received it.
     pub received: Instant,
     /// The client's sequence number.
@@ -236,6 +250,7 @@ where
                     &session_id,
                     &mut core,
                     &pair.input,
+                    std::mem::take(&mut pair.provenance),
                     pair.received,
                     Some(pair.seq),
                 )
@@ -272,6 +287,7 @@ fn track_locked(
     session_id: &str,
     core: &mut SessionCore,
     input: &PairInput,
+    provenance: Provenance,
     received: Instant,
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
@@ -307,6 +323,10 @@ fn track_locked(
             track: track_ms,
             total: ms(received.elapsed()),
         },
+        provenance: Provenance {
+            processed_at: Some(now.clone()),
+            ..provenance
+        },
         seq: None,
     };
     let result_json = serde_json::to_string(&frame)
@@ -332,6 +352,7 @@ pub async fn process_one_shot(
     params: TrackerParams,
     calibration_id: Option<String>,
     input: PairInput,
+    provenance: Provenance,
     received: Instant,
 ) -> Result<FrameResult, ApiError> {
     let calibration = match &calibration_id {
@@ -359,6 +380,10 @@ pub async fn process_one_shot(
                 decode: decode_ms,
                 track: track_ms,
                 total: ms(received.elapsed()),
+            },
+            provenance: Provenance {
+                processed_at: Some(now_rfc3339()),
+                ..provenance
             },
             seq: None,
         }
@@ -417,7 +442,7 @@ fn ms(d: std::time::Duration) -> f64 {
 }
 
 /// Reads the `left` and `right` parts of a `multipart/form-data` upload.
-pub async fn read_pair_upload(request: Request) -> Result<PairInput, ApiError> {
+pub async fn read_pair_upload(request: Request) -> Result<(PairInput, Provenance), ApiError> {
     let mut multipart = Multipart::from_request(request, &()).await.map_err(|e| {
         ApiError::new(
             StatusCode::UNSUPPORTED_MEDIA_TYPE,
@@ -429,28 +454,49 @@ pub async fn read_pair_upload(request: Request) -> Result<PairInput, ApiError> {
         )
     })?;
     let (mut left, mut right) = (None, None);
+    let (mut label, mut timestamp) = (None, None);
+    let mut files: [Option<String>; 2] = [None, None];
     while let Some(field) = multipart.next_field().await.map_err(multipart_error)? {
         let name = field.name().unwrap_or_default().to_string();
-        let slot = match name.as_str() {
-            "left" => &mut left,
-            "right" => &mut right,
+        let text_slot = match name.as_str() {
+            "label" => Some(&mut label),
+            "timestamp" => Some(&mut timestamp),
+            _ => None,
+        };
+        if let Some(slot) = text_slot {
+            if slot.is_some() {
+                return Err(duplicate_part(&name));
+            }
+            let bytes = field.bytes().await.map_err(multipart_error)?;
+            let text = String::from_utf8(bytes.to_vec()).map_err(|_| {
+                ApiError::bad_request(
+                    "invalid_multipart",
+                    format!("multipart part {name:?} is not UTF-8 text"),
+                )
+            })?;
+            *slot = Some(text);
+            continue;
+        }
+        let (slot, file) = match name.as_str() {
+            "left" => (&mut left, &mut files[0]),
+            "right" => (&mut right, &mut files[1]),
             other => {
                 return Err(ApiError::bad_request(
                     "unexpected_part",
-                    format!("unexpected multipart part {other:?} (expected exactly \"left\" and \"right\")"),
+                    format!("unexpected multipart part {other:?} (expected \"left\" and \"right\" images, optionally \"label\" and \"timestamp\")"),
                 ))
             }
         };
         if slot.is_some() {
-            return Err(ApiError::bad_request(
-                "duplicate_part",
-                format!("multipart part {name:?} given twice (expected it once)"),
-            ));
+            return Err(duplicate_part(&name));
         }
+        *file = field.file_name().map(|f| f.chars().take(200).collect());
         *slot = Some(field.bytes().await.map_err(multipart_error)?);
     }
+    let mut provenance = Provenance::received(label, timestamp)?;
+    [provenance.left_file, provenance.right_file] = files;
     match (left, right) {
-        (Some(left), Some(right)) => Ok(PairInput::Encoded { left, right }),
+        (Some(left), Some(right)) => Ok((PairInput::Encoded { left, right }, provenance)),
         (l, r) => {
             let missing: Vec<&str> = [("left", l.is_none()), ("right", r.is_none())]
                 .iter()
@@ -466,6 +512,13 @@ pub async fn read_pair_upload(request: Request) -> Result<PairInput, ApiError> {
             ))
         }
     }
+}
+
+fn duplicate_part(name: &str) -> ApiError {
+    ApiError::bad_request(
+        "duplicate_part",
+        format!("multipart part {name:?} given twice (expected it once)"),
+    )
 }
 
 fn multipart_error(e: MultipartError) -> ApiError {

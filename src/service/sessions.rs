@@ -345,8 +345,8 @@ pub async fn upload_pair(
 ) -> Result<ApiJson<FrameResult>, ApiError> {
     let received = Instant::now();
     let session = state.session(&id)?;
-    let input = read_pair_upload(request).await?;
-    let result = process_session_pair(&state, &session, input, received, None).await?;
+    let (input, provenance) = read_pair_upload(request).await?;
+    let result = process_session_pair(&state, &session, input, provenance, received, None).await?;
     Ok(ApiJson(if query.contours {
         result
     } else {
@@ -522,7 +522,7 @@ pub async fn session_results(
             let mut text = String::from(CSV_HEADER);
             text.push('\n');
             for r in &results {
-                text.push_str(&csv_record(&r.result, &id));
+                text.push_str(&csv_record(&r.result, r.provenance.name()));
                 text.push('\n');
             }
             Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], text).into_response())
@@ -693,8 +693,8 @@ pub async fn one_shot_depth(
     }
     query.apply_hints(&mut params.init)?;
     let params = checked(params)?;
-    let input = read_pair_upload(request).await?;
-    let result = process_one_shot(&state, params, query.calibration_id, input, received).await?;
+    let (input, provenance) = read_pair_upload(request).await?;
+    let result = process_one_shot(&state, params, query.calibration_id, input, provenance, received).await?;
     Ok(ApiJson(result))
 }
 

@@ -36,6 +36,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
+use super::model::Provenance;
 use super::pipeline::{acknowledge, track_stream_batch, PairInput, PairQueue, StreamPair, TrackedPair};
 use super::state::{AppState, Session};
 
@@ -112,6 +113,13 @@ pub struct PairHeader {
     pub left_len: u64,
     /// Length of the right image in bytes.
     pub right_len: u64,
+    /// The client's name for the pair (at most 200 characters), echoed in
+    /// the result and its CSV row.
+    #[serde(default)]
+    pub label: Option<String>,
+    /// The client's time of acquisition, RFC 3339, echoed in the result.
+    #[serde(default)]
+    pub timestamp: Option<String>,
 }
 
 /// Reply for a pair that was skipped under `policy=latest`.
@@ -195,6 +203,8 @@ pub struct PairMessage {
     pub seq: u64,
     /// The images.
     pub input: PairInput,
+    /// The header's label and timestamp, and when the message arrived.
+    pub provenance: Provenance,
 }
 
 /// Parses a pair message; on failure returns the seq if the header was
@@ -241,6 +251,8 @@ pub fn parse_pair_message(bytes: &Bytes) -> Result<PairMessage, (Option<u64>, Ap
             ),
         ));
     }
+    let provenance =
+        Provenance::received(header.label, header.timestamp).map_err(|e| bad(seq, &e.code, e.message))?;
     let split = header.left_len as usize;
     let (left, right) = (body.slice(..split), body.slice(split..));
     let input = match header.encoding {
@@ -267,6 +279,7 @@ pub fn parse_pair_message(bytes: &Bytes) -> Result<PairMessage, (Option<u64>, Ap
     Ok(PairMessage {
         seq: header.seq,
         input,
+        provenance,
     })
 }
 
@@ -341,6 +354,7 @@ impl Job {
     fn into_pair(self) -> StreamPair {
         StreamPair {
             input: self.message.input,
+            provenance: self.message.provenance,
             received: self.received,
             seq: self.message.seq,
         }
