@@ -977,7 +977,8 @@ async fn results_without_contours_are_light() {
 /// when that pair was tracked (after a lost pair: 409, the calibration
 /// unchanged), and records the session and frame it came from; every
 /// sample's residual is shown, and removing an outlier refits and restores
-/// R^2.
+/// R^2. Every change makes a new version; results keep the version they
+/// used, and every version stays readable, across a restart.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibration_samples_are_traced_and_outliers_removable() {
     let dir = tempfile::tempdir().unwrap();
@@ -1085,6 +1086,50 @@ async fn calibration_samples_are_traced_and_outliers_removable() {
     .await;
     assert_eq!(code, 404, "{missing}");
     assert_eq!(missing["error"]["code"], json!("sample_not_found"), "{missing}");
+
+    // Versions: created 1, the session's sample 2, the outlier 3, its
+    // removal 4. The first result was made with version 1 and still says
+    // so, with the same z; version 1 is still there to read.
+    assert_eq!(first["calibration_version"], json!(1), "{first}");
+    assert_eq!(fixed["version"], json!(4), "{fixed}");
+    let page = get_json(&format!("{base}/v1/sessions/{sid}/results")).await;
+    assert_eq!(page["results"][0]["calibration_version"], json!(1), "{page}");
+    assert_eq!(page["results"][0]["z_um"], first["z_um"], "{page}");
+    let v1 = get_json(&format!("{base}/v1/calibrations/{cal_id}/versions/1")).await;
+    assert_eq!(v1["version"], json!(1), "{v1}");
+    assert_eq!(v1["samples"].as_array().unwrap().len(), 3, "{v1}");
+    assert_eq!(v1["coefficients"], cal["coefficients"], "{v1}");
+    let v3 = get_json(&format!("{base}/v1/calibrations/{cal_id}/versions/3")).await;
+    assert_eq!(v3["r_squared"], bad["r_squared"], "{v3}");
+    let (code, none) = json_of(
+        http.get(format!("{base}/v1/calibrations/{cal_id}/versions/5"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 404, "{none}");
+    assert_eq!(
+        none["error"]["code"],
+        json!("calibration_version_not_found"),
+        "{none}"
+    );
+    // A pair now reports the current version; a restart keeps versions.
+    let (_, later) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(pair_form(&pairs[0]))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(later["calibration_version"], json!(4), "{later}");
+    server.stop().await.unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("samples.sqlite3"))).await;
+    let v1 = get_json(&format!("{}/v1/calibrations/{cal_id}/versions/1", server.base)).await;
+    assert_eq!(v1["samples"].as_array().unwrap().len(), 3, "{v1}");
+    let now = get_json(&format!("{}/v1/calibrations/{cal_id}", server.base)).await;
+    assert_eq!(now["version"], json!(4), "{now}");
     server.stop().await.unwrap();
 }
 

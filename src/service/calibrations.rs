@@ -21,6 +21,44 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(get_calibration, delete_calibration))
         .routes(routes!(add_calibration_sample))
         .routes(routes!(remove_calibration_sample))
+        .routes(routes!(get_calibration_version))
+}
+
+/// One version of a calibration, as it was: what a result made with it
+/// meant.
+#[utoipa::path(
+    get,
+    path = "/v1/calibrations/{id}/versions/{version}",
+    operation_id = "get_calibration_version",
+    tag = "calibrations",
+    params(
+        ("id" = String, Path, description = "Calibration id"),
+        ("version" = u64, Path, description = "Version, from 1"),
+    ),
+    responses(
+        (status = 200, description = "The calibration at that version", body = CalibrationView),
+        (status = 400, description = "Invalid path: the id is not UTF-8 or the version not a number", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such calibration or version", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn get_calibration_version(
+    State(state): State<AppState>,
+    ApiPath((id, version)): ApiPath<(String, u64)>,
+) -> Result<ApiJson<CalibrationView>, ApiError> {
+    let current = state.calibration(&id)?;
+    match state.storage.calibration_version(&id, version).await? {
+        Some(record) => Ok(ApiJson(CalibrationView::from(&record))),
+        None => Err(ApiError::new(
+            StatusCode::NOT_FOUND,
+            "calibration_version_not_found",
+            format!(
+                "calibration {id:?} has no version {version} (expected 1..={})",
+                current.version
+            ),
+        )),
+    }
 }
 
 /// Create a calibration.
@@ -55,6 +93,7 @@ pub async fn create_calibration(
         calibration,
         created_at: now.clone(),
         updated_at: now,
+        version: 1,
     };
     state.storage.insert_calibration(record.clone()).await?;
     let view = CalibrationView::from(&record);
@@ -230,6 +269,7 @@ async fn refit(
     change(&mut calibration)?;
     record.calibration = calibration;
     record.updated_at = now_rfc3339();
+    record.version += 1;
     if !state.storage.update_calibration(record.clone()).await? {
         return Err(ApiError::not_found("calibration", id));
     }

@@ -131,6 +131,9 @@ pub struct CalibrationView {
     pub id: String,
     /// Free-text label.
     pub name: Option<String>,
+    /// 1 when created, one more with every change of its samples; results
+    /// record the version they used.
+    pub version: u64,
     /// `geometric` or `fit`.
     pub model: String,
     /// Direction of the tilt axis, degrees from +x towards +y.
@@ -181,6 +184,7 @@ impl From<&CalibrationRecord> for CalibrationView {
         let mut view = Self {
             id: r.id.clone(),
             name: r.name.clone(),
+            version: r.version,
             model: c.model_name().to_string(),
             tilt_axis_deg: c.tilt_axis_deg(),
             coefficients: c.coefficients().to_vec(),
@@ -485,6 +489,10 @@ pub struct FrameResult {
     pub result: PairResult,
     /// The calibration that gave `z_um` (null: none).
     pub calibration_id: Option<String>,
+    /// Its version then: the result keeps meaning that version after the
+    /// calibration changes (`GET /v1/calibrations/{id}/versions/{version}`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub calibration_version: Option<u64>,
     /// Time spent, milliseconds.
     pub timing_ms: TimingMs,
     /// Where the pair came from and when.

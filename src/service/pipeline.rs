@@ -292,7 +292,7 @@ fn track_locked(
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
     let calibration_id = core.calibration_id.clone();
-    let calibration = state.calibration_model(calibration_id.as_deref());
+    let (calibration, calibration_version) = state.calibration_model(calibration_id.as_deref()).unzip();
     let queue = ms(received.elapsed());
     let (mut result, decode_ms, track_ms) =
         decode_and_track(input, &state.config.decode_limits, &mut core.tracker)?;
@@ -316,6 +316,7 @@ fn track_locked(
     let frame = FrameResult {
         session_id: Some(session_id.to_owned()),
         calibration_id: calibration.as_ref().and(calibration_id),
+        calibration_version,
         result,
         timing_ms: TimingMs {
             queue,
@@ -355,9 +356,12 @@ pub async fn process_one_shot(
     provenance: Provenance,
     received: Instant,
 ) -> Result<FrameResult, ApiError> {
-    let calibration = match &calibration_id {
-        Some(id) => Some(state.calibration(id)?.calibration),
-        None => None,
+    let (calibration, calibration_version) = match &calibration_id {
+        Some(id) => {
+            let record = state.calibration(id)?;
+            (Some(record.calibration), Some(record.version))
+        }
+        None => (None, None),
     };
     let limits = state.config.decode_limits;
     let permit = worker_permit(state).await?;
@@ -374,6 +378,7 @@ pub async fn process_one_shot(
         FrameResult {
             session_id: None,
             calibration_id,
+            calibration_version,
             result,
             timing_ms: TimingMs {
                 queue,

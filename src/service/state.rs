@@ -371,11 +371,11 @@ impl Inner {
             .ok_or_else(|| ApiError::not_found("calibration", id))
     }
 
-    /// The calibration for computing z, if the id names one.
-    pub fn calibration_model(&self, id: Option<&str>) -> Option<Calibration> {
+    /// The calibration for computing z and its version, if the id names one.
+    pub fn calibration_model(&self, id: Option<&str>) -> Option<(Calibration, u64)> {
         let id = id?;
         let table = self.calibrations.read().ok()?;
-        table.get(id).map(|r| r.calibration.clone())
+        table.get(id).map(|r| (r.calibration.clone(), r.version))
     }
 }
 

@@ -152,6 +152,9 @@ pub struct CalibrationRecord {
     pub created_at: String,
     /// Time of the last change (RFC 3339 text, chosen by the caller).
     pub updated_at: String,
+    /// 1 when created, one more with every change; every version is kept
+    /// (see [`Storage::calibration_version`]).
+    pub version: u64,
 }
 
 /// A stored session: its configuration and where its tracking stands.
@@ -318,27 +321,83 @@ impl Storage {
     /// [`StorageError::Sqlite`] constraint error.
     pub async fn insert_calibration(&self, rec: CalibrationRecord) -> Result<(), StorageError> {
         let body = calibration_json(&rec)?;
+        let version = to_i64(rec.version, "calibration", &rec.id, "version")?;
         self.durable(move |c| {
             c.execute(
-                "INSERT INTO calibrations (id, name, body, created_at, updated_at)
-                 VALUES (?1, ?2, ?3, ?4, ?5)",
-                params![rec.id, rec.name, body, rec.created_at, rec.updated_at],
+                "INSERT INTO calibrations (id, name, body, created_at, updated_at, version)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![rec.id, rec.name, body, rec.created_at, rec.updated_at, version],
+            )?;
+            c.execute(
+                "INSERT INTO calibration_versions (id, version, body, created_at) VALUES (?1, ?2, ?3, ?4)",
+                params![rec.id, version, body, rec.updated_at],
             )?;
             Ok(())
         })
         .await
     }
 
-    /// Replaces a calibration's name, body and `updated_at` (durably); its
+    /// Replaces a calibration's name, body, `updated_at` and version
+    /// (durably), and keeps the new version beside the earlier ones; its
     /// `created_at` is kept. False if the id is unknown.
     pub async fn update_calibration(&self, rec: CalibrationRecord) -> Result<bool, StorageError> {
         let body = calibration_json(&rec)?;
+        let version = to_i64(rec.version, "calibration", &rec.id, "version")?;
         self.durable(move |c| {
             let n = c.execute(
-                "UPDATE calibrations SET name = ?2, body = ?3, updated_at = ?4 WHERE id = ?1",
-                params![rec.id, rec.name, body, rec.updated_at],
+                "UPDATE calibrations SET name = ?2, body = ?3, updated_at = ?4, version = ?5 WHERE id = ?1",
+                params![rec.id, rec.name, body, rec.updated_at, version],
             )?;
+            if n > 0 {
+                c.execute(
+                    "INSERT OR REPLACE INTO calibration_versions (id, version, body, created_at)
+                     VALUES (?1, ?2, ?3, ?4)",
+                    params![rec.id, version, body, rec.updated_at],
+                )?;
+            }
             Ok(n > 0)
+        })
+        .await
+    }
+
+    /// Version `version` of calibration `id` as it was then (its record,
+    /// `updated_at` the time of that version); None when either is unknown.
+    pub async fn calibration_version(
+        &self,
+        id: &str,
+        version: u64,
+    ) -> Result<Option<CalibrationRecord>, StorageError> {
+        let id = id.to_owned();
+        let v = to_i64(version, "calibration", &id, "version")?;
+        self.read(move |c| {
+            let row = c
+                .query_row(
+                    "SELECT c.name, v.body, c.created_at, v.created_at
+                     FROM calibration_versions v JOIN calibrations c ON c.id = v.id
+                     WHERE v.id = ?1 AND v.version = ?2",
+                    params![id, v],
+                    |r| {
+                        Ok((
+                            r.get::<_, Option<String>>(0)?,
+                            r.get::<_, String>(1)?,
+                            r.get::<_, String>(2)?,
+                            r.get::<_, String>(3)?,
+                        ))
+                    },
+                )
+                .optional()?;
+            let Some((name, body, created_at, updated_at)) = row else {
+                return Ok(None);
+            };
+            let calibration = parse_json(&body, "calibration", &id, "body")?;
+            Ok(Some(CalibrationRecord {
+                id,
+                name,
+                calibration,
+                created_at,
+                updated_at,
+                version,
+            }))
         })
         .await
     }
@@ -347,8 +406,11 @@ impl Storage {
     /// referring to it keep their `calibration_id`.
     pub async fn delete_calibration(&self, id: &str) -> Result<bool, StorageError> {
         let id = id.to_owned();
-        self.durable(move |c| Ok(c.execute("DELETE FROM calibrations WHERE id = ?1", [id])? > 0))
-            .await
+        self.durable(move |c| {
+            c.execute("DELETE FROM calibration_versions WHERE id = ?1", [&id])?;
+            Ok(c.execute("DELETE FROM calibrations WHERE id = ?1", [&id])? > 0)
+        })
+        .await
     }
 
     /// All calibrations, ordered by `created_at`, then id.
@@ -590,6 +652,17 @@ const MIGRATIONS: &[&str] = &[
      ) WITHOUT ROWID;",
     // 1 -> 2: sessions exempt from the idle expiry.
     "ALTER TABLE sessions ADD COLUMN keep INTEGER NOT NULL DEFAULT 0;",
+    // 2 -> 3: calibration versions; what exists becomes version 1.
+    "ALTER TABLE calibrations ADD COLUMN version INTEGER NOT NULL DEFAULT 1;
+     CREATE TABLE calibration_versions (
+         id TEXT NOT NULL,
+         version INTEGER NOT NULL,
+         body TEXT NOT NULL,            -- JSON of the Calibration at that version
+         created_at TEXT NOT NULL,
+         PRIMARY KEY (id, version)
+     ) WITHOUT ROWID;
+     INSERT INTO calibration_versions (id, version, body, created_at)
+         SELECT id, 1, body, updated_at FROM calibrations;",
 ];
 
 struct Inner {
@@ -863,7 +936,7 @@ fn apply_pair(c: &Connection, p: &PreparedPair) -> Result<(), StorageError> {
 
 fn load_calibrations(c: &Connection) -> Result<Vec<CalibrationRecord>, StorageError> {
     let mut stmt = c.prepare_cached(
-        "SELECT id, name, body, created_at, updated_at FROM calibrations ORDER BY created_at, id",
+        "SELECT id, name, body, created_at, updated_at, version FROM calibrations ORDER BY created_at, id",
     )?;
     let rows = stmt.query_map([], |r| {
         Ok((
@@ -872,18 +945,21 @@ fn load_calibrations(c: &Connection) -> Result<Vec<CalibrationRecord>, StorageEr
             r.get::<_, String>(2)?,
             r.get::<_, String>(3)?,
             r.get::<_, String>(4)?,
+            r.get::<_, i64>(5)?,
         ))
     })?;
     let mut out = Vec::new();
     for row in rows {
-        let (id, name, body, created_at, updated_at) = row?;
+        let (id, name, body, created_at, updated_at, version) = row?;
         let calibration = parse_json(&body, "calibration", &id, "body")?;
+        let version = from_i64(version, "calibration", &id, "version")?;
         out.push(CalibrationRecord {
             id,
             name,
             calibration,
             created_at,
             updated_at,
+            version,
         });
     }
     Ok(out)
@@ -1073,6 +1149,7 @@ mod tests {
             calibration: calibration(pixel_size_um),
             created_at: created_at.into(),
             updated_at: created_at.into(),
+            version: 1,
         }
     }
 
@@ -1360,16 +1437,24 @@ mod tests {
         .unwrap();
     }
 
-    /// A database written by a build of schema version 1 (before `keep`)
-    /// opens, migrates, and reads its sessions as not kept.
+    /// A database written by a build of schema version 1 (before `keep` and
+    /// calibration versions) opens, migrates, reads its sessions as not
+    /// kept and its calibrations as version 1, which stays readable after
+    /// a change.
     #[tokio::test]
-    async fn version_1_sessions_migrate_unkept() {
+    async fn version_1_databases_migrate() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("v1.db");
         let path = path.to_str().unwrap();
+        let old = calibration_record("c_old", "2025-01-01T00:00:00Z", 0.5);
         {
             let c = Connection::open(path).unwrap();
             c.execute_batch(MIGRATIONS[0]).unwrap();
+            c.execute(
+                "INSERT INTO calibrations (id, name, body, created_at, updated_at) VALUES (?1, ?2, ?3, ?4, ?4)",
+                params![old.id, old.name, calibration_json(&old).unwrap(), old.created_at],
+            )
+            .unwrap();
             c.execute_batch(
                 "INSERT INTO sessions (id, name, calibration_id, params, retention, frames, state,
                                        tracker_state, created_at, updated_at)
@@ -1388,6 +1473,21 @@ mod tests {
         kept.keep = true;
         storage.upsert_session(kept).await.unwrap();
         assert!(storage.sessions().await.unwrap()[0].keep);
+        assert_eq!(storage.calibrations().await.unwrap(), vec![old.clone()]);
+        let changed = CalibrationRecord {
+            calibration: calibration(0.25),
+            updated_at: "2025-02-01T00:00:00Z".into(),
+            version: 2,
+            ..old.clone()
+        };
+        assert!(storage.update_calibration(changed.clone()).await.unwrap());
+        assert_eq!(storage.calibrations().await.unwrap(), vec![changed.clone()]);
+        assert_eq!(storage.calibration_version("c_old", 1).await.unwrap(), Some(old));
+        assert_eq!(
+            storage.calibration_version("c_old", 2).await.unwrap(),
+            Some(changed)
+        );
+        assert_eq!(storage.calibration_version("c_old", 3).await.unwrap(), None);
         storage.close().await.unwrap();
     }
 
