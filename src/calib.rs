@@ -801,6 +801,27 @@ impl Calibration {
         Ok(removed)
     }
 
+    /// Replaces sample `index` of a fitted calibration by `sample` and
+    /// refits; returns the sample it replaced. Errors as
+    /// [`Calibration::remove_sample`]; the calibration is then unchanged.
+    pub fn replace_sample(&mut self, index: usize, sample: Sample) -> Result<Sample, CalibError> {
+        let CalibrationSpec::Fit(fit) = &self.spec else {
+            return Err(CalibError::NotAFit {
+                model: self.model_name(),
+            });
+        };
+        if index >= fit.samples.len() {
+            return Err(CalibError::NoSuchSample {
+                index,
+                count: fit.samples.len(),
+            });
+        }
+        let mut fit = fit.clone();
+        let old = std::mem::replace(&mut fit.samples[index], sample);
+        *self = build_fit(fit)?;
+        Ok(old)
+    }
+
     /// Per sample of a fitted calibration, its height minus the fit's at
     /// its disparity, micrometres (in the samples' order; empty for a
     /// geometric calibration): an outlier stands out.

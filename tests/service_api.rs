@@ -976,8 +976,8 @@ async fn results_without_contours_are_light() {
 /// Issue #22: a calibration sample takes the latest pair's disparity only
 /// when that pair was tracked (after a lost pair: 409, the calibration
 /// unchanged), and records the session and frame it came from; every
-/// sample's residual is shown, and removing an outlier refits and restores
-/// R^2. Every change makes a new version; results keep the version they
+/// sample's residual is shown, and correcting or removing an outlier
+/// refits and restores R^2. Every change makes a new version; results keep the version they
 /// used, and every version stays readable, across a restart.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibration_samples_are_traced_and_outliers_removable() {
@@ -1064,6 +1064,26 @@ async fn calibration_samples_are_traced_and_outliers_removable() {
         .max_by(|&a, &b| residuals[a].total_cmp(&residuals[b]))
         .unwrap();
     assert_eq!(worst, 4, "the outlier's residual is the largest: {residuals:?}");
+    // Its height corrected (z = 10 d on the line), the fit is good again.
+    let (code, edited) = json_of(
+        http.patch(format!("{base}/v1/calibrations/{cal_id}/samples/{worst}"))
+            .json(&json!({"z_um": 15.0}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 200, "{edited}");
+    assert_eq!(edited["samples"][4]["z_um"], json!(15.0), "{edited}");
+    assert_eq!(edited["samples"][4]["disparity_px"], json!(1.5), "{edited}");
+    assert!(
+        edited["r_squared"].as_f64().unwrap() > r2_before - 1e-3,
+        "{edited}"
+    );
+    assert!(
+        edited["residuals_um"][4].as_f64().unwrap().abs() < 1.0,
+        "{edited}"
+    );
     let (code, fixed) = json_of(
         http.delete(format!("{base}/v1/calibrations/{cal_id}/samples/{worst}"))
             .send()
@@ -1088,10 +1108,10 @@ async fn calibration_samples_are_traced_and_outliers_removable() {
     assert_eq!(missing["error"]["code"], json!("sample_not_found"), "{missing}");
 
     // Versions: created 1, the session's sample 2, the outlier 3, its
-    // removal 4. The first result was made with version 1 and still says
+    // correction 4, its removal 5. The first result was made with version 1 and still says
     // so, with the same z; version 1 is still there to read.
     assert_eq!(first["calibration_version"], json!(1), "{first}");
-    assert_eq!(fixed["version"], json!(4), "{fixed}");
+    assert_eq!(fixed["version"], json!(5), "{fixed}");
     let page = get_json(&format!("{base}/v1/sessions/{sid}/results")).await;
     assert_eq!(page["results"][0]["calibration_version"], json!(1), "{page}");
     assert_eq!(page["results"][0]["z_um"], first["z_um"], "{page}");
@@ -1102,7 +1122,7 @@ async fn calibration_samples_are_traced_and_outliers_removable() {
     let v3 = get_json(&format!("{base}/v1/calibrations/{cal_id}/versions/3")).await;
     assert_eq!(v3["r_squared"], bad["r_squared"], "{v3}");
     let (code, none) = json_of(
-        http.get(format!("{base}/v1/calibrations/{cal_id}/versions/5"))
+        http.get(format!("{base}/v1/calibrations/{cal_id}/versions/6"))
             .send()
             .await
             .unwrap(),
@@ -1123,13 +1143,13 @@ async fn calibration_samples_are_traced_and_outliers_removable() {
             .unwrap(),
     )
     .await;
-    assert_eq!(later["calibration_version"], json!(4), "{later}");
+    assert_eq!(later["calibration_version"], json!(5), "{later}");
     server.stop().await.unwrap();
     let server = TestServer::start(test_config(&dir.path().join("samples.sqlite3"))).await;
     let v1 = get_json(&format!("{}/v1/calibrations/{cal_id}/versions/1", server.base)).await;
     assert_eq!(v1["samples"].as_array().unwrap().len(), 3, "{v1}");
     let now = get_json(&format!("{}/v1/calibrations/{cal_id}", server.base)).await;
-    assert_eq!(now["version"], json!(4), "{now}");
+    assert_eq!(now["version"], json!(5), "{now}");
     server.stop().await.unwrap();
 }
 

@@ -291,6 +291,13 @@ class SemdepthClient:
         which one is off), refits; returns the calibration."""
         return self.request("DELETE", f"/v1/calibrations/{self._id(calibration_id)}/samples/{int(index)}")
 
+    def edit_calibration_sample(self, calibration_id: str, index: int, disparity_px: Optional[float] = None,
+                                z_um: Optional[float] = None) -> Dict[str, Any]:
+        """``PATCH /v1/calibrations/{id}/samples/{index}``: changes a sample's
+        disparity and/or height, refits; returns the calibration."""
+        body = {k: v for k, v in (("disparity_px", disparity_px), ("z_um", z_um)) if v is not None}
+        return self.request("PATCH", f"/v1/calibrations/{self._id(calibration_id)}/samples/{int(index)}", body)
+
     # sessions
 
     def create_session(self, name: Optional[str] = None, calibration_id: Optional[str] = None,

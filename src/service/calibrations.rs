@@ -10,7 +10,7 @@ use utoipa_axum::routes;
 use crate::calib::{build, Sample};
 
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
-use super::model::{CalibrationCreate, CalibrationList, CalibrationView, SampleCreate};
+use super::model::{CalibrationCreate, CalibrationList, CalibrationView, SampleCreate, SamplePatch};
 use super::state::{new_id, now_rfc3339, AppState};
 use super::storage::CalibrationRecord;
 
@@ -20,7 +20,7 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(create_calibration, list_calibrations))
         .routes(routes!(get_calibration, delete_calibration))
         .routes(routes!(add_calibration_sample))
-        .routes(routes!(remove_calibration_sample))
+        .routes(routes!(remove_calibration_sample, edit_calibration_sample))
         .routes(routes!(get_calibration_version))
 }
 
@@ -238,6 +238,52 @@ pub async fn remove_calibration_sample(
     ApiPath((id, index)): ApiPath<(String, usize)>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
     let view = refit(&state, &id, |c| c.remove_sample(index).map(drop)).await?;
+    Ok(ApiJson(view))
+}
+
+/// Change a sample of a fitted calibration (a height typed wrong) and
+/// refit. Where the sample came from (session, frame) is kept.
+#[utoipa::path(
+    patch,
+    path = "/v1/calibrations/{id}/samples/{index}",
+    operation_id = "edit_calibration_sample",
+    tag = "calibrations",
+    params(
+        ("id" = String, Path, description = "Calibration id"),
+        ("index" = usize, Path, description = "The sample's position in `samples`, from 0"),
+    ),
+    request_body = SamplePatch,
+    responses(
+        (status = 200, description = "The refitted calibration", body = CalibrationView),
+        (status = 400, description = "Malformed JSON, unknown field, or an invalid path", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such calibration, or no such sample (`sample_not_found`)", body = ErrorBody),
+        (status = 409, description = "Not a fitted calibration", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid value, or the refit is degenerate", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn edit_calibration_sample(
+    State(state): State<AppState>,
+    ApiPath((id, index)): ApiPath<(String, usize)>,
+    ApiJson(body): ApiJson<SamplePatch>,
+) -> Result<ApiJson<CalibrationView>, ApiError> {
+    let view = refit(&state, &id, |c| {
+        let Some(old) = c.samples().get(index).cloned() else {
+            return Err(crate::calib::CalibError::NoSuchSample {
+                index,
+                count: c.samples().len(),
+            });
+        };
+        let new = Sample {
+            disparity_px: body.disparity_px.unwrap_or(old.disparity_px),
+            z_um: body.z_um.unwrap_or(old.z_um),
+            ..old
+        };
+        c.replace_sample(index, new).map(drop)
+    })
+    .await?;
     Ok(ApiJson(view))
 }
 

@@ -257,7 +257,7 @@ pub fn openapi_yaml_text() -> String {
 #[openapi(
     info(
         title = "semdepth",
-        description = "Depth (z) of a tracked object from SEM stereo pairs: region-based active contours after Dahmen et al., ICINCO 2009. Contract: docs/api.md. Pixel coordinates: x right, y down, the centre of the top-left pixel is (0, 0). Every error is {\"error\": {\"code\", \"message\"}}.",
+        description = "Depth (z) of a tracked object from SEM stereo pairs: region-based active contours after Dahmen et al., ICINCO 2009. Pixel coordinates: x right, y down, the centre of the top-left pixel is (0, 0). Every error is {\"error\": {\"code\", \"message\"}}.",
         license(name = "MIT OR Apache-2.0")
     ),
     tags(

@@ -394,6 +394,22 @@ pub struct SampleCreate {
     pub z_um: f64,
 }
 
+/// Body of `PATCH /v1/calibrations/{id}/samples/{index}`: the values to
+/// change (a height typed wrong, say).
+#[derive(Clone, Copy, Debug, Default, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"z_um": 20.0}))]
+pub struct SamplePatch {
+    /// New disparity across the tilt axis, pixels.
+    #[serde(default)]
+    #[schema(minimum = -1e6, maximum = 1e6)]
+    pub disparity_px: Option<f64>,
+    /// New known height, micrometres.
+    #[serde(default)]
+    #[schema(minimum = -1e6, maximum = 1e6)]
+    pub z_um: Option<f64>,
+}
+
 /// Body of `POST /v1/sessions/{id}/calibration-samples`.
 #[derive(Clone, Debug, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
