@@ -74,21 +74,6 @@ pub enum CalibError {
     /// fields disagree with the parameters.
     #[error("{0}")]
     Invalid(String),
-    /// Fewer distinct disparities than polynomial coefficients.
-    #[error(
-        "a fit of degree {degree} needs at least {needed} distinct disparity_px values, got {distinct} \
-         (from {samples} samples); add samples at other heights"
-    )]
-    TooFewSamples {
-        /// Requested polynomial degree.
-        degree: u8,
-        /// Distinct disparities needed (degree + 1).
-        needed: usize,
-        /// Distinct disparities present.
-        distinct: usize,
-        /// Number of samples present.
-        samples: usize,
-    },
     /// More samples than [`MAX_SAMPLES`].
     #[error("{samples} samples exceed the limit of {max} per calibration")]
     TooManySamples {
@@ -124,7 +109,6 @@ impl CalibError {
     pub fn code(&self) -> &'static str {
         match self {
             Self::Invalid(_) => "invalid_calibration",
-            Self::TooFewSamples { .. } => "too_few_samples",
             Self::TooManySamples { .. } => "too_many_samples",
             Self::DegenerateFit(_) => "degenerate_fit",
             Self::NotAFit { .. } => "not_a_fit",
@@ -549,9 +533,10 @@ fn sin_cos_deg(deg: f64) -> (f64, f64) {
 /// Refuses (see [`CalibError`]): non-finite or out-of-range parameters
 /// (`pixel_size_um` > 0, 0 < `vergence_deg` <= 90, `degree` 1 or 2, finite
 /// `tilt_axis_deg` with magnitude <= 360, |disparities| <= [`MAX_ABS_DISPARITY_PX`],
-/// |z_um| <= [`MAX_ABS_Z_UM`]); fits with fewer distinct disparities than
-/// coefficients (`too_few_samples`, however many samples there are); and
-/// ill-conditioned fits (`degenerate_fit`).
+/// |z_um| <= [`MAX_ABS_Z_UM`]) and ill-conditioned fits (`degenerate_fit`).
+/// A fit with fewer distinct disparities than coefficients (none at all,
+/// say) is built [`Calibration::pending`]: it gives no height until samples
+/// at other heights are added.
 pub fn build(spec: CalibrationSpec) -> Result<Calibration, CalibError> {
     check_tilt_axis(spec.tilt_axis_deg())?;
     match spec {
@@ -664,6 +649,24 @@ impl Calibration {
         self.poly.as_ref().map_or(f64::NAN, |p| p.eval(d_axis_px))
     }
 
+    /// Why a fitted calibration gives no height yet (fewer distinct
+    /// disparities than coefficients), or `None` when it gives heights.
+    pub fn pending(&self) -> Option<String> {
+        let CalibrationSpec::Fit(f) = &self.spec else {
+            return None;
+        };
+        if self.poly.is_some() {
+            return None;
+        }
+        let d: Vec<f64> = f.samples.iter().map(|s| s.disparity_px).collect();
+        Some(format!(
+            "the fitted calibration has {} distinct disparity_px values of the {} a degree-{} fit needs (add samples at other heights)",
+            count_distinct(&d, DISTINCT_DISPARITY_TOLERANCE_PX),
+            f.degree as usize + 1,
+            f.degree
+        ))
+    }
+
     /// True when the pixel size or the vergence comes from each pair's images.
     pub fn needs_images(&self) -> bool {
         matches!(&self.spec, CalibrationSpec::Geometric(g) if g.from_images())
@@ -677,6 +680,9 @@ impl Calibration {
     /// gives heights of the other sign, as with the views swapped). The
     /// error says why there is no height (metadata missing or unusable).
     pub fn z_for_pair(&self, disparity_px: [f64; 2], meta: Option<&PairMeta>) -> Result<f64, String> {
+        if let Some(why) = self.pending() {
+            return Err(why);
+        }
         let CalibrationSpec::Geometric(g) = &self.spec else {
             return Ok(self.z_um(disparity_px));
         };
@@ -963,11 +969,13 @@ fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
     let z: Vec<f64> = f.samples.iter().map(|s| s.z_um).collect();
     let distinct = count_distinct(&d, DISTINCT_DISPARITY_TOLERANCE_PX);
     if distinct < needed {
-        return Err(CalibError::TooFewSamples {
-            degree: f.degree,
-            needed,
-            distinct,
-            samples: d.len(),
+        // Pending: gives no height until it has enough distinct samples
+        // (a calibration started empty and filled from stage steps).
+        return Ok(Calibration {
+            spec: CalibrationSpec::Fit(f),
+            coefficients: Vec::new(),
+            stats: None,
+            poly: None,
         });
     }
     let (poly, stats) = fit_polynomial(&d, &z, f.degree)?;
@@ -1425,42 +1433,37 @@ mod tests {
     }
 
     #[test]
-    fn refuses_too_few_distinct_disparities() {
-        let err = build(fit_spec(1, samples_of(&[2.0; 10], |_| 5.0))).unwrap_err();
-        assert_eq!(err.code(), "too_few_samples");
-        assert_eq!(
-            err,
-            CalibError::TooFewSamples {
-                degree: 1,
-                needed: 2,
-                distinct: 1,
-                samples: 10
-            }
-        );
-        assert!(
-            err.to_string().contains("at least 2 distinct disparity_px"),
-            "{err}"
-        );
-
+    fn too_few_distinct_disparities_give_no_height_until_there_are_enough() {
+        // One distinct disparity for a line: pending, no height, and why.
+        let pending = build(fit_spec(1, samples_of(&[2.0; 10], |_| 5.0))).unwrap();
+        let why = pending.pending().expect("pending");
+        assert!(why.contains("1 distinct disparity_px values of the 2"), "{why}");
+        assert!(pending.coefficients().is_empty());
+        assert_eq!(pending.fit_stats(), None);
+        assert_eq!(pending.z_for_pair([3.0, 0.0], None), Err(why));
+        // Two distinct for a parabola; values closer than the tolerance are
+        // one; no samples at all.
         let d: Vec<f64> = (0..12).map(|i| if i % 2 == 0 { 1.0 } else { 4.0 }).collect();
-        let err = build(fit_spec(2, samples_of(&d, |x| x * 3.0 + (x * 7.0).sin()))).unwrap_err();
-        assert_eq!(err.code(), "too_few_samples");
-        assert!(matches!(
-            err,
-            CalibError::TooFewSamples {
-                distinct: 2,
-                needed: 3,
-                samples: 12,
-                ..
-            }
-        ));
-
-        // Values closer than the tolerance are one distinct disparity.
-        let err = build(fit_spec(1, samples_of(&[1.0, 1.0 + 1e-9], |x| x))).unwrap_err();
-        assert_eq!(err.code(), "too_few_samples");
-        assert_eq!(build(fit_spec(1, vec![])).unwrap_err().code(), "too_few_samples");
-        // But two distinct disparities are enough for a line.
-        assert!(build(fit_spec(1, samples_of(&[1.0, 2.0], |x| x))).is_ok());
+        let two = build(fit_spec(2, samples_of(&d, |x| x * 3.0 + (x * 7.0).sin()))).unwrap();
+        assert!(two
+            .pending()
+            .unwrap()
+            .contains("2 distinct disparity_px values of the 3"));
+        assert!(build(fit_spec(1, samples_of(&[1.0, 1.0 + 1e-9], |x| x)))
+            .unwrap()
+            .pending()
+            .is_some());
+        let mut empty = build(fit_spec(1, vec![])).unwrap();
+        assert!(empty.pending().is_some());
+        // Filled from stage steps: the second distinct sample makes it a line.
+        empty.add_sample(Sample::new(1.0, 10.0)).unwrap();
+        assert!(empty.pending().is_some());
+        empty.add_sample(Sample::new(2.0, 20.0)).unwrap();
+        assert_eq!(empty.pending(), None);
+        assert!((empty.z_for_pair([3.0, 0.0], None).unwrap() - 30.0).abs() < 1e-9);
+        // A pending calibration survives its JSON form.
+        let back = from_json(&serde_json::to_string(&pending).unwrap()).unwrap();
+        assert_eq!(back, pending);
     }
 
     #[test]
@@ -1671,9 +1674,9 @@ mod tests {
             err.to_string(),
             "invalid vergence_deg 0 (expected 0 < vergence_deg <= 90)"
         );
-        let err = from_json(r#"{"model": "fit", "degree": 2, "samples": [{"disparity_px": 1, "z_um": 0}]}"#)
-            .unwrap_err();
-        assert_eq!(err.code(), "too_few_samples");
+        let one = from_json(r#"{"model": "fit", "degree": 2, "samples": [{"disparity_px": 1, "z_um": 0}]}"#)
+            .unwrap();
+        assert!(one.pending().is_some());
 
         // Edited coefficients or statistics are refused, not silently replaced.
         let cal = geometric(1.0, 10.0, 0.0, 90.0);

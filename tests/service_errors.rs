@@ -186,19 +186,33 @@ async fn bad_inputs_get_clear_4xx_errors() {
     )
     .await;
 
-    // Fits with too few distinct samples are refused.
+    // A fit with too few distinct samples is created pending: no
+    // coefficients, and it says why (its sessions get z null with a
+    // warning until samples at another height are added).
     let r = http
         .post(format!("{base}/v1/calibrations"))
         .json(&json!({"model": "fit", "degree": 1, "samples": [{"disparity_px": 1.0, "z_um": 0.0}, {"disparity_px": 1.0, "z_um": 5.0}]}))
         .send()
         .await
         .unwrap();
-    assert_eq!(r.status(), 422);
+    assert_eq!(r.status(), 201);
     let body: Value = r.json().await.unwrap();
-    assert!(
-        body["error"]["message"].as_str().unwrap().contains("distinct"),
-        "{body}"
-    );
+    assert!(body["pending"].as_str().unwrap().contains("distinct"), "{body}");
+    assert_eq!(body["coefficients"], json!([]), "{body}");
+    let filled: Value = http
+        .post(format!(
+            "{base}/v1/calibrations/{}/samples",
+            body["id"].as_str().unwrap()
+        ))
+        .json(&json!({"disparity_px": 2.0, "z_um": 10.0}))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert!(filled.get("pending").is_none(), "{filled}");
+    assert_eq!(filled["coefficients"].as_array().unwrap().len(), 2, "{filled}");
 
     // Multipart: wrong content type, missing part, extra part, undecodable
     // image, mismatched sizes.

@@ -136,6 +136,11 @@ pub struct CalibrationView {
     pub version: u64,
     /// `geometric` or `fit`.
     pub model: String,
+    /// A fit without enough distinct samples yet: why it gives no z (every
+    /// result's z_um is null, with this as a warning, until samples at
+    /// other heights are added).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pending: Option<String>,
     /// Direction of the tilt axis, degrees from +x towards +y.
     pub tilt_axis_deg: f64,
     /// z_um = c0 + c1 d (+ c2 d^2), d the disparity across the tilt axis in
@@ -186,6 +191,7 @@ impl From<&CalibrationRecord> for CalibrationView {
             name: r.name.clone(),
             version: r.version,
             model: c.model_name().to_string(),
+            pending: c.pending(),
             tilt_axis_deg: c.tilt_axis_deg(),
             coefficients: c.coefficients().to_vec(),
             pixel_size_um: None,
