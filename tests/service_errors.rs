@@ -199,6 +199,19 @@ async fn bad_inputs_get_clear_4xx_errors() {
     let body: Value = r.json().await.unwrap();
     assert!(body["pending"].as_str().unwrap().contains("distinct"), "{body}");
     assert_eq!(body["coefficients"], json!([]), "{body}");
+    assert!(body.get("residuals_um").is_none(), "no fit, no residuals: {body}");
+    let (code, v) = (
+        http.get(format!(
+            "{base}/v1/calibrations/{}/versions/9223372036854775808",
+            body["id"].as_str().unwrap()
+        ))
+        .send()
+        .await
+        .unwrap()
+        .status(),
+        (),
+    );
+    assert_eq!(code, 404, "a version past the last is not found {v:?}");
     let filled: Value = http
         .post(format!(
             "{base}/v1/calibrations/{}/samples",

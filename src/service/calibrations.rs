@@ -48,7 +48,12 @@ pub async fn get_calibration_version(
     ApiPath((id, version)): ApiPath<(String, u64)>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
     let current = state.calibration(&id)?;
-    match state.storage.calibration_version(&id, version).await? {
+    let stored = if (1..=current.version).contains(&version) {
+        state.storage.calibration_version(&id, version).await?
+    } else {
+        None
+    };
+    match stored {
         Some(record) => Ok(ApiJson(CalibrationView::from(&record))),
         None => Err(ApiError::new(
             StatusCode::NOT_FOUND,

@@ -65,8 +65,9 @@ pub enum CalibrationCreate {
         #[schema(minimum = 1, maximum = 2)]
         degree: u8,
         /// The measurements: disparity across the tilt axis (px) at a known
-        /// height (um); at least degree + 1 distinct disparities.
-        #[schema(min_items = 2, max_items = 10000)]
+        /// height (um). With fewer than degree + 1 distinct disparities (none,
+        /// say) the calibration is created `pending` and gives no z yet.
+        #[schema(min_items = 0, max_items = 10000)]
         samples: Vec<Sample>,
         /// Direction of the tilt axis in the image, degrees from +x towards +y. Default 90.
         #[serde(default = "default_tilt_axis_deg")]
@@ -218,7 +219,8 @@ impl From<&CalibrationRecord> for CalibrationView {
             CalibrationSpec::Fit(f) => {
                 view.degree = Some(f.degree);
                 view.samples = Some(f.samples.clone());
-                view.residuals_um = Some(c.residuals_um());
+                // None while pending: there is no fit to differ from.
+                view.residuals_um = c.pending().is_none().then(|| c.residuals_um());
             }
         }
         view
