@@ -957,6 +957,18 @@ fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
                 s.disparity_px
             )));
         }
+        if s.frame.is_some_and(|f| f > i64::MAX as u64) {
+            return Err(CalibError::Invalid(format!(
+                "invalid samples[{i}].frame {} (expected 0..={})",
+                s.frame.unwrap_or_default(),
+                i64::MAX
+            )));
+        }
+        if s.session_id.as_ref().is_some_and(|id| id.chars().count() > 200) {
+            return Err(CalibError::Invalid(format!(
+                "invalid samples[{i}].session_id (expected at most 200 characters)"
+            )));
+        }
         if !(s.z_um.is_finite() && s.z_um.abs() <= MAX_ABS_Z_UM) {
             return Err(CalibError::Invalid(format!(
                 "invalid samples[{i}].z_um {} (expected a finite value with magnitude <= {MAX_ABS_Z_UM:e})",

@@ -200,18 +200,23 @@ async fn bad_inputs_get_clear_4xx_errors() {
     assert!(body["pending"].as_str().unwrap().contains("distinct"), "{body}");
     assert_eq!(body["coefficients"], json!([]), "{body}");
     assert!(body.get("residuals_um").is_none(), "no fit, no residuals: {body}");
-    let (code, v) = (
-        http.get(format!(
+    let past = http
+        .get(format!(
             "{base}/v1/calibrations/{}/versions/9223372036854775808",
             body["id"].as_str().unwrap()
         ))
         .send()
         .await
-        .unwrap()
-        .status(),
-        (),
-    );
-    assert_eq!(code, 404, "a version past the last is not found {v:?}");
+        .unwrap();
+    assert_eq!(past.status(), 404, "a version past the last is not found");
+    // A sample's frame beyond what storage holds is refused.
+    let r = http
+        .post(format!("{base}/v1/calibrations"))
+        .json(&json!({"model": "fit", "samples": [{"disparity_px": 0.0, "z_um": 0.0, "frame": 9223372036854775808u64}]}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 422);
     let filled: Value = http
         .post(format!(
             "{base}/v1/calibrations/{}/samples",
