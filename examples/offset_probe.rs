@@ -59,16 +59,6 @@ fn main() {
                 } else {
                     found.contour.clone()
                 };
-                let c = if std::env::var("BAL").is_ok() {
-                    semdepth::init::balanced(&pair.left, &c)
-                        .map(|b| b.0)
-                        .unwrap_or_else(|| {
-                            eprint!("NONE ");
-                            c
-                        })
-                } else {
-                    c
-                };
                 let c = &c;
                 let off = (c.area() - tpoly.area()) / tpoly.length();
                 let iou = mask_iou(&c.rasterize(w, h), &truth);

@@ -774,58 +774,54 @@ impl Calibration {
     /// sample, too many samples, degenerate refit, or a geometric calibration:
     /// [`CalibError::NotAFit`]) the calibration is unchanged.
     pub fn add_sample(&mut self, sample: Sample) -> Result<(), CalibError> {
-        let CalibrationSpec::Fit(fit) = &self.spec else {
-            return Err(CalibError::NotAFit {
-                model: self.model_name(),
-            });
-        };
-        let mut fit = fit.clone();
-        fit.samples.push(sample);
-        *self = build_fit(fit)?;
-        Ok(())
+        self.change_samples(|samples| {
+            samples.push(sample);
+            Ok(())
+        })
     }
 
     /// Removes sample `index` (0-based, in the order given) from a fitted
     /// calibration and refits; returns the sample. On error (no such
-    /// sample: [`CalibError::NoSuchSample`], too few left, degenerate refit,
-    /// a geometric calibration) the calibration is unchanged.
+    /// sample: [`CalibError::NoSuchSample`], degenerate refit, a geometric
+    /// calibration) the calibration is unchanged; too few samples left make
+    /// it [`Calibration::pending`].
     pub fn remove_sample(&mut self, index: usize) -> Result<Sample, CalibError> {
-        let CalibrationSpec::Fit(fit) = &self.spec else {
-            return Err(CalibError::NotAFit {
-                model: self.model_name(),
-            });
-        };
-        if index >= fit.samples.len() {
-            return Err(CalibError::NoSuchSample {
-                index,
-                count: fit.samples.len(),
-            });
-        }
-        let mut fit = fit.clone();
-        let removed = fit.samples.remove(index);
-        *self = build_fit(fit)?;
-        Ok(removed)
+        self.change_samples(|samples| {
+            sample_at(samples, index)?;
+            Ok(samples.remove(index))
+        })
     }
 
-    /// Replaces sample `index` of a fitted calibration by `sample` and
-    /// refits; returns the sample it replaced. Errors as
+    /// Replaces sample `index` of a fitted calibration by what `change`
+    /// makes of it, and refits; returns the sample it replaced. Errors as
     /// [`Calibration::remove_sample`]; the calibration is then unchanged.
-    pub fn replace_sample(&mut self, index: usize, sample: Sample) -> Result<Sample, CalibError> {
+    pub fn update_sample(
+        &mut self,
+        index: usize,
+        change: impl FnOnce(&Sample) -> Sample,
+    ) -> Result<Sample, CalibError> {
+        self.change_samples(|samples| {
+            let slot = sample_at(samples, index)?;
+            let new = change(slot);
+            Ok(std::mem::replace(slot, new))
+        })
+    }
+
+    /// Applies `change` to a copy of a fitted calibration's samples and
+    /// refits; the calibration changes only when both succeed.
+    fn change_samples<T>(
+        &mut self,
+        change: impl FnOnce(&mut Vec<Sample>) -> Result<T, CalibError>,
+    ) -> Result<T, CalibError> {
         let CalibrationSpec::Fit(fit) = &self.spec else {
             return Err(CalibError::NotAFit {
                 model: self.model_name(),
             });
         };
-        if index >= fit.samples.len() {
-            return Err(CalibError::NoSuchSample {
-                index,
-                count: fit.samples.len(),
-            });
-        }
         let mut fit = fit.clone();
-        let old = std::mem::replace(&mut fit.samples[index], sample);
+        let out = change(&mut fit.samples)?;
         *self = build_fit(fit)?;
-        Ok(old)
+        Ok(out)
     }
 
     /// Per sample of a fitted calibration, its height minus the fit's at
@@ -837,6 +833,14 @@ impl Calibration {
             .map(|s| s.z_um - self.z_from_axis(s.disparity_px))
             .collect()
     }
+}
+
+/// Sample `index`, or [`CalibError::NoSuchSample`].
+fn sample_at(samples: &mut [Sample], index: usize) -> Result<&mut Sample, CalibError> {
+    let count = samples.len();
+    samples
+        .get_mut(index)
+        .ok_or(CalibError::NoSuchSample { index, count })
 }
 
 fn default_tilt_axis_deg() -> f64 {

@@ -19,7 +19,7 @@ use crate::fit::{
 };
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
-use crate::init::{balanced, initialise, InitParams};
+use crate::init::{fitted_to_edge, initialise, InitParams};
 use crate::meta::ImageMeta;
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
@@ -368,7 +368,7 @@ pub struct TrackerState {
     /// bright edge rim, the outline runs along the rim's outer edge (see
     /// [`crate::init::InitResult::core`]); any other template lies where
     /// the region energy is lowest, up to 1 px outside a blurred edge, the
-    /// outline on the edge (see [`crate::init::balanced`]). Empty: the
+    /// outline on the edge (see [`crate::init::fitted_to_edge`]). Empty: the
     /// template is the outline.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub outline: Vec<Point>,
@@ -493,12 +493,12 @@ impl StereoTracker {
         // The reported outline: a dark object's runs over its rim; any
         // other's is the fitted template moved onto the object's edge,
         // where the region energy leaves it 0.2-1 px outside a blurred
-        // edge (see `init::balance`). It moves with the template's pose.
+        // edge (see `init::edge_fit`). It moves with the template's pose.
         let outline = match found.core {
             Some(_) => Some(found.contour.clone()),
             // Where its edge cannot be measured (a strong blur), the
             // initialisation's outline, which lies closer to it.
-            None => balanced(left, &Polygon::new(place(&template.points, left_pose)))
+            None => fitted_to_edge(left, &Polygon::new(place(&template.points, left_pose)))
                 .map(|(p, _)| p)
                 .or_else(|| found.border.is_empty().then(|| found.contour.clone())),
         };

@@ -503,12 +503,11 @@ async fn stream_headers_label_their_results() {
         .unwrap();
     let pairs = synth_pairs(Preset::Clean, Shape::Blob, 5, 2);
     let message = |seq: u64, pair: &semdepth::synth::SynthPair, label: &str, timestamp: &str| {
-        let (l, r) = (pair.left.to_gray8().into_raw(), pair.right.to_gray8().into_raw());
-        sdp1(
-            &json!({"seq": seq, "encoding": "raw", "width": pair.left.width, "height": pair.left.height,
-                "bit_depth": 8, "left_len": l.len(), "right_len": r.len(), "label": label, "timestamp": timestamp}),
-            &l,
-            &r,
+        server::sdp1_raw_with(
+            seq,
+            &pair.left,
+            &pair.right,
+            json!({"label": label, "timestamp": timestamp}),
         )
     };
     ws.send(Message::Binary(

@@ -20,7 +20,7 @@
 //! A dark object's outline is then settled by the region-based free fit
 //! and grown over the object's bright edge rim ([`rim`]). Last, the
 //! outline is moved onto the object's edge to a fraction of a pixel, where
-//! the thresholds left it 0.2-0.5 px outside ([`balance`]).
+//! the thresholds left it 0.2-0.5 px outside ([`edge_fit`]).
 //!
 //! The output contour is in full-resolution pixel coordinates (centre of the
 //! top-left pixel at (0, 0)).
@@ -35,15 +35,15 @@ use crate::fit::{fit_free, free_fit_tables, FreeFitParams};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 
-mod balance;
 mod candidates;
+mod edge_fit;
 mod edges;
 mod morphology;
 mod prompted;
 mod rim;
 
-pub use balance::balanced;
 pub use candidates::{Score, Source};
+pub use edge_fit::fitted_to_edge;
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
 };
@@ -514,8 +514,8 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
     params.validate()?;
     let found = grown_over_rim(frame, find_object(frame, params)?);
     // The outline on the object's edge to a fraction of a pixel, where the
-    // pipeline's thresholds left it 0.2-0.5 px outside (see [`balance`]).
-    Ok(match balanced(frame, &found.contour) {
+    // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
+    Ok(match fitted_to_edge(frame, &found.contour) {
         Some((contour, _)) => found.with_contour(contour),
         None => found,
     })

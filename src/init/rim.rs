@@ -171,7 +171,7 @@ pub(super) fn grow_over_rim(
     if growth.iter().all(|&g| g == 0.0) {
         return None;
     }
-    let offsets = super::balance::per_vertex(&starts, &growth, n);
+    let offsets = super::edge_fit::per_vertex(&starts, &growth, n);
     let outline = Polygon::new((0..n).map(|i| at(i, offsets[i])).collect());
     let mean_px = offsets.iter().sum::<f64>() / n as f64;
     Some(Grown { outline, mean_px })

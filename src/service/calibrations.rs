@@ -10,7 +10,9 @@ use utoipa_axum::routes;
 use crate::calib::{build, Sample};
 
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
-use super::model::{CalibrationCreate, CalibrationList, CalibrationView, SampleCreate, SamplePatch};
+use super::model::{
+    check_label, CalibrationCreate, CalibrationList, CalibrationView, SampleCreate, SamplePatch,
+};
 use super::state::{new_id, now_rfc3339, AppState};
 use super::storage::CalibrationRecord;
 
@@ -234,7 +236,7 @@ pub async fn add_calibration_sample(
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such calibration, or no such sample (`sample_not_found`)", body = ErrorBody),
         (status = 409, description = "Not a fitted calibration", body = ErrorBody),
-        (status = 422, description = "Too few distinct samples would be left, or the refit is degenerate", body = ErrorBody),
+        (status = 422, description = "The refit is degenerate (too few distinct samples left make the calibration pending)", body = ErrorBody),
         (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
@@ -275,18 +277,12 @@ pub async fn edit_calibration_sample(
     ApiJson(body): ApiJson<SamplePatch>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
     let view = refit(&state, &id, |c| {
-        let Some(old) = c.samples().get(index).cloned() else {
-            return Err(crate::calib::CalibError::NoSuchSample {
-                index,
-                count: c.samples().len(),
-            });
-        };
-        let new = Sample {
+        c.update_sample(index, |old| Sample {
             disparity_px: body.disparity_px.unwrap_or(old.disparity_px),
             z_um: body.z_um.unwrap_or(old.z_um),
-            ..old
-        };
-        c.replace_sample(index, new).map(drop)
+            ..old.clone()
+        })
+        .map(drop)
     })
     .await?;
     Ok(ApiJson(view))
@@ -355,13 +351,7 @@ async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
     users
 }
 
-/// Labels are free text but bounded.
+/// Names are free text but bounded (see [`check_label`]).
 pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
-    match name {
-        Some(n) if n.chars().count() > 200 => Err(ApiError::bad_request(
-            "invalid_name",
-            format!("name of {} characters (expected at most 200)", n.chars().count()),
-        )),
-        _ => Ok(()),
-    }
+    check_label("name", name)
 }

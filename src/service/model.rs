@@ -443,6 +443,21 @@ pub struct TimingMs {
     pub total: f64,
 }
 
+/// Free-text labels (names, a pair's label) are bounded: at most 200
+/// characters, else 400 `invalid_{field}` naming the field.
+pub fn check_label(field: &str, value: Option<&str>) -> Result<(), ApiError> {
+    match value {
+        Some(v) if v.chars().count() > 200 => Err(ApiError::bad_request(
+            format!("invalid_{field}"),
+            format!(
+                "{field} of {} characters (expected at most 200)",
+                v.chars().count()
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Where a pair came from and when: what makes a stored result traceable.
 /// Every field is optional (results stored before it have none).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
@@ -472,14 +487,7 @@ impl Provenance {
     /// Received now, with the client's `label` and `timestamp` checked: a
     /// label of at most 200 characters, a timestamp in RFC 3339.
     pub fn received(label: Option<String>, timestamp: Option<String>) -> Result<Self, ApiError> {
-        if let Some(l) = &label {
-            if l.chars().count() > 200 {
-                return Err(ApiError::bad_request(
-                    "invalid_label",
-                    format!("label of {} characters (expected at most 200)", l.chars().count()),
-                ));
-            }
-        }
+        check_label("label", label.as_deref())?;
         if let Some(t) = &timestamp {
             if time::OffsetDateTime::parse(t, &time::format_description::well_known::Rfc3339).is_err() {
                 return Err(ApiError::bad_request(

@@ -328,10 +328,7 @@ impl Storage {
                  VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
                 params![rec.id, rec.name, body, rec.created_at, rec.updated_at, version],
             )?;
-            c.execute(
-                "INSERT INTO calibration_versions (id, version, body, created_at) VALUES (?1, ?2, ?3, ?4)",
-                params![rec.id, version, body, rec.updated_at],
-            )?;
+            keep_calibration_version(c, &rec.id, version, &body, &rec.updated_at)?;
             Ok(())
         })
         .await
@@ -349,11 +346,7 @@ impl Storage {
                 params![rec.id, rec.name, body, rec.updated_at, version],
             )?;
             if n > 0 {
-                c.execute(
-                    "INSERT OR REPLACE INTO calibration_versions (id, version, body, created_at)
-                     VALUES (?1, ?2, ?3, ?4)",
-                    params![rec.id, version, body, rec.updated_at],
-                )?;
+                keep_calibration_version(c, &rec.id, version, &body, &rec.updated_at)?;
             }
             Ok(n > 0)
         })
@@ -932,6 +925,20 @@ fn apply_pair(c: &Connection, p: &PreparedPair) -> Result<(), StorageError> {
         }
     }
     Ok(())
+}
+
+/// Stores a calibration's body as version `version` beside the others.
+fn keep_calibration_version(
+    c: &Connection,
+    id: &str,
+    version: i64,
+    body: &str,
+    at: &str,
+) -> rusqlite::Result<usize> {
+    c.execute(
+        "INSERT OR REPLACE INTO calibration_versions (id, version, body, created_at) VALUES (?1, ?2, ?3, ?4)",
+        params![id, version, body, at],
+    )
 }
 
 fn load_calibrations(c: &Connection) -> Result<Vec<CalibrationRecord>, StorageError> {

@@ -151,13 +151,18 @@ pub fn sdp1_raw(seq: u64, pair: &SynthPair) -> Vec<u8> {
 
 /// A raw 8-bit stream message for two frames of equal size.
 pub fn sdp1_raw_frames(seq: u64, left: &GrayFrame, right: &GrayFrame) -> Vec<u8> {
+    sdp1_raw_with(seq, left, right, serde_json::json!({}))
+}
+
+/// [`sdp1_raw_frames`] with the header fields of `extra` (an object) added.
+pub fn sdp1_raw_with(seq: u64, left: &GrayFrame, right: &GrayFrame, extra: serde_json::Value) -> Vec<u8> {
     let (l, r) = (raw8(left), raw8(right));
-    sdp1(
-        &serde_json::json!({"seq": seq, "encoding": "raw", "width": left.width,
-            "height": left.height, "bit_depth": 8, "left_len": l.len(), "right_len": r.len()}),
-        &l,
-        &r,
-    )
+    let mut header = serde_json::json!({"seq": seq, "encoding": "raw", "width": left.width,
+        "height": left.height, "bit_depth": 8, "left_len": l.len(), "right_len": r.len()});
+    if let (Some(h), Some(e)) = (header.as_object_mut(), extra.as_object()) {
+        h.extend(e.clone());
+    }
+    sdp1(&header, &l, &r)
 }
 
 /// RMS of `measured - truth` after removing the mean (the constant offset a

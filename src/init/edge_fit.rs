@@ -1,4 +1,4 @@
-//! Sub-pixel outline from the balance of brightness across the edge.
+//! Sub-pixel outline: each part moved onto the edge a fitted edge model puts it.
 //!
 //! The region energy's minimum is not the object's edge when the edge is
 //! blurred: with the Poisson likelihood (Dahmen et al., section 3) a boundary
@@ -9,27 +9,31 @@
 //! blur. The edge pipeline's outline is biased outwards by the same amount
 //! for another reason (thresholds below the midpoint of the contrast).
 //!
-//! The brightness itself says where the edge is: a blur spreads it but keeps
-//! its sum (the first of the moments that Tabatabai and Mitchell, "Edge
-//! location to subpixel values in digital imagery", IEEE PAMI 6(2), 1984,
-//! preserve). Over the band of pixels within [`BAND_PX`] of the outline, a
-//! step from level `inner` to level `outer` at signed distance `e` gives a
-//! band sum `S = inner N_in(e) + outer (N - N_in(e))`, with `N_in(e)` the
-//! band pixels whose signed distance is below `e`. So
-//! `N_in = (S - outer N) / (inner - outer)` and `e` is that quantile of the
-//! band's signed distances: no edge model, no derivative, and no bias from a
-//! symmetric blur of any width that the band spans. [`balanced`] measures it
-//! sector by sector along the outline (levels from the strips just beyond
-//! the band, a quarter weight from each neighbouring sector against noise)
-//! and moves each part of the outline by it. A sector whose shift is not
-//! known within [`MAX_SHIFT_STD_PX`], or whose band reaches the image
-//! border, stays where it is.
+//! The brightness across the edge says where it is. [`fitted_to_edge`]
+//! bins the pixels near the outline by their signed distance to it (0.5-px
+//! bins over `BAND_PX + LEVEL_PX` on each side), sector by sector, and fits
+//! each sector's profile by weighted least squares with a blurred step plus
+//! an edge rim inside it (the SEM edge effect): a constant, the step
+//! `Phi(-(t - e) / sigma)` and the rim `exp((t - e) / w)` for `t < e`, both
+//! blurred by the Gaussian of width `sigma`; the constant, the step's height
+//! and the rim's strength (held >= 0: an edge effect brightens) are linear,
+//! the shift `e` is scanned on a 0.05-px grid. The width `sigma` and the
+//! rim's decay `w` belong to the object: they are fitted once on the whole
+//! outline (a grid, then golden-section refinement between its neighbours),
+//! because within one sector a width between grid values turns into a rim
+//! and a shift. A sector's shift counts when the step has the object's sign
+//! and at least half its contrast, and its standard error (the residual's
+//! curvature over the substrate's variance) is under [`MAX_SHIFT_STD_PX`];
+//! otherwise neighbouring sectors are pooled, and as a last resort the whole
+//! outline's shift is used. Sectors whose reach leaves the image stay where
+//! they are. Under a 2-px blur a rim and a shift look alike, and the edge is
+//! known to about 0.3 px only.
 
 use crate::geometry::Polygon;
 use crate::imageio::GrayFrame;
 
-/// Half-width of the band whose brightness is balanced, pixels.
-pub(crate) const BAND_PX: f64 = 3.5;
+/// Half-width of the band around the outline where the edge is sought, pixels.
+const BAND_PX: f64 = 3.5;
 
 /// Width of the strips beyond the band that give the two levels, pixels.
 const LEVEL_PX: f64 = 2.5;
@@ -43,19 +47,21 @@ const POOLING: [usize; 4] = [1, 2, 4, 8];
 /// Largest shift applied, pixels: further is no blur but another outline.
 const MAX_SHIFT_PX: f64 = 1.5;
 
-/// A sector's shift is applied only when its standard error (from the
-/// noise of the level strips) is below this, pixels.
+/// A sector's shift is applied only when its standard error (the residual's
+/// curvature over the substrate's variance) is below this, pixels.
 const MAX_SHIFT_STD_PX: f64 = 0.1;
 
 /// Fewest pixels in a level strip for its mean to count; thinner parts (a
 /// tool's tip) take the whole object's level.
 const MIN_LEVEL_PIXELS: f64 = 6.0;
 
-/// Per-sector sums over the band and the two level strips.
+/// Per-sector sums: count and sum per bin of signed distance, and count and
+/// sum (and for the substrate, sum of squares) of the level strips beyond
+/// the band.
 #[derive(Clone, Copy, Default)]
 struct Sums {
     bins: [[f64; 2]; BINS],
-    inner: [f64; 3],
+    inner: [f64; 2],
     outer: [f64; 3],
 }
 
@@ -70,19 +76,21 @@ impl Sums {
             self.bins[k][0] += w * other.bins[k][0];
             self.bins[k][1] += w * other.bins[k][1];
         }
-        for k in 0..3 {
+        for k in 0..2 {
             self.inner[k] += w * other.inner[k];
+        }
+        for k in 0..3 {
             self.outer[k] += w * other.outer[k];
         }
     }
 }
 
-/// `contour` with each part moved along its normal to where the brightness
-/// across its edge balances (see the module docs), and the mean shift in
+/// `contour` with each part moved along its normal onto the edge the fitted
+/// edge model puts there (see the module docs), and the mean shift in
 /// pixels (negative: inwards). `None` when the outline is too small
 /// (fewer than 16 vertices), when no sector can be measured, or when the
 /// object has no contrast with its surroundings.
-pub fn balanced(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, f64)> {
+pub fn fitted_to_edge(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, f64)> {
     let n = contour.len();
     if n < 16 {
         return None;
@@ -145,7 +153,6 @@ pub fn balanced(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, f64)> 
         }
     }
     let mut sums = vec![Sums::default(); count];
-    let mut object = [0.0f64; 2];
     for y in 0..wh {
         for x in 0..ww {
             let k = y * ww + x;
@@ -160,20 +167,21 @@ pub fn balanced(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, f64)> 
             let bin = (((s + reach) / BIN_PX) as usize).min(BINS - 1);
             sum.bins[bin][0] += 1.0;
             sum.bins[bin][1] += v;
-            if s.abs() < BAND_PX {
-            } else if s < 0.0 {
+            if s <= -BAND_PX {
                 sum.inner[0] += 1.0;
                 sum.inner[1] += v;
-                sum.inner[2] += v * v;
-                object[0] += 1.0;
-                object[1] += v;
-            } else {
+            } else if s >= BAND_PX {
                 sum.outer[0] += 1.0;
                 sum.outer[1] += v;
                 sum.outer[2] += v * v;
             }
         }
     }
+    // The object's level from every sector's inner strip, for the sectors
+    // whose own strip is too thin.
+    let object = sums
+        .iter()
+        .fold([0.0, 0.0], |t, s| [t[0] + s.inner[0], t[1] + s.inner[1]]);
     let object_level = (object[0] > 0.0).then(|| object[1] / object[0]);
     // The edge's width and rim decay are the object's: measured on the
     // whole outline's profile, where they are told apart from a shift.
@@ -303,7 +311,7 @@ impl Profile {
         }
         let outer = so / no;
         let var = (qo / no - outer * outer).max(1e-9);
-        let [ni, si, _] = pooled.inner;
+        let [ni, si] = pooled.inner;
         let inner = if ni >= MIN_LEVEL_PIXELS {
             si / ni
         } else {
@@ -556,7 +564,7 @@ mod tests {
         ] {
             let frame = disc(rim, blur, noise);
             for start in [29.2, 30.0, 30.8] {
-                let (moved, by) = balanced(&frame, &Polygon::circle([80.0, 80.0], start, 120))
+                let (moved, by) = fitted_to_edge(&frame, &Polygon::circle([80.0, 80.0], start, 120))
                     .expect("the disc has an edge");
                 let r = mean_radius(&moved);
                 assert!(
@@ -576,11 +584,11 @@ mod tests {
     fn outlines_without_an_edge_or_at_the_border_stay() {
         // No contrast: nothing to measure.
         let flat = GrayFrame::new(100, 100, 8, vec![90; 100 * 100]).unwrap();
-        assert!(balanced(&flat, &Polygon::circle([50.0, 50.0], 20.0, 80)).is_none());
+        assert!(fitted_to_edge(&flat, &Polygon::circle([50.0, 50.0], 20.0, 80)).is_none());
         // The part of an outline near the image border keeps its place.
         let frame = disc(0.0, 0.0, 0.0);
         let near = Polygon::circle([80.0, 80.0], 30.8, 120).translated([-48.0, 0.0]);
-        if let Some((moved, _)) = balanced(&frame, &near) {
+        if let Some((moved, _)) = fitted_to_edge(&frame, &near) {
             for (a, b) in near.points.iter().zip(&moved.points) {
                 if a[0] < 1.0 {
                     assert_eq!(a, b, "a vertex at the border moved");
