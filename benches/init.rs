@@ -3,13 +3,14 @@
 //! pass summing the image (the cost of reading it once) and imageproc's own
 //! `canny` (fixed sigma 1.4, absolute thresholds) on the full frame; at
 //! 1024x768 and 2048x2048 also with a `roi` box hint around the object (10%
-//! larger than it: the prompted path, issue #16).
+//! larger than it: the prompted path, issue #16), and the edge fit alone
+//! (`init::fitted_to_edge` on the found outline).
 //! Target (issue #2): 1024x768 under 15 ms on one core.
 //! `python3 tools/bench_report.py init` prints medians and ratios.
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
 use semdepth::imageio::GrayFrame;
-use semdepth::init::{initialise, InitParams};
+use semdepth::init::{fitted_to_edge, initialise, InitParams};
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
 
 /// The left frame and a `roi` hint around its object.
@@ -43,6 +44,11 @@ fn bench_init(c: &mut Criterion) {
                 b.iter(|| initialise(black_box(f), &hinted).unwrap())
             });
         }
+        // The edge fit alone, on the outline the initialisation found.
+        let found = initialise(&f, &InitParams::default()).expect("object found");
+        group.bench_with_input(BenchmarkId::new("fitted_to_edge", &id), &f, |b, f| {
+            b.iter(|| fitted_to_edge(black_box(f), &found.contour).expect("an edge"))
+        });
         group.bench_with_input(BenchmarkId::new("reference_sum", &id), &f, |b, f| {
             b.iter(|| black_box(f).data.iter().map(|&v| v as u64).sum::<u64>())
         });

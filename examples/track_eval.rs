@@ -5,7 +5,9 @@
 //! 10% larger than the visible object, or its pixel nearest the centroid).
 //! `SHAPE=tip` picks one shape, `SEED0=300` the first seed, `FRAMES_OUT=1`
 //! prints every pair (errors of both views against the truth's centroids),
-//! `NONOISE=1` renders with the clean preset's noise. "Confident wrong":
+//! `NONOISE=1` renders with the clean preset's noise, `DRIFT=18` sets the
+//! speed (px per pair) in the seed's drift direction, `ROT=0.005` the
+//! rotation per pair (rad). "Confident wrong":
 //! tracked pairs off by more than 1 px in disparity or 3 px in the left
 //! centroid, after removing the sequence's median offsets.
 use semdepth::synth::{frames, Preset, Shape, SynthConfig};
@@ -39,6 +41,15 @@ fn main() {
                 };
                 if std::env::var("NONOISE").is_ok() {
                     cfg.noise = SynthConfig::preset(Preset::Clean, shape, seed).noise;
+                }
+                if let Ok(v) = std::env::var("DRIFT") {
+                    // Speed in px per pair, in the seed's drift direction.
+                    let [dx, dy] = cfg.motion.drift_px_per_frame;
+                    let k = v.parse::<f64>().unwrap() / dx.hypot(dy).max(1e-9);
+                    cfg.motion.drift_px_per_frame = [dx * k, dy * k];
+                }
+                if let Ok(v) = std::env::var("ROT") {
+                    cfg.motion.rotation_rad_per_frame = v.parse().unwrap();
                 }
                 let mut params = TrackerParams::default();
                 if let Ok(v) = std::env::var("LAMBDA") {
