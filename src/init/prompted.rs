@@ -45,23 +45,23 @@ const TAILED_BOX_RATIO: f64 = 2.0;
 /// counts as lying inside it.
 const NESTED_SHARE: f64 = 0.95;
 
-/// With a `roi`, the best candidate leaves the box largely empty when its
-/// box covers less than this share of the searched box's width or height
-/// (an object drawn with 10% margins on each side covers about 0.78).
-const BOX_FILL_SPARSE: f64 = 0.65;
+/// With a `roi`, the best candidate leaves the box largely empty when the
+/// gap between its box and one side of the searched box is at least this
+/// share of the searched box's longer side (an object drawn with 10%
+/// margins leaves about 0.11 on every side; a thin rod as well).
+const BOX_GAP_SPARSE: f64 = 0.25;
 
 /// ... and joined to an edge outline, its thin appendages pruned, it is
-/// the object instead when it then covers at least this share of both the
-/// box's width and height: an object
-/// bounded by its edges whose faces differ from each other more than from
-/// the substrate (a lamella's bright front face and its substrate-grey top
-/// face) is one outline to the edge pipeline, two or more regions to the
-/// two-region energy (Lempitsky et al., ICCV 2009: a box drawn around an
-/// object is tight).
-const BOX_FILL_TIGHT: f64 = 0.75;
+/// the object instead when it then leaves no gap over this share: an
+/// object bounded by its edges whose faces differ from each other more
+/// than from the substrate (a lamella's bright front face and its
+/// substrate-grey top face) is one outline to the edge pipeline, two or
+/// more regions to the two-region energy (Lempitsky et al., ICCV 2009: a
+/// box drawn around an object is tight).
+const BOX_GAP_TIGHT: f64 = 0.15;
 
 /// Share of the best candidate the joined region must keep.
-const BOX_FILL_NESTED: f64 = 0.8;
+const BOX_JOIN_KEEP: f64 = 0.8;
 
 /// What [`find`] came to.
 pub(super) enum Outcome {
@@ -164,15 +164,15 @@ pub(super) fn find(
     };
     // A best candidate that leaves the roi largely empty gives way to an
     // edge outline joined to it that fills the box.
-    let fill = |c: &Candidate| box_fill(c.bbox(), work_area.domain);
-    let boxed = (hints.has_roi && fill(best) < BOX_FILL_SPARSE)
+    let gap = |c: &Candidate| widest_gap(c.bbox(), work_area.domain);
+    let boxed = (hints.has_roi && gap(best) >= BOX_GAP_SPARSE)
         .then(|| {
             edge_outlines
                 .iter()
-                .filter(|c| fill(c) >= BOX_FILL_TIGHT)
+                .filter(|c| gap(c) <= BOX_GAP_TIGHT)
                 .filter_map(|c| work_area.finish(&joined(c, best), &mut rejected))
-                .filter(|c| fill(c) >= BOX_FILL_TIGHT && covered_share(best, c) >= BOX_FILL_NESTED)
-                .max_by(|a, b| fill(a).total_cmp(&fill(b)))
+                .filter(|c| gap(c) <= BOX_GAP_TIGHT && covered_share(best, c) >= BOX_JOIN_KEEP)
+                .min_by(|a, b| gap(a).total_cmp(&gap(b)))
         })
         .flatten();
     let best = boxed.as_ref().unwrap_or(best);
@@ -288,13 +288,18 @@ fn joined(a: &Candidate, b: &Candidate) -> Candidate {
     }
 }
 
-/// The smaller of the shares of `domain`'s width and height that the box
-/// `[x0, y0, x1, y1]` covers (both in working pixels).
-fn box_fill(c: [u32; 4], domain: [u32; 4]) -> f64 {
-    let share = |a0: u32, a1: u32, d0: u32, d1: u32| {
-        f64::from(a1.min(d1).saturating_sub(a0.max(d0))) / f64::from(d1.saturating_sub(d0).max(1))
-    };
-    share(c[0], c[2], domain[0], domain[2]).min(share(c[1], c[3], domain[1], domain[3]))
+/// The widest gap between the box `[x0, y0, x1, y1]` and a side of
+/// `domain` (both in working pixels), as a share of `domain`'s longer side.
+fn widest_gap(c: [u32; 4], domain: [u32; 4]) -> f64 {
+    let [dx0, dy0, dx1, dy1] = domain;
+    let gaps = [
+        c[0].saturating_sub(dx0),
+        c[1].saturating_sub(dy0),
+        dx1.saturating_sub(c[2]),
+        dy1.saturating_sub(c[3]),
+    ];
+    let longer = (dx1.saturating_sub(dx0)).max(dy1.saturating_sub(dy0)).max(1);
+    f64::from(gaps.into_iter().max().unwrap_or(0)) / f64::from(longer)
 }
 
 /// Share of `inner`'s pixels that `outer` covers (both in working pixels).
