@@ -776,6 +776,37 @@ impl StereoTracker {
             right_search,
             rim_px,
         );
+        // The right view left its prediction far behind: the disparity
+        // jumped, or the left fit settled beside the object (a border
+        // tool's left contour 7 px along its axis while the right one
+        // stayed on it: 6.8 px of disparity error, reported `tracked`).
+        // The left view is fitted again from where the right view puts it,
+        // and the fit with the lower energy stands. Only full fits compare
+        // (masked energies over different sectors do not; with occluders
+        // moving past, the check pulled contours onto them).
+        let moved = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
+        let full = |fit: &ImageFit| !fit.occluded.contains(&true);
+        if moved > CROSS_CHECK_PX && full(&left_fit) && full(&right_fit) {
+            let from_right = Pose {
+                x: right_fit.pose.x - (state.right.x - state.left.x),
+                y: right_fit.pose.y - (state.right.y - state.left.y),
+                theta: right_fit.pose.theta - (state.right.theta - state.left.theta),
+            };
+            let again = self.fit_view(
+                left,
+                left_templates,
+                &state.left_sector_contrasts,
+                from_right,
+                ViewSearch {
+                    coarse_step_px: 1.0,
+                    ..left_search
+                },
+                rim_px,
+            );
+            if full(&again) && again.terms.energy < left_fit.terms.energy {
+                left_fit = again;
+            }
+        }
         let reach = self.params.rigid.search_radius_px;
         let candidate = TrackerState {
             left: left_fit.pose,
@@ -1330,6 +1361,11 @@ impl ImageFit {
 }
 
 /// Fraction of true marks.
+/// How far the right view's fit may move from its prediction (the left
+/// pose plus the last disparity), pixels, before the left view is fitted
+/// again from the right view's result (see [`StereoTracker::track`]).
+const CROSS_CHECK_PX: f64 = 1.5;
+
 fn fraction(marks: &[bool]) -> f64 {
     if marks.is_empty() {
         0.0
