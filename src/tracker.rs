@@ -776,17 +776,21 @@ impl StereoTracker {
             right_search,
             rim_px,
         );
-        // The right view left its prediction far behind: the disparity
-        // jumped, or the left fit settled beside the object (a border
-        // tool's left contour 7 px along its axis while the right one
-        // stayed on it: 6.8 px of disparity error, reported `tracked`).
+        // Both fits left their predictions: the object moved unlike its
+        // last motion, and the right view, predicted from the left fit,
+        // found it elsewhere. The left fit may have settled beside the
+        // object (a border tool reversing: its left contour stopped 7 px
+        // short along its axis while the right one reached the object, 6.8
+        // px of disparity error, reported `tracked`). A change of disparity
+        // alone moves only the right view and needs no second fit.
         // The left view is fitted again from where the right view puts it,
         // and the fit with the lower energy stands. Only full fits compare
         // (masked energies over different sectors do not; with occluders
         // moving past, the check pulled contours onto them).
-        let moved = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
+        let left_move = (left_fit.pose.x - left_predicted.x).hypot(left_fit.pose.y - left_predicted.y);
+        let right_move = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
         let full = |fit: &ImageFit| !fit.occluded.contains(&true);
-        if moved > CROSS_CHECK_PX && full(&left_fit) && full(&right_fit) {
+        if left_move > CROSS_CHECK_PX && right_move > CROSS_CHECK_PX && full(&left_fit) && full(&right_fit) {
             let from_right = Pose {
                 x: right_fit.pose.x - (state.right.x - state.left.x),
                 y: right_fit.pose.y - (state.right.y - state.left.y),
@@ -1361,9 +1365,9 @@ impl ImageFit {
 }
 
 /// Fraction of true marks.
-/// How far the right view's fit may move from its prediction (the left
-/// pose plus the last disparity), pixels, before the left view is fitted
-/// again from the right view's result (see [`StereoTracker::track`]).
+/// How far both views' fits may move from their predictions, pixels,
+/// before the left view is fitted again from the right view's result (see
+/// [`StereoTracker::track`]).
 const CROSS_CHECK_PX: f64 = 1.5;
 
 fn fraction(marks: &[bool]) -> f64 {

@@ -296,7 +296,7 @@ fn scratched_dark_blurred_and_relief_scenes() {
 /// A rod (seed 904, pair 6) had its left contour settle 7 px along its
 /// axis while the right one stayed on the object: 6.8 px off, `tracked`,
 /// until the left view was fitted again from the right view's result when
-/// the right fit left its prediction by more than 1.5 px.
+/// both fits left their predictions by more than 1.5 px.
 #[test]
 fn border_tools_have_no_confident_wrong_disparity() {
     let mut worst = (0.0f64, String::new());
