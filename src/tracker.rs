@@ -768,7 +768,7 @@ impl StereoTracker {
                 [t.sin(), -t.cos()]
             }),
         };
-        let right_fit = self.fit_view(
+        let mut right_fit = self.fit_view(
             right,
             right_templates,
             &state.right_sector_contrasts,
@@ -776,6 +776,43 @@ impl StereoTracker {
             right_search,
             rim_px,
         );
+        let full = |fit: &ImageFit| !fit.occluded.contains(&true);
+        let right_move = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
+        // The disparity jumped (the tilt changed between pairs, or the
+        // right fit walked along a weak edge): the right view is searched
+        // along the whole epipolar line, as on the first pair, and the pose
+        // with the lower energy stands (the quartz grain, pairs 01-02 then
+        // 01-03: the fit walked 47 px from its prediction to 73.9 px of
+        // disparity along the grain, where the pair alone gives 55.1).
+        if right_move > DISPARITY_JUMP_PX {
+            let template = &right_templates.0;
+            let searched = self
+                .search_right(right, template, left_fit.pose)
+                .filter(|&pose| self.lower_energy(right, template, pose, right_fit.pose));
+            // A full fit on the epipolar line from there: a masked fit
+            // walks back along the weak edge that misled the first.
+            if let Some(pose) = searched {
+                let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
+                let rigid = RigidParams {
+                    coarse_step_px: 1.0,
+                    rotate: right_search.rotate,
+                    ..self.params.rigid.clone()
+                };
+                let out = fit_rigid_on_line(
+                    &sums,
+                    template,
+                    pose,
+                    &self.params.energy,
+                    &rigid,
+                    right_search.line,
+                );
+                let mut fit = ImageFit::full(out.pose, out.terms);
+                if self.lower_energy(right, template, fit.pose, right_fit.pose) {
+                    fit.axis_std_px = self.axis_std(right, &sums, template, &right_templates.1, &fit, rim_px);
+                    right_fit = fit;
+                }
+            }
+        }
         // Both fits left their predictions: the object moved unlike its
         // last motion, and the right view, predicted from the left fit,
         // found it elsewhere. The left fit may have settled beside the
@@ -789,7 +826,6 @@ impl StereoTracker {
         // moving past, the check pulled contours onto them).
         let left_move = (left_fit.pose.x - left_predicted.x).hypot(left_fit.pose.y - left_predicted.y);
         let right_move = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
-        let full = |fit: &ImageFit| !fit.occluded.contains(&true);
         if left_move > CROSS_CHECK_PX && right_move > CROSS_CHECK_PX && full(&left_fit) && full(&right_fit) {
             let from_right = Pose {
                 x: right_fit.pose.x - (state.right.x - state.left.x),
@@ -807,7 +843,7 @@ impl StereoTracker {
                 },
                 rim_px,
             );
-            if full(&again) && again.terms.energy < left_fit.terms.energy {
+            if full(&again) && self.lower_energy(left, &left_templates.0, again.pose, left_fit.pose) {
                 left_fit = again;
             }
         }
@@ -1071,6 +1107,23 @@ impl StereoTracker {
             occluded: mask,
         };
         (fit, sums)
+    }
+
+    /// Whether `template` has a lower energy at `candidate` than at
+    /// `current` in `frame`, both evaluated on one table: fits from
+    /// different predictions scale their energies by the mean of different
+    /// reference areas.
+    fn lower_energy(
+        &self,
+        frame: &GrayFrame,
+        template: &RigidTemplate,
+        candidate: Pose,
+        current: Pose,
+    ) -> bool {
+        let apart = (candidate.x - current.x).hypot(candidate.y - current.y);
+        let sums = self.sums_around(frame, template, current, apart + Self::NEAR_REACH_PX);
+        let energy = |pose: Pose| template.energy_at(&sums, pose, &self.params.energy).energy;
+        energy(candidate) < energy(current)
     }
 
     /// Searches the right image along the disparity axis for the template
@@ -1369,6 +1422,11 @@ impl ImageFit {
 /// before the left view is fitted again from the right view's result (see
 /// [`StereoTracker::track`]).
 const CROSS_CHECK_PX: f64 = 1.5;
+
+/// How far the right view's fit may move from its prediction, pixels,
+/// before the right image is searched along the whole epipolar line (see
+/// [`StereoTracker::track`]).
+const DISPARITY_JUMP_PX: f64 = 3.0;
 
 fn fraction(marks: &[bool]) -> f64 {
     if marks.is_empty() {
