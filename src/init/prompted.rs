@@ -10,7 +10,11 @@
 //! ([`find`]). Unlike the paper's rule this finds objects cut by the image
 //! border (a tool entering the field of view; its outline then runs along
 //! the border) and keeps clutter that touches the object out of it (thin
-//! appendages are cut by an opening scaled to the region).
+//! appendages are cut by an opening scaled to the region). A `roi` is taken
+//! as a box drawn around the whole object: a best candidate that leaves one
+//! side of it largely empty is joined to the edge outline beside it (an
+//! object whose faces differ from each other more than from the substrate,
+//! see [`BOX_GAP_TIGHT`]).
 
 use super::candidates::{finalists, traced_border, Candidate, Rejections, SummedArea, WorkArea};
 use super::{
