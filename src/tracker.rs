@@ -17,7 +17,7 @@ use crate::fit::{
     fit_free, fit_rigid, fit_rigid_on_line, free_fit_tables, line_polish, newton_polish, place,
     CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
-use crate::geometry::{HalfPlane, Point, Polygon};
+use crate::geometry::{dist, HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{fitted_to_edge, initialise, InitParams};
 use crate::meta::ImageMeta;
@@ -776,41 +776,22 @@ impl StereoTracker {
             right_search,
             rim_px,
         );
-        let full = |fit: &ImageFit| !fit.occluded.contains(&true);
-        let right_move = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
         // The disparity jumped (the tilt changed between pairs, or the
         // right fit walked along a weak edge): the right view is searched
-        // along the whole epipolar line, as on the first pair, and the pose
-        // with the lower energy stands (the quartz grain, pairs 01-02 then
-        // 01-03: the fit walked 47 px from its prediction to 73.9 px of
-        // disparity along the grain, where the pair alone gives 55.1).
-        if right_move > DISPARITY_JUMP_PX {
-            let template = &right_templates.0;
-            let searched = self
-                .search_right(right, template, left_fit.pose)
-                .filter(|&pose| self.lower_energy(right, template, pose, right_fit.pose));
-            // A full fit on the epipolar line from there: a masked fit
-            // walks back along the weak edge that misled the first.
-            if let Some(pose) = searched {
-                let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-                let rigid = RigidParams {
-                    coarse_step_px: 1.0,
-                    rotate: right_search.rotate,
-                    ..self.params.rigid.clone()
-                };
-                let out = fit_rigid_on_line(
-                    &sums,
-                    template,
-                    pose,
-                    &self.params.energy,
-                    &rigid,
-                    right_search.line,
-                );
-                let mut fit = ImageFit::full(out.pose, out.terms);
-                if self.lower_energy(right, template, fit.pose, right_fit.pose) {
-                    fit.axis_std_px = self.axis_std(right, &sums, template, &right_templates.1, &fit, rim_px);
-                    right_fit = fit;
-                }
+        // along the whole epipolar line, as on the first pair (the quartz
+        // grain, pairs 01-02 then 01-03: the fit walked 47 px from its
+        // prediction to 73.9 px of disparity along the grain, where the
+        // pair alone gives 55.1).
+        if dist(right_fit.pose.center(), right_predicted.center()) > DISPARITY_JUMP_PX {
+            if let Some(fit) = self.searched_right(
+                right,
+                right_templates,
+                left_fit.pose,
+                &right_fit,
+                right_search,
+                rim_px,
+            ) {
+                right_fit = fit;
             }
         }
         // Both fits left their predictions: the object moved unlike its
@@ -819,14 +800,17 @@ impl StereoTracker {
         // object (a border tool reversing: its left contour stopped 7 px
         // short along its axis while the right one reached the object, 6.8
         // px of disparity error, reported `tracked`). A change of disparity
-        // alone moves only the right view and needs no second fit.
-        // The left view is fitted again from where the right view puts it,
-        // and the fit with the lower energy stands. Only full fits compare
-        // (masked energies over different sectors do not; with occluders
-        // moving past, the check pulled contours onto them).
-        let left_move = (left_fit.pose.x - left_predicted.x).hypot(left_fit.pose.y - left_predicted.y);
-        let right_move = (right_fit.pose.x - right_predicted.x).hypot(right_fit.pose.y - right_predicted.y);
-        if left_move > CROSS_CHECK_PX && right_move > CROSS_CHECK_PX && full(&left_fit) && full(&right_fit) {
+        // alone moves only the right view and needs no second fit. The left
+        // view is fitted again from where the right view puts it, and the
+        // fit with the lower energy stands. Only full fits compare (masked
+        // energies over different sectors do not; with occluders moving
+        // past, the check pulled contours onto them).
+        let full = |fit: &ImageFit| !fit.occluded.contains(&true);
+        if dist(left_fit.pose.center(), left_predicted.center()) > CROSS_CHECK_PX
+            && dist(right_fit.pose.center(), right_predicted.center()) > CROSS_CHECK_PX
+            && full(&left_fit)
+            && full(&right_fit)
+        {
             let from_right = Pose {
                 x: right_fit.pose.x - (state.right.x - state.left.x),
                 y: right_fit.pose.y - (state.right.y - state.left.y),
@@ -1109,6 +1093,38 @@ impl StereoTracker {
         (fit, sums)
     }
 
+    /// The right view searched along the whole epipolar line from the left
+    /// pose ([`StereoTracker::search_right`]) and fitted in full on the line
+    /// from what the search found (a masked fit walks back along the weak
+    /// edge that misled the first), when its energy is lower than
+    /// `current`'s.
+    fn searched_right(
+        &self,
+        right: &GrayFrame,
+        (template, sectors): &(RigidTemplate, SectorTemplate),
+        left: Pose,
+        current: &ImageFit,
+        search: ViewSearch,
+        rim_px: f64,
+    ) -> Option<ImageFit> {
+        let pose = self
+            .search_right(right, template, left)
+            .filter(|&pose| self.lower_energy(right, template, pose, current.pose))?;
+        let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
+        let rigid = RigidParams {
+            coarse_step_px: 1.0,
+            rotate: search.rotate,
+            ..self.params.rigid.clone()
+        };
+        let out = fit_rigid_on_line(&sums, template, pose, &self.params.energy, &rigid, search.line);
+        let mut fit = ImageFit::full(out.pose, out.terms);
+        if !self.lower_energy(right, template, fit.pose, current.pose) {
+            return None;
+        }
+        fit.axis_std_px = self.axis_std(right, &sums, template, sectors, &fit, rim_px);
+        Some(fit)
+    }
+
     /// Whether `template` has a lower energy at `candidate` than at
     /// `current` in `frame`, both evaluated on one table: fits from
     /// different predictions scale their energies by the mean of different
@@ -1120,7 +1136,7 @@ impl StereoTracker {
         candidate: Pose,
         current: Pose,
     ) -> bool {
-        let apart = (candidate.x - current.x).hypot(candidate.y - current.y);
+        let apart = dist(candidate.center(), current.center());
         let sums = self.sums_around(frame, template, current, apart + Self::NEAR_REACH_PX);
         let energy = |pose: Pose| template.energy_at(&sums, pose, &self.params.energy).energy;
         energy(candidate) < energy(current)
@@ -1417,7 +1433,6 @@ impl ImageFit {
     }
 }
 
-/// Fraction of true marks.
 /// How far both views' fits may move from their predictions, pixels,
 /// before the left view is fitted again from the right view's result (see
 /// [`StereoTracker::track`]).
@@ -1428,6 +1443,7 @@ const CROSS_CHECK_PX: f64 = 1.5;
 /// [`StereoTracker::track`]).
 const DISPARITY_JUMP_PX: f64 = 3.0;
 
+/// Fraction of true marks.
 fn fraction(marks: &[bool]) -> f64 {
     if marks.is_empty() {
         0.0
