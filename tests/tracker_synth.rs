@@ -8,8 +8,8 @@
 //! all pairs of the condition. Left centroid error: Euclidean, no offset
 //! removed. Lost pairs count as failures.
 
-use semdepth::synth::{frames, Preset, Shape, SynthConfig};
-use semdepth::tracker::{Status, StereoTracker, TrackerParams};
+use semdepth::synth::{frames, Preset, Shape, SynthConfig, SynthPair};
+use semdepth::tracker::{PairResult, Status, StereoTracker, TrackerParams};
 
 const SEEDS: std::ops::Range<u64> = 100..105;
 const FRAMES: usize = 10;
@@ -208,14 +208,9 @@ fn tools_entering_from_the_border_are_tracked() {
     ] {
         let (mut sq, mut pairs, mut worst_on) = (0.0, 0usize, 1.0f64);
         for seed in SEEDS {
-            let config = SynthConfig {
-                frames: FRAMES,
-                ..SynthConfig::preset(Preset::BorderTool, shape, seed)
-            };
-            let mut tracker = StereoTracker::new(TrackerParams::default());
+            let config = border_tool_config(shape, seed);
             let mut errors = Vec::new();
-            for pair in frames(&config).unwrap() {
-                let result = tracker.process(&pair.left, &pair.right).unwrap();
+            for (result, pair) in tracked_sequence(&config) {
                 assert_ne!(
                     result.status,
                     Status::Lost,
@@ -302,14 +297,8 @@ fn border_tools_have_no_confident_wrong_disparity() {
     let mut worst = (0.0f64, String::new());
     for shape in Shape::ALL {
         for seed in 900..910 {
-            let config = SynthConfig {
-                frames: FRAMES,
-                ..SynthConfig::preset(Preset::BorderTool, shape, seed)
-            };
-            let mut tracker = StereoTracker::new(TrackerParams::default());
             let mut errors = Vec::new();
-            for pair in frames(&config).unwrap() {
-                let result = tracker.process(&pair.left, &pair.right).unwrap();
+            for (result, pair) in tracked_sequence(&border_tool_config(shape, seed)) {
                 if matches!(result.status, Status::Tracked | Status::Initialised) {
                     let d = result.disparity_px.expect("a tracked pair has a disparity");
                     errors.push((result.frame, d[0] - pair.truth.disparity_px[0]));
@@ -338,4 +327,22 @@ fn border_tools_have_no_confident_wrong_disparity() {
         worst.1,
         worst.0
     );
+}
+
+/// A border-tool sequence of [`FRAMES`] pairs.
+fn border_tool_config(shape: Shape, seed: u64) -> SynthConfig {
+    SynthConfig {
+        frames: FRAMES,
+        ..SynthConfig::preset(Preset::BorderTool, shape, seed)
+    }
+}
+
+/// Every pair of `config`'s sequence with its result from one tracker on
+/// default parameters.
+fn tracked_sequence(config: &SynthConfig) -> impl Iterator<Item = (PairResult, SynthPair)> {
+    let mut tracker = StereoTracker::new(TrackerParams::default());
+    frames(config).unwrap().map(move |pair| {
+        let result = tracker.process(&pair.left, &pair.right).unwrap();
+        (result, pair)
+    })
 }
