@@ -1039,7 +1039,7 @@ impl StereoTracker {
             // judged already: judging again there changed nothing on the
             // occluded suites (seeds 100-119 and 200-209, 20 pairs); it is a
             // quarter of the band sums of a 1024x768 step (72 of 288 paths).
-            let moved = (fit.pose.x - predicted.x).hypot(fit.pose.y - predicted.y);
+            let moved = dist(fit.pose.center(), predicted.center());
             if !cut && median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
                 return (fit, sums);
             }

@@ -151,7 +151,10 @@ pub(super) fn find(
             dilation_radius = radius;
             // The wider radius only when the first closes no outline.
             if !found.is_empty() {
-                edge_outlines.clone_from(&found);
+                // Kept apart only for the box rule below.
+                if hints.has_roi {
+                    edge_outlines.clone_from(&found);
+                }
                 candidates.extend(found);
                 break;
             }
