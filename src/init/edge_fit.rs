@@ -85,113 +85,161 @@ impl Sums {
     }
 }
 
+/// Width of the object's edge: the standard deviation (pixels) of the
+/// Gaussian blur that the edge model fitted on the whole outline's profile
+/// puts across it (see the module docs), 0.3-3.1. `None` when the outline
+/// is too small or the profile cannot be measured.
+pub fn edge_width(frame: &GrayFrame, contour: &Polygon) -> Option<f64> {
+    let measured = Measured::new(frame, contour)?;
+    Some(
+        Profile::new(&measured.whole(), measured.object_level)?
+            .fitted_model()
+            .sigma,
+    )
+}
+
+/// The profile sums of an outline's sectors.
+struct Measured {
+    sums: Vec<Sums>,
+    /// Sectors whose reach leaves the image.
+    clipped: Vec<bool>,
+    /// Sector k spans vertices `starts[k]..starts[k + 1]`.
+    starts: Vec<usize>,
+    /// The object's level from every sector's inner strip.
+    object_level: Option<f64>,
+}
+
+impl Measured {
+    /// `None` when the outline has fewer than 16 vertices or lies outside
+    /// the image.
+    fn new(frame: &GrayFrame, contour: &Polygon) -> Option<Self> {
+        let n = contour.len();
+        if n < 16 {
+            return None;
+        }
+        let reach = BAND_PX + LEVEL_PX;
+        let [bx0, by0, bx1, by1] = contour.bounds();
+        let (fw, fh) = (frame.width as i64, frame.height as i64);
+        let x0 = ((bx0 - reach).floor() as i64 - 1).max(0);
+        let y0 = ((by0 - reach).floor() as i64 - 1).max(0);
+        let x1 = ((bx1 + reach).ceil() as i64 + 1).min(fw - 1);
+        let y1 = ((by1 + reach).ceil() as i64 + 1).min(fh - 1);
+        if x1 <= x0 || y1 <= y0 {
+            return None;
+        }
+        let (ww, wh) = ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
+        // Squared distance of every pixel centre near the outline to it, and
+        // the segment it is nearest.
+        let mut dist = vec![f64::INFINITY; ww * wh];
+        let mut nearest = vec![0usize; ww * wh];
+        for (i, (a, b)) in contour.edges().enumerate() {
+            let lo_x = ((a[0].min(b[0]) - reach).floor() as i64).max(x0);
+            let hi_x = ((a[0].max(b[0]) + reach).ceil() as i64).min(x1);
+            let lo_y = ((a[1].min(b[1]) - reach).floor() as i64).max(y0);
+            let hi_y = ((a[1].max(b[1]) + reach).ceil() as i64).min(y1);
+            let d = [b[0] - a[0], b[1] - a[1]];
+            let len2 = (d[0] * d[0] + d[1] * d[1]).max(1e-12);
+            for y in lo_y..=hi_y {
+                for x in lo_x..=hi_x {
+                    let p = [x as f64 - a[0], y as f64 - a[1]];
+                    let t = ((p[0] * d[0] + p[1] * d[1]) / len2).clamp(0.0, 1.0);
+                    let q = [p[0] - t * d[0], p[1] - t * d[1]];
+                    let r2 = q[0] * q[0] + q[1] * q[1];
+                    let k = (y - y0) as usize * ww + (x - x0) as usize;
+                    if r2 < dist[k] {
+                        dist[k] = r2;
+                        nearest[k] = i;
+                    }
+                }
+            }
+        }
+        let local = contour.translated([-(x0 as f64), -(y0 as f64)]);
+        let inside = local.rasterize(ww as u32, wh as u32);
+        // Sector k spans vertices starts[k]..starts[k + 1].
+        let count = ((contour.length() / SECTOR_PX).round() as usize).clamp(8, n / 2);
+        let starts: Vec<usize> = (0..=count).map(|k| k * n / count).collect();
+        let mut sector_of = vec![0usize; n];
+        for k in 0..count {
+            sector_of[starts[k]..starts[k + 1]].fill(k);
+        }
+        // A sector whose reach leaves the image is not measured.
+        let margin = reach + 1.0;
+        let mut clipped = vec![false; count];
+        for (i, p) in contour.points.iter().enumerate() {
+            if p[0] < margin
+                || p[1] < margin
+                || p[0] > (fw - 1) as f64 - margin
+                || p[1] > (fh - 1) as f64 - margin
+            {
+                clipped[sector_of[i]] = true;
+            }
+        }
+        let mut sums = vec![Sums::default(); count];
+        for y in 0..wh {
+            for x in 0..ww {
+                let k = y * ww + x;
+                let d = dist[k].sqrt();
+                if d > reach {
+                    continue;
+                }
+                let s = if inside[k] { -d } else { d };
+                let v = frame.get((x0 as usize + x) as u32, (y0 as usize + y) as u32) as f64;
+                let sector = sector_of[nearest[k]];
+                let sum = &mut sums[sector];
+                let bin = (((s + reach) / BIN_PX) as usize).min(BINS - 1);
+                sum.bins[bin][0] += 1.0;
+                sum.bins[bin][1] += v;
+                if s <= -BAND_PX {
+                    sum.inner[0] += 1.0;
+                    sum.inner[1] += v;
+                } else if s >= BAND_PX {
+                    sum.outer[0] += 1.0;
+                    sum.outer[1] += v;
+                    sum.outer[2] += v * v;
+                }
+            }
+        }
+        // The object's level from every sector's inner strip, for the sectors
+        // whose own strip is too thin.
+        let object = sums
+            .iter()
+            .fold([0.0, 0.0], |t, s| [t[0] + s.inner[0], t[1] + s.inner[1]]);
+        let object_level = (object[0] > 0.0).then(|| object[1] / object[0]);
+        Some(Measured {
+            sums,
+            clipped,
+            starts,
+            object_level,
+        })
+    }
+
+    /// The sums of every sector that is not clipped.
+    fn whole(&self) -> Sums {
+        let mut all = Sums::default();
+        for (sum, _) in self.sums.iter().zip(&self.clipped).filter(|(_, c)| !**c) {
+            all.add(sum, 1.0);
+        }
+        all
+    }
+}
+
 /// `contour` with each part moved along its normal onto the edge the fitted
 /// edge model puts there (see the module docs), and the mean shift in
 /// pixels (negative: inwards). `None` when the outline is too small
 /// (fewer than 16 vertices), when no sector can be measured, or when the
 /// object has no contrast with its surroundings.
 pub fn fitted_to_edge(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, f64)> {
-    let n = contour.len();
-    if n < 16 {
-        return None;
-    }
-    let reach = BAND_PX + LEVEL_PX;
-    let [bx0, by0, bx1, by1] = contour.bounds();
-    let (fw, fh) = (frame.width as i64, frame.height as i64);
-    let x0 = ((bx0 - reach).floor() as i64 - 1).max(0);
-    let y0 = ((by0 - reach).floor() as i64 - 1).max(0);
-    let x1 = ((bx1 + reach).ceil() as i64 + 1).min(fw - 1);
-    let y1 = ((by1 + reach).ceil() as i64 + 1).min(fh - 1);
-    if x1 <= x0 || y1 <= y0 {
-        return None;
-    }
-    let (ww, wh) = ((x1 - x0 + 1) as usize, (y1 - y0 + 1) as usize);
-    // Squared distance of every pixel centre near the outline to it, and
-    // the segment it is nearest.
-    let mut dist = vec![f64::INFINITY; ww * wh];
-    let mut nearest = vec![0usize; ww * wh];
-    for (i, (a, b)) in contour.edges().enumerate() {
-        let lo_x = ((a[0].min(b[0]) - reach).floor() as i64).max(x0);
-        let hi_x = ((a[0].max(b[0]) + reach).ceil() as i64).min(x1);
-        let lo_y = ((a[1].min(b[1]) - reach).floor() as i64).max(y0);
-        let hi_y = ((a[1].max(b[1]) + reach).ceil() as i64).min(y1);
-        let d = [b[0] - a[0], b[1] - a[1]];
-        let len2 = (d[0] * d[0] + d[1] * d[1]).max(1e-12);
-        for y in lo_y..=hi_y {
-            for x in lo_x..=hi_x {
-                let p = [x as f64 - a[0], y as f64 - a[1]];
-                let t = ((p[0] * d[0] + p[1] * d[1]) / len2).clamp(0.0, 1.0);
-                let q = [p[0] - t * d[0], p[1] - t * d[1]];
-                let r2 = q[0] * q[0] + q[1] * q[1];
-                let k = (y - y0) as usize * ww + (x - x0) as usize;
-                if r2 < dist[k] {
-                    dist[k] = r2;
-                    nearest[k] = i;
-                }
-            }
-        }
-    }
-    let local = contour.translated([-(x0 as f64), -(y0 as f64)]);
-    let inside = local.rasterize(ww as u32, wh as u32);
-    // Sector k spans vertices starts[k]..starts[k + 1].
-    let count = ((contour.length() / SECTOR_PX).round() as usize).clamp(8, n / 2);
-    let starts: Vec<usize> = (0..=count).map(|k| k * n / count).collect();
-    let mut sector_of = vec![0usize; n];
-    for k in 0..count {
-        sector_of[starts[k]..starts[k + 1]].fill(k);
-    }
-    // A sector whose reach leaves the image is not measured.
-    let margin = reach + 1.0;
-    let mut clipped = vec![false; count];
-    for (i, p) in contour.points.iter().enumerate() {
-        if p[0] < margin
-            || p[1] < margin
-            || p[0] > (fw - 1) as f64 - margin
-            || p[1] > (fh - 1) as f64 - margin
-        {
-            clipped[sector_of[i]] = true;
-        }
-    }
-    let mut sums = vec![Sums::default(); count];
-    for y in 0..wh {
-        for x in 0..ww {
-            let k = y * ww + x;
-            let d = dist[k].sqrt();
-            if d > reach {
-                continue;
-            }
-            let s = if inside[k] { -d } else { d };
-            let v = frame.get((x0 as usize + x) as u32, (y0 as usize + y) as u32) as f64;
-            let sector = sector_of[nearest[k]];
-            let sum = &mut sums[sector];
-            let bin = (((s + reach) / BIN_PX) as usize).min(BINS - 1);
-            sum.bins[bin][0] += 1.0;
-            sum.bins[bin][1] += v;
-            if s <= -BAND_PX {
-                sum.inner[0] += 1.0;
-                sum.inner[1] += v;
-            } else if s >= BAND_PX {
-                sum.outer[0] += 1.0;
-                sum.outer[1] += v;
-                sum.outer[2] += v * v;
-            }
-        }
-    }
-    // The object's level from every sector's inner strip, for the sectors
-    // whose own strip is too thin.
-    let object = sums
-        .iter()
-        .fold([0.0, 0.0], |t, s| [t[0] + s.inner[0], t[1] + s.inner[1]]);
-    let object_level = (object[0] > 0.0).then(|| object[1] / object[0]);
+    let measured = Measured::new(frame, contour)?;
     // The edge's width and rim decay are the object's: measured on the
     // whole outline's profile, where they are told apart from a shift.
-    let mut all = Sums::default();
-    for (k, sum) in sums.iter().enumerate() {
-        if !clipped[k] {
-            all.add(sum, 1.0);
-        }
-    }
-    let whole = Profile::new(&all, object_level)?;
+    let whole = Profile::new(&measured.whole(), measured.object_level)?;
+    let Measured {
+        sums,
+        clipped,
+        starts,
+        object_level,
+    } = measured;
+    let (n, count) = (contour.len(), sums.len());
     let model = whole.fitted_model();
     let overall = whole.shift(&model)?;
     let shifts: Vec<f64> = (0..count)

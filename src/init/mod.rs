@@ -43,7 +43,7 @@ mod prompted;
 mod rim;
 
 pub use candidates::{Score, Source};
-pub use edge_fit::fitted_to_edge;
+pub use edge_fit::{edge_width, fitted_to_edge};
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
 };
