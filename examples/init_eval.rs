@@ -5,7 +5,7 @@
 //! `cargo run --release --example init_eval -- [SEEDS] [FIRST_SEED]`;
 //! `ONLY=border_tool,dark` restricts the presets, `FAILS=1` lists failures,
 //! `FIT=1` measures the first pair's left contour after the tracker's free
-//! fit instead of the initialisation's.
+//! fit instead of the initialisation's (`PREFILTER=0` turns its pre-filter off).
 use semdepth::geometry::{mask_iou, Polygon};
 use semdepth::init::{initialise, InitParams};
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
@@ -52,6 +52,7 @@ fn main() {
                     let contour = if fit {
                         let mut tracker = StereoTracker::new(TrackerParams {
                             init: params.clone(),
+                            prefilter_sigma_px: std::env::var("PREFILTER").ok().map(|s| s.parse().unwrap()),
                             ..TrackerParams::default()
                         });
                         let first = tracker.process(&pair.left, &pair.right).unwrap();

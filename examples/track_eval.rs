@@ -5,7 +5,7 @@
 //! 10% larger than the visible object, or its pixel nearest the centroid).
 //! `SHAPE=tip` picks one shape, `SEED0=300` the first seed, `FRAMES_OUT=1`
 //! prints every pair (errors of both views against the truth's centroids),
-//! `NONOISE=1` renders with the clean preset's noise, `DRIFT=18` sets the
+//! `PREFILTER=1.5` sets the pre-filter (0: none), `NONOISE=1` renders with the clean preset's noise, `DRIFT=18` sets the
 //! speed (px per pair) in the seed's drift direction, `ROT=0.005` the
 //! rotation per pair (rad). "Confident wrong":
 //! tracked pairs off by more than 1 px in disparity or 3 px in the left
@@ -51,7 +51,10 @@ fn main() {
                 if let Ok(v) = std::env::var("ROT") {
                     cfg.motion.rotation_rad_per_frame = v.parse().unwrap();
                 }
-                let mut params = TrackerParams::default();
+                let mut params = TrackerParams {
+                    prefilter_sigma_px: std::env::var("PREFILTER").ok().map(|s| s.parse().unwrap()),
+                    ..TrackerParams::default()
+                };
                 if let Ok(v) = std::env::var("LAMBDA") {
                     params.energy.lambda = v.parse().unwrap();
                 }

@@ -8,6 +8,7 @@
 //! - [`imageio`]: decode PNG/TIFF/JPEG/BMP and raw buffers into [`imageio::GrayFrame`]s, with limits.
 //! - [`meta`]: pixel size, stage tilt and working distance from the microscope's TIFF tags (FEI, ZEISS, TESCAN).
 //! - [`geometry`]: closed polygons (length, area, centroid, orientation, resampling, rasterisation).
+//! - [`prefilter`]: the Gaussian smoothing matched to a blurred edge, before the rigid fits.
 //! - [`occlusion`]: per-sector detection of partial occlusion and a band energy over the visible sectors.
 //! - [`region`]: region sums in O(contour length) (Green's theorem on row prefix sums), window sums.
 //! - [`synth`]: synthetic SEM stereo sequences with ground truth.
@@ -32,6 +33,7 @@ pub mod imageio;
 pub mod init;
 pub mod meta;
 pub mod occlusion;
+pub mod prefilter;
 pub mod region;
 pub mod report;
 pub mod service;

@@ -19,9 +19,10 @@ use crate::fit::{
 };
 use crate::geometry::{dist, HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
-use crate::init::{fitted_to_edge, initialise, InitParams};
+use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
 use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
+use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
 use crate::uncertainty;
 
@@ -91,6 +92,14 @@ pub struct TrackerParams {
     /// the border (seeds 800-809) 0.160 -> 0.062 px. Set false when the
     /// stage drifts along the tilt axis between the two images of a pair.
     pub epipolar: bool,
+    /// Gaussian smoothing (sigma, pixels) of both images before the fits,
+    /// which restores their precision on blurred edges under white noise.
+    /// Default null: chosen at initialisation from the object's fitted
+    /// edge width (a defocus blur of 1.5 px or more) or its bright edge
+    /// rim (a dark object), and only where the noise around it is white;
+    /// otherwise none. 0: never smooth.
+    #[schema(minimum = 0.0, maximum = 4.0)]
+    pub prefilter_sigma_px: Option<f64>,
 }
 
 impl Default for TrackerParams {
@@ -107,6 +116,7 @@ impl Default for TrackerParams {
             min_contrast_ratio: 0.3,
             right_rotation: false,
             epipolar: true,
+            prefilter_sigma_px: None,
         }
     }
 }
@@ -147,6 +157,13 @@ impl TrackerParams {
                 "invalid min_contrast_ratio {} (expected 0..=1)",
                 self.min_contrast_ratio
             ));
+        }
+        if let Some(sigma) = self.prefilter_sigma_px {
+            if !(sigma.is_finite() && (0.0..=prefilter::MAX_SIGMA_PX).contains(&sigma)) {
+                return Err(format!(
+                    "invalid prefilter_sigma_px {sigma} (expected 0..=4, or null to follow the edge's width)"
+                ));
+            }
         }
         Ok(())
     }
@@ -372,6 +389,41 @@ pub struct TrackerState {
     /// template is the outline.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub outline: Vec<Point>,
+    /// Width (Gaussian sigma, pixels) of the smoothing applied to both
+    /// images before every fit of this object (see [`crate::prefilter`]);
+    /// 0: none.
+    #[serde(default)]
+    pub prefilter_sigma_px: f64,
+}
+
+/// Buffers for a pair smoothed by the object's pre-filter, reused from
+/// pair to pair.
+#[derive(Clone, Debug, Default)]
+struct Prefiltered {
+    smoother: prefilter::Smoother,
+    left: Option<GrayFrame>,
+    right: Option<GrayFrame>,
+}
+
+impl Prefiltered {
+    /// The pair smoothed by `sigma` pixels, or as it is when `sigma` is 0.
+    fn pair<'a>(
+        &'a mut self,
+        left: &'a GrayFrame,
+        right: &'a GrayFrame,
+        sigma: f64,
+    ) -> (&'a GrayFrame, &'a GrayFrame) {
+        if sigma <= 0.0 {
+            return (left, right);
+        }
+        let (out_left, out_right) = (
+            self.left.get_or_insert_with(|| left.clone()),
+            self.right.get_or_insert_with(|| right.clone()),
+        );
+        self.smoother.smooth_into(left, sigma, out_left);
+        self.smoother.smooth_into(right, sigma, out_right);
+        (out_left, out_right)
+    }
 }
 
 /// One tracked object in a stereo sequence.
@@ -383,6 +435,8 @@ pub struct StereoTracker {
     template: Option<(RigidTemplate, SectorTemplate)>,
     /// Pairs processed so far (the next pair's frame index).
     frames: u64,
+    /// Scratch for the smoothed pair of a blurred object.
+    prefiltered: Prefiltered,
 }
 
 impl StereoTracker {
@@ -394,6 +448,7 @@ impl StereoTracker {
             state: None,
             template: None,
             frames: 0,
+            prefiltered: Prefiltered::default(),
         }
     }
 
@@ -405,6 +460,7 @@ impl StereoTracker {
             state,
             template,
             frames,
+            prefiltered: Prefiltered::default(),
         }
     }
 
@@ -464,7 +520,10 @@ impl StereoTracker {
         let result = match (&self.state, self.template.take()) {
             (Some(state), Some(templates)) if !state.lost => {
                 let state = state.clone();
+                let mut prefiltered = std::mem::take(&mut self.prefiltered);
+                let (left, right) = prefiltered.pair(left, right, state.prefilter_sigma_px);
                 let result = self.track(frame, left, right, state, &templates);
+                self.prefiltered = prefiltered;
                 self.template = Some(templates);
                 result
             }
@@ -483,9 +542,55 @@ impl StereoTracker {
             Ok(found) => found,
             Err(e) => return lost_result(frame, format!("initialisation failed: {e}")),
         };
-        let energy = &self.params.energy;
         // A dark object's template is the region inside its bright rim:
         // the two-region energy sees the rim as substrate.
+        let fitted = found.core.as_ref().unwrap_or(&found.contour);
+        // A blurred object is fitted on both images smoothed to its edge's
+        // width, where the noise around it is white (the matched filter's
+        // premise); its outline is measured on the image as it is.
+        let raw_left = left;
+        let white = || {
+            prefilter::substrate_whiteness(left, &found.contour)
+                .is_some_and(|w| w >= prefilter::MIN_WHITENESS)
+        };
+        let prefilter_sigma_px = match (self.params.prefilter_sigma_px, &found.core) {
+            (Some(sigma), _) => sigma,
+            (None, _) if !white() => 0.0,
+            // A dark object's core meets its rim in a rise over the rim's
+            // inner half (the rim: the outline's mean distance outside the
+            // core).
+            (None, Some(core)) => (0.5 * (found.contour.area() - core.area()) / core.length().max(1.0))
+                .clamp(prefilter::MIN_RIM_SIGMA_PX, prefilter::MAX_RIM_SIGMA_PX),
+            (None, None) => edge_width(left, fitted)
+                .filter(|&w| w >= prefilter::MIN_EDGE_WIDTH_PX)
+                .unwrap_or(0.0),
+        };
+        let mut prefiltered = std::mem::take(&mut self.prefiltered);
+        let pair = prefiltered.pair(left, right, prefilter_sigma_px);
+        let result = self.initialise_on(
+            frame,
+            raw_left,
+            &found,
+            pair,
+            prefilter_sigma_px,
+            previous_reference,
+        );
+        self.prefiltered = prefiltered;
+        result
+    }
+
+    /// The rest of [`Self::initialise`] once the object is `found` in
+    /// `raw_left`: the fits on the (possibly smoothed) pair.
+    fn initialise_on(
+        &mut self,
+        frame: u64,
+        raw_left: &GrayFrame,
+        found: &InitResult,
+        (left, right): (&GrayFrame, &GrayFrame),
+        prefilter_sigma_px: f64,
+        previous_reference: Option<f64>,
+    ) -> PairResult {
+        let energy = &self.params.energy;
         let fitted = found.core.as_ref().unwrap_or(&found.contour);
         let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted) else {
             return lost_result(frame, "initial contour lies outside the image".into());
@@ -494,11 +599,11 @@ impl StereoTracker {
         // other's is the fitted template moved onto the object's edge,
         // where the region energy leaves it 0.2-1 px outside a blurred
         // edge (see `init::edge_fit`). It moves with the template's pose.
-        let outline = match found.core {
+        let outline = match &found.core {
             Some(_) => Some(found.contour.clone()),
             // Where its edge cannot be measured (a strong blur), the
             // initialisation's outline, which lies closer to it.
-            None => fitted_to_edge(left, &Polygon::new(place(&template.points, left_pose)))
+            None => fitted_to_edge(raw_left, &Polygon::new(place(&template.points, left_pose)))
                 .map(|(p, _)| p)
                 .or_else(|| found.border.is_empty().then(|| found.contour.clone())),
         };
@@ -573,6 +678,7 @@ impl StereoTracker {
             left_sector_contrasts,
             right_sector_contrasts,
             outline,
+            prefilter_sigma_px,
         };
         let rim_px = rim_offset(&state);
         let mut left_fit = ImageFit::full(left_pose, left_terms);

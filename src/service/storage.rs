@@ -1185,6 +1185,7 @@ mod tests {
             right_sector_contrasts: vec![0.3, f],
             template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
             outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
+            prefilter_sigma_px: 0.5 * f,
         }
     }
 
