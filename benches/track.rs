@@ -4,7 +4,9 @@
 //! timed part because `process` moves it on), the first-pair initialisation
 //! (`initialise_pair`: find, free fit, search of the right view), and, as a
 //! reference measured in the same run, one pass summing every pixel of both
-//! images (`reference_sum`).
+//! images (`reference_sum`); at 1024x768 also the step on a defocus-blurred
+//! low-dose blob (`track_pair_blurred`), where both images are smoothed to
+//! the edge's width first (`semdepth::prefilter`).
 //! Target (tracker issue): a 1024x768 pair under 1 ms on one core (goal 0.5 ms).
 //! `python3 tools/bench_report.py track` prints medians and ratios.
 
@@ -15,11 +17,11 @@ use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
 const SIZES: [(u32, u32); 3] = [(640, 480), (1024, 768), (2048, 2048)];
 
-/// Pairs 0 and 1 of a clean blob sequence at this size.
-fn pairs(width: u32, height: u32) -> [(GrayFrame, GrayFrame); 2] {
+/// Pairs 0 and 1 of a blob sequence of `preset` at this size.
+fn pairs(preset: Preset, width: u32, height: u32) -> [(GrayFrame, GrayFrame); 2] {
     let config = SynthConfig {
         frames: 2,
-        ..SynthConfig::preset(Preset::Clean, Shape::Blob, 1).with_size(width, height)
+        ..SynthConfig::preset(preset, Shape::Blob, 1).with_size(width, height)
     };
     let scene = Scene::new(&config).expect("valid config");
     [0, 1].map(|k| {
@@ -32,9 +34,14 @@ fn bench_track(c: &mut Criterion) {
     let mut group = c.benchmark_group("track");
     group.sample_size(50);
     let mut inputs = Vec::new();
-    for (w, h) in SIZES {
+    let blurred = (Preset::Blurred, "track_pair_blurred", 1024, 768);
+    for (preset, name, w, h) in SIZES
+        .map(|(w, h)| (Preset::Clean, "track_pair", w, h))
+        .into_iter()
+        .chain([blurred])
+    {
         let id = format!("{w}x{h}");
-        let [first, second] = pairs(w, h);
+        let [first, second] = pairs(preset, w, h);
         let mut tracker = StereoTracker::new(TrackerParams::default());
         let init = tracker.process(&first.0, &first.1).expect("same-size pair");
         assert_eq!(init.status, Status::Initialised, "{id}: {:?}", init.reason);
@@ -44,13 +51,20 @@ fn bench_track(c: &mut Criterion) {
             .process(&second.0, &second.1)
             .expect("same-size pair");
         assert_eq!(step.status, Status::Tracked, "{id}: {:?}", step.reason);
-        group.bench_with_input(BenchmarkId::new("track_pair", &id), &second, |b, (l, r)| {
+        if preset == Preset::Blurred {
+            let sigma = tracker.state().map_or(0.0, |s| s.prefilter_sigma_px);
+            assert!(sigma > 0.0, "{id}: a blurred scene is smoothed");
+        }
+        group.bench_with_input(BenchmarkId::new(name, &id), &second, |b, (l, r)| {
             b.iter_batched(
                 || tracker.clone(),
                 |mut t| t.process(black_box(l), black_box(r)).unwrap(),
                 BatchSize::SmallInput,
             )
         });
+        if preset == Preset::Blurred {
+            continue;
+        }
         group.bench_with_input(BenchmarkId::new("reference_sum", &id), &second, |b, (l, r)| {
             b.iter(|| {
                 let sum = |f: &GrayFrame| f.data.iter().map(|&v| v as u64).sum::<u64>();

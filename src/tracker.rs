@@ -406,12 +406,14 @@ struct Prefiltered {
 }
 
 impl Prefiltered {
-    /// The pair smoothed by `sigma` pixels, or as it is when `sigma` is 0.
+    /// The pair smoothed by `sigma` pixels within `windows` (left, right),
+    /// or as it is when `sigma` is 0.
     fn pair<'a>(
         &'a mut self,
         left: &'a GrayFrame,
         right: &'a GrayFrame,
         sigma: f64,
+        windows: [PixelRect; 2],
     ) -> (&'a GrayFrame, &'a GrayFrame) {
         if sigma <= 0.0 {
             return (left, right);
@@ -420,8 +422,8 @@ impl Prefiltered {
             self.left.get_or_insert_with(|| left.clone()),
             self.right.get_or_insert_with(|| right.clone()),
         );
-        self.smoother.smooth_into(left, sigma, out_left);
-        self.smoother.smooth_into(right, sigma, out_right);
+        self.smoother.smooth_into(left, sigma, windows[0], out_left);
+        self.smoother.smooth_into(right, sigma, windows[1], out_right);
         (out_left, out_right)
     }
 }
@@ -521,7 +523,8 @@ impl StereoTracker {
             (Some(state), Some(templates)) if !state.lost => {
                 let state = state.clone();
                 let mut prefiltered = std::mem::take(&mut self.prefiltered);
-                let (left, right) = prefiltered.pair(left, right, state.prefilter_sigma_px);
+                let windows = self.prefilter_windows(&state, &templates.0, left);
+                let (left, right) = prefiltered.pair(left, right, state.prefilter_sigma_px, windows);
                 let result = self.track(frame, left, right, state, &templates);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
@@ -533,6 +536,38 @@ impl StereoTracker {
             }
         };
         Ok(result)
+    }
+
+    /// Where a tracking step can read each image of the pair: the
+    /// template's reach from its predicted poses within the rigid search
+    /// radius, the right one stretched along the disparity axis by the
+    /// largest disparity (the right view's re-search), and the smoothing's
+    /// own reach. The pre-filter smooths only these.
+    fn prefilter_windows(
+        &self,
+        state: &TrackerState,
+        template: &RigidTemplate,
+        frame: &GrayFrame,
+    ) -> [PixelRect; 2] {
+        let v = state.left_velocity;
+        let reach = self.params.rigid.search_radius_px + 3.0 * state.prefilter_sigma_px + 1.0;
+        let rect = |pose: Pose, [sx, sy]: [f64; 2]| {
+            let [x0, y0, x1, y1] = template.reach(pose, reach);
+            PixelRect::covering(x0 - sx, y0 - sy, x1 + sx, y1 + sy, frame.width, frame.height)
+                .unwrap_or(PixelRect::full(frame))
+        };
+        let moved = |p: Pose| Pose {
+            x: p.x + v[0],
+            y: p.y + v[1],
+            ..p
+        };
+        // The disparity axis, n = (sin t, -cos t) (see `axis_component`).
+        let t = self.params.tilt_axis_deg.to_radians();
+        let d = self.params.max_disparity_px;
+        [
+            rect(moved(state.left), [0.0, 0.0]),
+            rect(moved(state.right), [d * t.sin().abs(), d * t.cos().abs()]),
+        ]
     }
 
     /// First pair (or after a loss): find, fit, search the right view.
@@ -566,7 +601,8 @@ impl StereoTracker {
                 .unwrap_or(0.0),
         };
         let mut prefiltered = std::mem::take(&mut self.prefiltered);
-        let pair = prefiltered.pair(left, right, prefilter_sigma_px);
+        let whole = [PixelRect::full(left); 2];
+        let pair = prefiltered.pair(left, right, prefilter_sigma_px, whole);
         let result = self.initialise_on(
             frame,
             raw_left,
