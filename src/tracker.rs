@@ -524,8 +524,17 @@ impl StereoTracker {
                 let state = state.clone();
                 let mut prefiltered = std::mem::take(&mut self.prefiltered);
                 let windows = self.prefilter_windows(&state, &templates.0, left);
+                let v = state.left_velocity;
+                let noise = [(left, state.left), (right, state.right)].map(|(raw, pose)| {
+                    let predicted = Pose {
+                        x: pose.x + v[0],
+                        y: pose.y + v[1],
+                        theta: pose.theta + v[2],
+                    };
+                    raw_noise(raw, &templates, predicted, &state)
+                });
                 let (left, right) = prefiltered.pair(left, right, state.prefilter_sigma_px, windows);
-                let result = self.track(frame, left, right, state, &templates);
+                let result = self.track(frame, (left, right), noise, state, &templates);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
                 result
@@ -605,7 +614,7 @@ impl StereoTracker {
         let pair = prefiltered.pair(left, right, prefilter_sigma_px, whole);
         let result = self.initialise_on(
             frame,
-            raw_left,
+            (raw_left, right),
             &found,
             pair,
             prefilter_sigma_px,
@@ -620,7 +629,7 @@ impl StereoTracker {
     fn initialise_on(
         &mut self,
         frame: u64,
-        raw_left: &GrayFrame,
+        (raw_left, raw_right): (&GrayFrame, &GrayFrame),
         found: &InitResult,
         (left, right): (&GrayFrame, &GrayFrame),
         prefilter_sigma_px: f64,
@@ -716,11 +725,16 @@ impl StereoTracker {
             outline,
             prefilter_sigma_px,
         };
-        let rim_px = rim_offset(&state);
+        let templates = (template, sectors);
+        let noise = [(raw_left, left_pose), (raw_right, right_pose)]
+            .map(|(raw, pose)| raw_noise(raw, &templates, pose, &state).filter(|_| prefilter_sigma_px > 0.0));
+        let (template, sectors) = templates;
+        let [left_bands, right_bands] = noise_bands(&state, noise);
         let mut left_fit = ImageFit::full(left_pose, left_terms);
-        left_fit.axis_std_px = self.axis_std(left, &left_sums, &template, &sectors, &left_fit, rim_px);
+        left_fit.axis_std_px = self.axis_std(left, &left_sums, &template, &sectors, &left_fit, left_bands);
         let mut right_fit = ImageFit::full(right_pose, right_terms);
-        right_fit.axis_std_px = self.axis_std(right, &right_sums, &template, &sectors, &right_fit, rim_px);
+        right_fit.axis_std_px =
+            self.axis_std(right, &right_sums, &template, &sectors, &right_fit, right_bands);
         let mut result = self.pair_result(
             frame,
             Status::Initialised,
@@ -843,13 +857,13 @@ impl StereoTracker {
     fn track(
         &mut self,
         frame: u64,
-        left: &GrayFrame,
-        right: &GrayFrame,
+        (left, right): (&GrayFrame, &GrayFrame),
+        noise: [Option<f64>; 2],
         mut state: TrackerState,
         templates: &(RigidTemplate, SectorTemplate),
     ) -> PairResult {
         let template = &templates.0;
-        let rim_px = rim_offset(&state);
+        let [left_bands, right_bands] = noise_bands(&state, noise);
         let v = state.left_velocity;
         let left_predicted = Pose {
             x: state.left.x + v[0],
@@ -879,7 +893,7 @@ impl StereoTracker {
             &state.left_sector_contrasts,
             left_predicted,
             left_search,
-            rim_px,
+            left_bands,
         );
         if !left_fit.terms.energy.is_finite() && v != [0.0; 3] {
             // The motion reversed (a tool moved in, then out): the last
@@ -890,7 +904,7 @@ impl StereoTracker {
                 &state.left_sector_contrasts,
                 state.left,
                 left_search,
-                rim_px,
+                left_bands,
             );
         }
         let right_predicted = Pose {
@@ -916,7 +930,7 @@ impl StereoTracker {
             &state.right_sector_contrasts,
             right_predicted,
             right_search,
-            rim_px,
+            right_bands,
         );
         // The disparity jumped (the tilt changed between pairs, or the
         // right fit walked along a weak edge): the right view is searched
@@ -931,7 +945,7 @@ impl StereoTracker {
                 left_fit.pose,
                 &right_fit,
                 right_search,
-                rim_px,
+                right_bands,
             ) {
                 right_fit = fit;
             }
@@ -967,7 +981,7 @@ impl StereoTracker {
                     coarse_step_px: 1.0,
                     ..left_search
                 },
-                rim_px,
+                left_bands,
             );
             if full(&again) && self.lower_energy(left, &left_templates.0, again.pose, left_fit.pose) {
                 left_fit = again;
@@ -1024,7 +1038,8 @@ impl StereoTracker {
     /// over the visible sectors when some were occluded), from its
     /// curvature and the grey-level spread near it (see
     /// [`crate::uncertainty`]); NaN when it cannot be measured.
-    /// `rim_px`: how far outside the template the object's outline runs.
+    /// `bands`: how far outside the template the object's outline runs, and
+    /// the smoothing the frames had.
     fn axis_std(
         &self,
         frame: &GrayFrame,
@@ -1032,7 +1047,7 @@ impl StereoTracker {
         template: &RigidTemplate,
         sectors: &SectorTemplate,
         fit: &ImageFit,
-        rim_px: f64,
+        bands: uncertainty::NoiseBands,
     ) -> f64 {
         let t = self.params.tilt_axis_deg.to_radians();
         let u = [t.sin(), -t.cos()];
@@ -1051,7 +1066,7 @@ impl StereoTracker {
         };
         let arcs = sectors.visible_arcs(pose, &left_out);
         let outward = Polygon::new(template.points.clone()).signed_area().signum();
-        let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward, rim_px) else {
+        let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward, bands) else {
             return f64::NAN;
         };
         let shifted = |d: f64| Pose {
@@ -1081,10 +1096,10 @@ impl StereoTracker {
         reference: &[f64],
         predicted: Pose,
         search: ViewSearch,
-        rim_px: f64,
+        bands: uncertainty::NoiseBands,
     ) -> ImageFit {
         let (mut fit, sums) = self.fit_view_on(frame, templates, reference, predicted, search);
-        fit.axis_std_px = self.axis_std(frame, &sums, &templates.0, &templates.1, &fit, rim_px);
+        fit.axis_std_px = self.axis_std(frame, &sums, &templates.0, &templates.1, &fit, bands);
         fit
     }
 
@@ -1247,7 +1262,7 @@ impl StereoTracker {
         left: Pose,
         current: &ImageFit,
         search: ViewSearch,
-        rim_px: f64,
+        bands: uncertainty::NoiseBands,
     ) -> Option<ImageFit> {
         let pose = self
             .search_right(right, template, left)
@@ -1263,7 +1278,7 @@ impl StereoTracker {
         if !self.lower_energy(right, template, fit.pose, current.pose) {
             return None;
         }
-        fit.axis_std_px = self.axis_std(right, &sums, template, sectors, &fit, rim_px);
+        fit.axis_std_px = self.axis_std(right, &sums, template, sectors, &fit, bands);
         Some(fit)
     }
 
@@ -1622,6 +1637,37 @@ fn shared_view_limits(
         cut_sides.clone().map(|side| moved(side, -1.0)).collect(),
         cut_sides.map(|side| moved(side, 1.0)).collect(),
     ]
+}
+
+/// The noise in the bands along the whole outline at `pose` in `raw`, a
+/// frame before smoothing (see [`uncertainty::band_sigma`]); `None` for an
+/// object that is not smoothed.
+fn raw_noise(
+    raw: &GrayFrame,
+    (template, sectors): &(RigidTemplate, SectorTemplate),
+    pose: Pose,
+    state: &TrackerState,
+) -> Option<f64> {
+    if state.prefilter_sigma_px <= 0.0 {
+        return None;
+    }
+    let arcs = sectors.visible_arcs(pose, &[]);
+    let outward = Polygon::new(template.points.clone()).signed_area().signum();
+    let bands = uncertainty::NoiseBands {
+        outer_offset_px: rim_offset(state),
+        ..uncertainty::NoiseBands::default()
+    };
+    uncertainty::band_sigma(raw, &arcs, outward, bands)
+}
+
+/// Where the noise is measured for the standard errors of each view, how
+/// the frames were smoothed and the noise they had before.
+fn noise_bands(state: &TrackerState, raw_noise: [Option<f64>; 2]) -> [uncertainty::NoiseBands; 2] {
+    raw_noise.map(|raw_noise| uncertainty::NoiseBands {
+        outer_offset_px: rim_offset(state),
+        smoothing_px: state.prefilter_sigma_px,
+        raw_noise,
+    })
 }
 
 /// How far the object's reported outline runs outside its template on

@@ -54,15 +54,45 @@ fn normals(arc: &[Point], outward: f64) -> Vec<Point> {
         .collect()
 }
 
-/// Robust standard deviation of the grey levels in two bands along the
-/// `arcs` (open polylines in image coordinates, oriented like an outline
-/// whose signed area has the sign of `outward`): 1.5-2.5 px inside and
-/// 1.5-2.5 px outside, the outer band moved out by `outer_offset_px` more
-/// (a dark object's rim), sampled at the nearest pixels. 1.4826 times the
-/// median absolute deviation from each band's median, so an occluder or a
-/// rim in part of a band does not count. `None` with fewer than 8 samples
-/// of a band in the image.
-pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, outer_offset_px: f64) -> Option<f64> {
+/// Where [`band_sigma`] measures the noise, and what was done to the frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NoiseBands {
+    /// The outer band is moved out by this much more, pixels (a dark
+    /// object's rim).
+    pub outer_offset_px: f64,
+    /// Sigma of the Gaussian the frame was smoothed with, pixels; 0: none
+    /// (see [`crate::prefilter`]).
+    pub smoothing_px: f64,
+    /// This function's result on the frame before smoothing, grey levels.
+    pub raw_noise: Option<f64>,
+}
+
+/// The noise `sigma` of the module docs from two bands along the `arcs`
+/// (open polylines in image coordinates, oriented like an outline whose
+/// signed area has the sign of `outward`): 1.5-2.5 px inside and 1.5-2.5
+/// px outside, the outer band moved out by `bands.outer_offset_px` more (a
+/// dark object's rim), sampled at the nearest pixels. Each band's spread is
+/// 1.4826 times the median absolute deviation from its median, so an
+/// occluder or a rim in part of a band does not count. `None` with fewer
+/// than 8 samples of a band in the image.
+///
+/// On a frame smoothed by a Gaussian of width `s`, the same measure on the
+/// frame before (`bands.raw_noise`, `w`) gives it instead: for white noise
+/// the outline integral of the smoothed noise has the variance
+/// `w^2 / (2 sqrt(pi) s)` per pixel of length (the integral across the
+/// outline of the squared 1-D Gaussian), so `sigma = w / sqrt(2 sqrt(pi) s)`.
+/// The smoothed frame's own bands would weigh the little noise left against
+/// texture, which smoothing keeps (the tracker smooths only where the noise
+/// is mostly white, see [`crate::prefilter::MIN_WHITENESS`]).
+pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: NoiseBands) -> Option<f64> {
+    if let (true, Some(raw)) = (bands.smoothing_px > 0.0, bands.raw_noise) {
+        return Some(
+            raw / (2.0 * std::f64::consts::PI.sqrt() * bands.smoothing_px)
+                .max(1.0)
+                .sqrt(),
+        );
+    }
+    let outer_offset_px = bands.outer_offset_px;
     // One run of samples per offset, in order along the outline.
     let offsets = [
         -BAND_PX[1],
@@ -223,7 +253,7 @@ mod tests {
             arc.push(arc[0]);
             let arcs = vec![arc];
             let outward = Polygon::new(placed).signed_area().signum();
-            let sigma = band_sigma(&frame, &arcs, outward, 0.0).unwrap();
+            let sigma = band_sigma(&frame, &arcs, outward, NoiseBands::default()).unwrap();
             sigmas.push(sigma);
             let terms = template.energy_at(
                 &sums,
