@@ -104,16 +104,16 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
 /// IoU >= 0.95 with the frame-clipped truth in at least 95% of the cases on
 /// every scene class (4 shapes x 5 unseen seeds x 2 hints; failures are
 /// listed). Not reached yet, and held at what was measured (seeds 500-504
-/// and 600-604): dark objects 0.90-0.95, blurred ones 0.80-0.90 and
-/// objects on a relief substrate 0.85-0.95, all misses on thin rods at IoU
-/// 0.92-0.95 (a 2-px blur leaves the edge 0.3 px uncertain; grain
-/// boundaries touching a rod join its outline).
+/// and 600-604): dark objects 0.90-0.98, blurred ones 0.90-0.95 (0.80-0.90
+/// before the tracker smoothed blurred objects) and objects on a relief
+/// substrate 0.85-0.95; the misses are thin rods and tips at IoU 0.92-0.95
+/// (a part of the outline missing or, under a 2-px blur, 0.3-0.5 px
+/// outside) and grain boundaries joined to or cutting an outline.
 #[test]
 fn hinted_objects_are_found_on_every_scene_class() {
     for preset in Preset::ALL {
         let required = match preset {
-            Preset::Dark | Preset::Relief => 0.85,
-            Preset::Blurred => 0.75,
+            Preset::Dark | Preset::Relief | Preset::Blurred => 0.85,
             _ => 0.95,
         };
         let mut failures = Vec::new();
