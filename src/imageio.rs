@@ -75,6 +75,18 @@ pub enum ImageInputError {
     /// The image is too small to hold an object.
     #[error("image of {width}x{height} is too small (expected at least {min}x{min} pixels)")]
     TooSmall { width: u32, height: u32, min: u32 },
+    /// The image is too thin to find an object in: its working copy
+    /// (reduced so that its longer side is at most `working_max_side`) is
+    /// under `min` pixels on a side.
+    #[error("image of {width}x{height} is too thin: reduced to at most {working_max_side} px on its longer side it is {working_width}x{working_height} (expected at least {min}x{min} after the reduction: a shorter side of at least 1/{ratio} of the longer, or a larger init.working_max_side)", ratio = working_max_side / min)]
+    TooThin {
+        width: u32,
+        height: u32,
+        working_width: u32,
+        working_height: u32,
+        working_max_side: u32,
+        min: u32,
+    },
     /// The file is cut short or corrupt.
     #[error("corrupt or truncated {format} data: {detail}")]
     Corrupt { format: &'static str, detail: String },
@@ -114,7 +126,7 @@ impl ImageInputError {
             Self::UnknownFormat => "unknown_image_format",
             Self::TooLarge { .. } => "image_too_large",
             Self::MemoryLimit { .. } => "image_memory_limit",
-            Self::TooSmall { .. } => "image_too_small",
+            Self::TooSmall { .. } | Self::TooThin { .. } => "image_too_small",
             Self::Corrupt { .. } => "corrupt_image",
             Self::BitDepth(_) => "unsupported_bit_depth",
             Self::RawLength { .. } => "raw_length_mismatch",

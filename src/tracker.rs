@@ -33,6 +33,10 @@ pub use crate::energy::INTENSITY_OFFSET;
 /// sub-pixel discretisation), pixels.
 pub const DISPARITY_STD_FLOOR_PX: f64 = 0.02;
 
+/// Shortest side of an image's working copy that initialisation accepts
+/// (see [`InitParams::working_size`]).
+const MIN_WORKING_SIDE: u32 = 8;
+
 /// All tracking parameters, with documented defaults.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -510,6 +514,17 @@ impl StereoTracker {
         }
         let initialising = self.state.as_ref().is_none_or(|s| s.lost);
         if initialising {
+            let (working_width, working_height) = self.params.init.working_size(left.width, left.height);
+            if working_width < MIN_WORKING_SIDE || working_height < MIN_WORKING_SIDE {
+                return Err(TrackError::Input(ImageInputError::TooThin {
+                    width: left.width,
+                    height: left.height,
+                    working_width,
+                    working_height,
+                    working_max_side: self.params.init.working_max_side,
+                    min: MIN_WORKING_SIDE,
+                }));
+            }
             self.params
                 .init
                 .hints_for(left.width, left.height)

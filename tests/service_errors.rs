@@ -670,3 +670,47 @@ async fn bad_hints_get_4xx_naming_the_field() {
     }
     server.stop().await.unwrap();
 }
+
+/// Issue #21: an image too thin to find an object in (its working copy,
+/// 640 px on the longer side, would be under 8 px on the shorter) is a 400
+/// `image_too_small` naming both sizes, not a `lost` pair with an internal
+/// reason; the pair is not counted, and a pair of a usable size then works.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn images_too_thin_to_track_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let http = reqwest::Client::new();
+    let base = &server.base;
+    let sid = new_session(base).await;
+    let frames = format!("{base}/v1/sessions/{sid}/frames");
+    for (w, h, reduced) in [(8000u32, 8u32, "615x0"), (8, 8000, "0x615"), (2000, 32, "500x8")] {
+        let thin = semdepth::imageio::GrayFrame::new(w, h, 8, vec![90; (w * h) as usize]).unwrap();
+        let r = http
+            .post(&frames)
+            .multipart(frames_form(&thin, &thin))
+            .send()
+            .await
+            .unwrap();
+        if reduced == "500x8" {
+            // 8 px after the reduction is enough: the pair is processed.
+            assert_eq!(r.status(), 200, "{w}x{h}: {}", r.text().await.unwrap());
+            continue;
+        }
+        expect_error_naming(
+            r,
+            400,
+            "image_too_small",
+            &[&format!("{w}x{h}"), reduced, "too thin"],
+        )
+        .await;
+    }
+    let s: Value = http
+        .get(format!("{base}/v1/sessions/{sid}"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(s["frames"].as_u64(), Some(1), "only the usable pair counted: {s}");
+}

@@ -325,6 +325,19 @@ impl InitError {
 }
 
 impl InitParams {
+    /// The size of a `width` x `height` frame's working copy (see the module
+    /// docs): reduced by the smallest integer factor that brings its longer
+    /// side to at most `working_max_side`.
+    pub fn working_size(&self, width: u32, height: u32) -> (u32, u32) {
+        let scale = self.working_scale(width, height);
+        (width / scale, height / scale)
+    }
+
+    /// The factor of [`Self::working_size`].
+    fn working_scale(&self, width: u32, height: u32) -> u32 {
+        width.max(height).div_ceil(self.working_max_side.max(1)).max(1)
+    }
+
     /// Checks ranges; the message says what was expected.
     pub fn validate(&self) -> Result<(), InitError> {
         let bad = |m: String| Err(InitError::InvalidParams(m));
@@ -812,7 +825,7 @@ fn searched_area(frame: &GrayFrame, hints: &Hints) -> [u32; 4] {
 /// Downsamples, blurs and runs Canny as [`initialise`] does.
 fn edge_stage(frame: &GrayFrame, params: &InitParams, hints: &Hints) -> Result<EdgeStage, InitError> {
     let area = searched_area(frame, hints);
-    let scale = area[2].max(area[3]).div_ceil(params.working_max_side).max(1);
+    let scale = params.working_scale(area[2], area[3]);
     let work = downsample(frame, area, scale);
     let (w, h) = work.dimensions();
     if w < 8 || h < 8 {
