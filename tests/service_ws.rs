@@ -535,3 +535,100 @@ async fn stream_headers_label_their_results() {
     ws.close(None).await.unwrap();
     server.stop().await.unwrap();
 }
+
+/// The close frame the server ends a stream with: (code, reason).
+async fn close_of<S>(ws: &mut S) -> (u16, String)
+where
+    S: futures_util::Stream<Item = Result<Message, tokio_tungstenite::tungstenite::Error>> + Unpin,
+{
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while Instant::now() < deadline {
+        match tokio::time::timeout(Duration::from_secs(20), ws.next()).await {
+            Ok(Some(Ok(Message::Close(Some(frame))))) => {
+                return (frame.code.into(), frame.reason.to_string())
+            }
+            Ok(Some(Ok(Message::Close(None)))) | Ok(None) => panic!("closed without a close frame"),
+            Ok(Some(Ok(_))) => continue,
+            Ok(Some(Err(e))) => panic!("stream error before the close frame: {e}"),
+            Err(_) => break,
+        }
+    }
+    panic!("no close frame within 20 s")
+}
+
+/// Issue #21, item 5: a message over the limit closes the stream with 1009
+/// and a protocol violation with 1002, each with a short reason, not 1000;
+/// the server keeps serving the session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn broken_streams_close_with_the_reason() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.max_ws_message_bytes = 1 << 20;
+    let server = TestServer::start(config).await;
+    let sid = new_session(&server.base).await;
+
+    // Too big: 1.5 MiB against a 1 MiB limit (a 640x480 raw pair fits).
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    ws.send(Message::Binary(vec![7u8; 3 << 19].into())).await.unwrap();
+    let (code, reason) = close_of(&mut ws).await;
+    assert_eq!(code, 1009, "{reason}");
+    assert!(
+        reason.contains("too big") && reason.contains("1048576"),
+        "{reason}"
+    );
+
+    // A protocol violation: a frame with the reserved bit RSV1 set (no
+    // extension was negotiated), sent by hand after a real handshake.
+    let mut tcp = tokio::net::TcpStream::connect(server.addr).await.unwrap();
+    let request = format!(
+        "GET /v1/sessions/{sid}/stream?policy=all HTTP/1.1\r\nHost: {}\r\nUpgrade: websocket\r\n\
+         Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n",
+        server.addr
+    );
+    tcp.write_all(request.as_bytes()).await.unwrap();
+    let mut head = Vec::new();
+    while !head.ends_with(b"\r\n\r\n") {
+        let mut byte = [0u8; 1];
+        tcp.read_exact(&mut byte).await.unwrap();
+        head.push(byte[0]);
+    }
+    assert!(
+        head.starts_with(b"HTTP/1.1 101"),
+        "{}",
+        String::from_utf8_lossy(&head)
+    );
+    let mask = [1u8, 2, 3, 4];
+    let mut frame = vec![0x80 | 0x40 | 0x02, 0x80 | 5];
+    frame.extend(mask);
+    frame.extend(b"hello".iter().enumerate().map(|(i, b)| b ^ mask[i % 4]));
+    tcp.write_all(&frame).await.unwrap();
+    let mut reply = [0u8; 4];
+    tokio::time::timeout(Duration::from_secs(20), tcp.read_exact(&mut reply))
+        .await
+        .expect("a close frame within 20 s")
+        .unwrap();
+    assert_eq!(reply[0], 0x88, "a close frame: {reply:?}");
+    let len = usize::from(reply[1] & 0x7f);
+    assert_eq!(u16::from_be_bytes([reply[2], reply[3]]), 1002);
+    let mut reason = vec![0u8; len - 2];
+    tcp.read_exact(&mut reason).await.unwrap();
+    assert!(
+        String::from_utf8_lossy(&reason).contains("protocol error"),
+        "{reason:?}"
+    );
+
+    // The session still streams.
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 1, 1);
+    ws.send(Message::Binary(sdp1_raw(0, &pairs[0]).into()))
+        .await
+        .unwrap();
+    let reply = next_reply(&mut ws).await;
+    assert_eq!(reply["status"], "initialised", "{reply}");
+    ws.close(None).await.unwrap();
+}

@@ -361,32 +361,64 @@ impl Job {
     }
 }
 
+/// The close frame that tells the peer why its stream ends: 1009 for a
+/// message or frame over the limit, 1002 for a protocol violation; `None`
+/// when the connection itself failed (nothing can be sent).
+fn close_frame_for(e: axum::Error, limit_bytes: usize) -> Option<CloseFrame> {
+    use tokio_tungstenite::tungstenite::Error;
+    let e = e.into_inner().downcast::<Error>().ok()?;
+    match *e {
+        Error::Capacity(_) => Some(CloseFrame {
+            code: close_code::SIZE,
+            reason: format!("message too big (limit {limit_bytes} bytes)").into(),
+        }),
+        Error::Protocol(p) => {
+            // A close reason is at most 123 bytes.
+            let mut reason = format!("protocol error: {p}");
+            while reason.len() > 123 {
+                reason.pop();
+            }
+            Some(CloseFrame {
+                code: close_code::PROTOCOL,
+                reason: reason.into(),
+            })
+        }
+        _ => None,
+    }
+}
+
 async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, socket: WebSocket) {
     let (policy, contours) = (query.policy, query.contours);
     state.metrics.active_websockets.inc();
     let (mut sink, mut stream) = socket.split();
     let (reply_tx, mut reply_rx) = mpsc::channel::<Message>(64);
     let done = tokio_util::sync::CancellationToken::new();
+    // Why the reader stopped, when the peer broke the protocol: the close
+    // frame says so.
+    let broken: Arc<Mutex<Option<CloseFrame>>> = Arc::default();
 
     // Writer: sends replies, then a close frame once every sender is gone.
     let writer_state = state.clone();
+    let writer_broken = broken.clone();
     let writer = tokio::spawn(async move {
         while let Some(message) = reply_rx.recv().await {
             if sink.send(message).await.is_err() {
                 return;
             }
         }
-        let (code, reason) = if writer_state.shutdown.is_cancelled() {
-            (close_code::AWAY, "server shutting down")
-        } else {
-            (close_code::NORMAL, "")
-        };
-        let _ = sink
-            .send(Message::Close(Some(CloseFrame {
+        let frame = writer_broken.lock().ok().and_then(|mut b| b.take());
+        let frame = frame.unwrap_or_else(|| {
+            let (code, reason) = if writer_state.shutdown.is_cancelled() {
+                (close_code::AWAY, "server shutting down")
+            } else {
+                (close_code::NORMAL, "")
+            };
+            CloseFrame {
                 code,
                 reason: reason.into(),
-            })))
-            .await;
+            }
+        });
+        let _ = sink.send(Message::Close(Some(frame))).await;
         let _ = sink.close().await;
     });
 
@@ -469,6 +501,11 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
             // Closed by the peer or a protocol error (e.g. a message over the size limit).
             Some(Err(e)) => {
                 tracing::info!(session = %session.id, error = %e, "stream ended with an error");
+                if let Some(frame) = close_frame_for(e, state.config.max_ws_message_bytes) {
+                    if let Ok(mut b) = broken.lock() {
+                        *b = Some(frame);
+                    }
+                }
                 break;
             }
             None => break,
