@@ -68,6 +68,11 @@ pub struct ServeArgs {
     /// except those created with `keep`; 0: never.
     #[arg(long, env = "SEMDEPTH_SESSION_EXPIRY_H", default_value_t = DEFAULT_SESSION_EXPIRY_H)]
     pub session_expiry_h: f64,
+    /// Largest size of the database file, MiB; beyond it new results are
+    /// refused (503 `storage_error`, "database or disk is full") before the
+    /// disk fills. 0: no limit but the disk's.
+    #[arg(long, env = "SEMDEPTH_MAX_DB_MIB", default_value_t = 0)]
+    pub max_db_mib: u64,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -106,6 +111,7 @@ impl ServeArgs {
             ws_queue: self.ws_queue,
             session_expiry: (self.session_expiry_h > 0.0)
                 .then(|| Duration::from_secs_f64(self.session_expiry_h * 3600.0)),
+            max_db_bytes: (self.max_db_mib > 0).then(|| self.max_db_mib.saturating_mul(1 << 20)),
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

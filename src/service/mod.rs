@@ -72,7 +72,11 @@ pub async fn serve(
 ) -> Result<(), ServeError> {
     config.validate().map_err(ServeError::Config)?;
     let path = config.db_path.clone();
-    let storage = tokio::task::spawn_blocking(move || Storage::open(&path, StorageOptions::default()))
+    let options = StorageOptions {
+        max_db_bytes: config.max_db_bytes,
+        ..StorageOptions::default()
+    };
+    let storage = tokio::task::spawn_blocking(move || Storage::open(&path, options))
         .await
         .map_err(|e| ServeError::Io(std::io::Error::other(e)))??;
     let state = load_state(config, storage).await?;
@@ -156,13 +160,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         };
         let id = record.id.clone();
         let core = SessionCore::restore(record, latest);
-        sessions.insert(
-            id.clone(),
-            Arc::new(Session {
-                id,
-                core: Arc::new(tokio::sync::Mutex::new(core)),
-            }),
-        );
+        sessions.insert(id.clone(), Arc::new(Session::new(id, core)));
     }
     metrics.active_sessions.set(sessions.len() as i64);
     tracing::info!(

@@ -601,10 +601,15 @@ pub struct SessionList {
 /// `GET /healthz` and `GET /readyz`.
 #[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
 pub struct Health {
-    /// `ok`, or `unavailable` (readyz when storage does not answer).
+    /// `ok`, or `unavailable` (readyz when storage does not answer or its
+    /// writes fail).
     pub status: String,
     /// Crate version.
     pub version: String,
+    /// Why it is unavailable (readyz), e.g. "storage: writes are failing:
+    /// ... database or disk is full".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
 }
 
 /// Multipart body of a pair upload (schema only).

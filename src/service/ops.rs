@@ -31,10 +31,12 @@ pub async fn healthz() -> ApiJson<Health> {
     ApiJson(Health {
         status: "ok".into(),
         version: env!("CARGO_PKG_VERSION").into(),
+        reason: None,
     })
 }
 
-/// Readiness: storage answers a query.
+/// Readiness: storage answers a query, and its writes succeed (after a
+/// failed write, a write that needs room is tried).
 #[utoipa::path(
     get,
     path = "/readyz",
@@ -46,17 +48,21 @@ pub async fn healthz() -> ApiJson<Health> {
     )
 )]
 pub async fn readyz(State(state): State<AppState>) -> (StatusCode, ApiJson<Health>) {
-    let ok = !state.shutdown.is_cancelled() && state.storage.ping().await.is_ok();
-    let (status, text) = if ok {
-        (StatusCode::OK, "ok")
+    let reason = if state.shutdown.is_cancelled() {
+        Some("shutting down".to_string())
     } else {
-        (StatusCode::SERVICE_UNAVAILABLE, "unavailable")
+        state.storage.ping().await.err().map(|e| e.to_string())
+    };
+    let (status, text) = match reason {
+        None => (StatusCode::OK, "ok"),
+        Some(_) => (StatusCode::SERVICE_UNAVAILABLE, "unavailable"),
     };
     (
         status,
         ApiJson(Health {
             status: text.into(),
             version: env!("CARGO_PKG_VERSION").into(),
+            reason,
         }),
     )
 }

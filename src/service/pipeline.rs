@@ -102,7 +102,7 @@ pub async fn process_session_pair(
     seq: Option<u64>,
 ) -> Result<FrameResult, ApiError> {
     let tracked = track_session_pair(state, session, input, provenance, received, seq).await?;
-    acknowledge(state, tracked, received).await
+    acknowledge(state, session, tracked, received).await
 }
 
 /// Tracks one pair of a session (in order, bounded) and queues its result
@@ -132,9 +132,12 @@ async fn track_session_pair(
     outcome
 }
 
-/// Waits until a tracked pair is committed; only then is it a result.
+/// Waits until a tracked pair is committed; only then is it a result. When
+/// the commit fails, the session is marked to be reloaded from storage
+/// before its next pair ([`Session::lock_core`]).
 pub async fn acknowledge(
     state: &AppState,
+    session: &Session,
     tracked: TrackedPair,
     received: Instant,
 ) -> Result<FrameResult, ApiError> {
@@ -148,6 +151,7 @@ pub async fn acknowledge(
             Ok(tracked.result)
         }
         Err(e) => {
+            session.behind.store(true, std::sync::atomic::Ordering::Release);
             let e = ApiError::from(e);
             state.metrics.failed(&e.code);
             Err(e)
@@ -408,7 +412,7 @@ async fn claim(
     state: &AppState,
     session: &Session,
 ) -> Result<(OwnedMutexGuard<SessionCore>, OwnedSemaphorePermit), ApiError> {
-    let core = session.core.clone().lock_owned().await;
+    let core = session.lock_core(&state.storage).await?;
     if core.deleted {
         return Err(ApiError::not_found("session", &session.id));
     }

@@ -10,7 +10,6 @@ use axum::extract::{Request, State};
 use axum::http::{header, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
-use tokio::sync::Mutex;
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -101,10 +100,7 @@ pub async fn create_session(
         }
     }
     state.storage.upsert_session(core.record(&id)).await?;
-    let session = Arc::new(Session {
-        id: id.clone(),
-        core: Arc::new(Mutex::new(core)),
-    });
+    let session = Arc::new(Session::new(id.clone(), core));
     state
         .sessions
         .write()
@@ -135,7 +131,7 @@ pub async fn list_sessions(State(state): State<AppState>) -> Result<ApiJson<Sess
         .collect();
     let mut sessions = Vec::with_capacity(all.len());
     for s in all {
-        let core = s.core.lock().await;
+        let core = s.lock_core(&state.storage).await?;
         if !core.deleted {
             sessions.push(core.view(&s.id, state.config.default_retention));
         }
@@ -164,7 +160,7 @@ pub async fn get_session(
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let session = state.session(&id)?;
-    let core = session.core.lock().await;
+    let core = session.lock_core(&state.storage).await?;
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
@@ -204,7 +200,7 @@ pub async fn patch_session(
         state.calibration(cal)?;
     }
     check_retention(body.retention)?;
-    let mut core = session.core.lock().await;
+    let mut core = session.lock_core(&state.storage).await?;
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
@@ -374,7 +370,7 @@ pub async fn reset_session(
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let session = state.session(&id)?;
-    let mut core = session.core.lock().await;
+    let mut core = session.lock_core(&state.storage).await?;
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
@@ -413,7 +409,7 @@ pub async fn reinit_session(
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let session = state.session(&id)?;
-    let mut core = session.core.lock().await;
+    let mut core = session.lock_core(&state.storage).await?;
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
@@ -560,7 +556,7 @@ pub async fn add_session_calibration_sample(
     let session = state.session(&id)?;
     let calibration = state.calibration(&body.calibration_id)?;
     let (disparity, frame) = {
-        let core = session.core.lock().await;
+        let core = session.lock_core(&state.storage).await?;
         if core.deleted {
             return Err(ApiError::not_found("session", &id));
         }

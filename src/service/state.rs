@@ -6,7 +6,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
-use tokio::sync::{Mutex, Semaphore};
+use tokio::sync::{Mutex, OwnedMutexGuard, Semaphore};
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
@@ -70,6 +70,8 @@ pub struct ServiceConfig {
     /// Sessions idle this long (no pair, no change) are deleted unless
     /// marked `keep`; None: never.
     pub session_expiry: Option<Duration>,
+    /// Largest size of the database file in bytes; None: the disk's.
+    pub max_db_bytes: Option<u64>,
 }
 
 impl Default for ServiceConfig {
@@ -86,6 +88,7 @@ impl Default for ServiceConfig {
             request_timeout: Duration::from_secs_f64(DEFAULT_REQUEST_TIMEOUT_S),
             ws_queue: DEFAULT_WS_QUEUE,
             session_expiry: Some(Duration::from_secs_f64(DEFAULT_SESSION_EXPIRY_H * 3600.0)),
+            max_db_bytes: None,
         }
     }
 }
@@ -177,8 +180,49 @@ pub struct Inner {
 pub struct Session {
     /// Opaque id.
     pub id: String,
-    /// Everything mutable; held for the whole processing of a pair.
+    /// Everything mutable; held for the whole processing of a pair. Taken
+    /// through [`Session::lock_core`], which first catches it up with
+    /// storage when a pair failed to store.
     pub core: Arc<Mutex<SessionCore>>,
+    /// Set when a pair of this session failed to store: the core has moved
+    /// on without it and is reloaded from storage before its next use.
+    pub behind: std::sync::atomic::AtomicBool,
+}
+
+impl Session {
+    /// A session around `core`.
+    pub fn new(id: String, core: SessionCore) -> Self {
+        Session {
+            id,
+            core: Arc::new(Mutex::new(core)),
+            behind: Default::default(),
+        }
+    }
+
+    /// The core, reloaded from storage first when a pair failed to store
+    /// (tracker state and frame count as stored: nothing runs ahead of
+    /// storage, and the next frame number follows the last stored one).
+    pub async fn lock_core(&self, storage: &Storage) -> Result<OwnedMutexGuard<SessionCore>, ApiError> {
+        use std::sync::atomic::Ordering;
+        let mut core = self.core.clone().lock_owned().await;
+        if self.behind.swap(false, Ordering::AcqRel) && !core.deleted {
+            match storage.reload_session(&self.id).await {
+                Ok(Some(record)) => {
+                    let latest = core.latest_disparity_px;
+                    let meta_watch = std::mem::take(&mut core.meta_watch);
+                    *core = SessionCore::restore(record, latest);
+                    core.meta_watch = meta_watch;
+                    tracing::warn!(session = %self.id, frames = core.tracker.frames(), "session reloaded from storage after a failed write");
+                }
+                Ok(None) => {}
+                Err(e) => {
+                    self.behind.store(true, Ordering::Release);
+                    return Err(e.into());
+                }
+            }
+        }
+        Ok(core)
+    }
 }
 
 /// The mutable part of a session.

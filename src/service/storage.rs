@@ -59,6 +59,7 @@
 //! not be read back (a non-finite number, which JSON stores as `null`) are
 //! refused when written ([`StorageError::Unstorable`]).
 
+use std::collections::HashSet;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc};
@@ -82,11 +83,18 @@ pub const BUSY_TIMEOUT: Duration = Duration::from_secs(5);
 pub struct StorageOptions {
     /// Most pair records committed in one transaction (default 256).
     pub max_batch: usize,
+    /// Largest size of the database file in bytes (SQLite's
+    /// `max_page_count`); writes beyond it fail as on a full disk. None: no
+    /// limit but the disk's.
+    pub max_db_bytes: Option<u64>,
 }
 
 impl Default for StorageOptions {
     fn default() -> Self {
-        Self { max_batch: 256 }
+        Self {
+            max_batch: 256,
+            max_db_bytes: None,
+        }
     }
 }
 
@@ -120,6 +128,14 @@ pub enum StorageError {
     /// The storage was closed, or its writer thread is gone.
     #[error("storage: closed")]
     Closed,
+    /// An earlier pair of the session could not be stored, so this one is
+    /// refused too: stored frames stay contiguous, and the session goes on
+    /// from its last stored pair.
+    #[error("storage: an earlier pair of session {0:?} could not be stored, so this one is not stored either (the session goes on from its last stored pair)")]
+    Behind(String),
+    /// The last write failed (for readiness), with SQLite's message.
+    #[error("storage: writes are failing: {0}")]
+    WritesFailing(String),
     /// Creating the database's directory or starting a thread failed.
     #[error("storage: I/O error: {0}")]
     Io(#[from] std::io::Error),
@@ -134,6 +150,8 @@ impl StorageError {
             Self::Corrupt(_) => "storage_corrupt",
             Self::Unstorable(_) => "unstorable_record",
             Self::Closed => "storage_closed",
+            Self::Behind(_) => "storage_behind",
+            Self::WritesFailing(_) => "storage_writes_failing",
             Self::Io(_) => "storage_io",
         }
     }
@@ -270,9 +288,15 @@ impl Storage {
         let mut writer = WriterConn {
             conn,
             synchronous: None,
+            behind: HashSet::new(),
         };
         writer.set_synchronous(Synchronous::Full)?;
         migrate(&mut writer.conn)?;
+        if let Some(bytes) = options.max_db_bytes {
+            let page: i64 = writer.conn.pragma_query_value(None, "page_size", |r| r.get(0))?;
+            let pages = i64::try_from(bytes).unwrap_or(i64::MAX) / page.max(1);
+            writer.conn.pragma_update(None, "max_page_count", pages.max(1))?;
+        }
 
         let reader = if memory {
             None
@@ -520,6 +544,23 @@ impl Storage {
         .await
     }
 
+    /// The session as stored, after every pair queued before this call was
+    /// written or refused; from then on its pairs are stored again (see
+    /// [`StorageError::Behind`]). None when the session is not stored.
+    pub async fn reload_session(&self, id: &str) -> Result<Option<SessionRecord>, StorageError> {
+        let id = id.to_owned();
+        let (tx, rx) = oneshot::channel();
+        let job: WriteJob = Box::new(move |w: &mut WriterConn| {
+            let found = load_sessions(&w.conn).map(|all| all.into_iter().find(|s| s.id == id));
+            if found.is_ok() {
+                w.behind.remove(&id);
+            }
+            let _ = tx.send(found);
+        });
+        self.send_write(WriterMsg::Durable(job))?;
+        rx.await.unwrap_or(Err(StorageError::Closed))
+    }
+
     /// A trivial query proving the database answers (for /readyz).
     ///
     /// Fails with [`StorageError::Closed`] when the storage is closed or the
@@ -528,6 +569,19 @@ impl Storage {
     pub async fn ping(&self) -> Result<(), StorageError> {
         if !self.inner.writer_alive.load(Ordering::Acquire) {
             return Err(StorageError::Closed);
+        }
+        let failing = self.inner.stats.write_failure.lock().ok().and_then(|f| f.clone());
+        if let Some(reason) = failing {
+            // Try a write that needs room (two pages), rolled back by
+            // deleting it; it succeeds once space is freed.
+            self.durable(|c| {
+                c.execute("INSERT INTO write_probe (body) VALUES (zeroblob(8192))", [])?;
+                c.execute("DELETE FROM write_probe", [])?;
+                Ok(())
+            })
+            .await
+            .map_err(|_| StorageError::WritesFailing(reason))?;
+            self.inner.stats.write_succeeded();
         }
         self.read(|c| {
             c.query_row("SELECT count(*) FROM sqlite_schema", [], |r| r.get::<_, i64>(0))?;
@@ -656,6 +710,8 @@ const MIGRATIONS: &[&str] = &[
      ) WITHOUT ROWID;
      INSERT INTO calibration_versions (id, version, body, created_at)
          SELECT id, 1, body, updated_at FROM calibrations;",
+    // 3 -> 4: a table for /readyz's write probe.
+    "CREATE TABLE write_probe (body BLOB);",
 ];
 
 struct Inner {
@@ -672,6 +728,8 @@ struct Inner {
 struct Stats {
     batches: AtomicU64,
     records: AtomicU64,
+    /// The last pair write's error, until a write succeeds.
+    write_failure: std::sync::Mutex<Option<String>>,
 }
 
 /// Clears the flag when the writer thread ends, also by panic.
@@ -742,6 +800,9 @@ enum Synchronous {
 struct WriterConn {
     conn: Connection,
     synchronous: Option<Synchronous>,
+    /// Sessions with a pair that failed to store: their later pairs are
+    /// refused until [`Storage::reload_session`].
+    behind: HashSet<String>,
 }
 
 impl WriterConn {
@@ -790,30 +851,50 @@ impl WriterConn {
         Ok(())
     }
 
-    /// Commits the pending pair records as one batch and answers their callers.
+    /// Commits the pending pair records as one batch and answers their
+    /// callers. A session whose pair fails has its later pairs refused
+    /// ([`StorageError::Behind`]) until it is reloaded.
     fn flush_pairs(&mut self, pending: &mut Vec<(PreparedPair, Reply<()>)>, stats: &Stats) {
         if pending.is_empty() {
             return;
         }
-        let batch = std::mem::take(pending);
+        let mut batch = Vec::with_capacity(pending.len());
+        for (pair, reply) in pending.drain(..) {
+            if self.behind.contains(&pair.session_id) {
+                let _ = reply.send(Err(StorageError::Behind(pair.session_id)));
+            } else {
+                batch.push((pair, reply));
+            }
+        }
+        if batch.is_empty() {
+            return;
+        }
         match self.commit_pairs(batch.iter().map(|(p, _)| p)) {
             Ok(()) => {
                 stats.add_batch(batch.len());
+                stats.write_succeeded();
                 for (_, reply) in batch {
                     let _ = reply.send(Ok(()));
                 }
             }
-            Err(e) if batch.len() == 1 => {
-                if let Some((_, reply)) = batch.into_iter().next() {
-                    let _ = reply.send(Err(e));
-                }
-            }
             Err(_) => {
-                // Isolate the failure: one transaction per record.
+                // Isolate the failure: one transaction per record, and
+                // nothing more of a session once one of its pairs failed.
                 for (pair, reply) in batch {
+                    if self.behind.contains(&pair.session_id) {
+                        let _ = reply.send(Err(StorageError::Behind(pair.session_id)));
+                        continue;
+                    }
                     let result = self.commit_pairs(std::iter::once(&pair));
-                    if result.is_ok() {
-                        stats.add_batch(1);
+                    match &result {
+                        Ok(()) => {
+                            stats.add_batch(1);
+                            stats.write_succeeded();
+                        }
+                        Err(e) => {
+                            stats.write_failed(e);
+                            self.behind.insert(pair.session_id.clone());
+                        }
                     }
                     let _ = reply.send(result);
                 }
@@ -835,6 +916,18 @@ impl WriterConn {
 }
 
 impl Stats {
+    fn write_succeeded(&self) {
+        if let Ok(mut f) = self.write_failure.lock() {
+            *f = None;
+        }
+    }
+
+    fn write_failed(&self, e: &StorageError) {
+        if let Ok(mut f) = self.write_failure.lock() {
+            *f = Some(e.to_string());
+        }
+    }
+
     fn add_batch(&self, records: usize) {
         self.batches.fetch_add(1, Ordering::Relaxed);
         self.records.fetch_add(records as u64, Ordering::Relaxed);
@@ -1416,7 +1509,14 @@ mod tests {
     async fn small_max_batch_is_respected() {
         let dir = tempfile::tempdir().unwrap();
         let path = db_path(&dir);
-        let s = Storage::open(&path, StorageOptions { max_batch: 10 }).unwrap();
+        let s = Storage::open(
+            &path,
+            StorageOptions {
+                max_batch: 10,
+                ..StorageOptions::default()
+            },
+        )
+        .unwrap();
         s.upsert_session(session("m", "2024-05-01T00:00:00Z", None))
             .await
             .unwrap();

@@ -440,11 +440,11 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
     // meanwhile the processor already tracks the next pair.
     let (ack_tx, mut ack_rx) = mpsc::channel::<(u64, Instant, Result<TrackedPair, ApiError>)>(8);
     let acknowledger = {
-        let (state, reply_tx) = (state.clone(), reply_tx.clone());
+        let (state, reply_tx, session) = (state.clone(), reply_tx.clone(), session.clone());
         tokio::spawn(async move {
             while let Some((seq, received, tracked)) = ack_rx.recv().await {
                 let outcome = match tracked {
-                    Ok(tracked) => acknowledge(&state, tracked, received).await,
+                    Ok(tracked) => acknowledge(&state, &session, tracked, received).await,
                     Err(e) => Err(e),
                 };
                 let reply = match outcome {

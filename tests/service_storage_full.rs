@@ -1,0 +1,141 @@
+//! Issue #21, items 3, 4 and 8: with the database at its size limit (the
+//! same SQLite error as a full disk), uploads get a 503, the session's frame
+//! counter stays with what is stored, `/readyz` says why it is not ready,
+//! and when room is freed everything goes on with contiguous frame numbers,
+//! also after a restart.
+
+#[path = "common/discs.rs"]
+mod discs;
+#[path = "common/server.rs"]
+mod server;
+
+use serde_json::Value;
+use server::{frames_form, new_session, test_config, TestServer};
+
+/// The stored frame numbers of a session, in order.
+async fn stored_frames(http: &reqwest::Client, base: &str, sid: &str) -> Vec<u64> {
+    let page: Value = http
+        .get(format!(
+            "{base}/v1/sessions/{sid}/results?limit=10000&contours=false"
+        ))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    page["results"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r["frame"].as_u64().unwrap())
+        .collect()
+}
+
+async fn session_frames(http: &reqwest::Client, base: &str, sid: &str) -> u64 {
+    let s: Value = http
+        .get(format!("{base}/v1/sessions/{sid}"))
+        .send()
+        .await
+        .unwrap()
+        .json()
+        .await
+        .unwrap();
+    s["frames"].as_u64().unwrap()
+}
+
+async fn upload(http: &reqwest::Client, base: &str, sid: &str, step: usize) -> (u16, Value) {
+    let (left, right) = discs::scene_pair([0.25 * (step % 8) as f64, 0.0]);
+    let r = http
+        .post(format!("{base}/v1/sessions/{sid}/frames"))
+        .multipart(frames_form(&left, &right))
+        .send()
+        .await
+        .unwrap();
+    (r.status().as_u16(), r.json().await.unwrap())
+}
+
+async fn readyz(http: &reqwest::Client, base: &str) -> (u16, Value) {
+    let r = http.get(format!("{base}/readyz")).send().await.unwrap();
+    (r.status().as_u16(), r.json().await.unwrap())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("db.sqlite3");
+    let mut config = test_config(&db);
+    // About 60 results with contours; the empty database takes ~100 KB.
+    config.max_db_bytes = Some(640 * 1024);
+    let server = TestServer::start(config.clone()).await;
+    let http = reqwest::Client::new();
+    let base = server.base.clone();
+
+    // A session whose results will be deleted to make room.
+    let ballast = new_session(&base).await;
+    for step in 0..12 {
+        let (status, body) = upload(&http, &base, &ballast, step).await;
+        assert_eq!(status, 200, "{body}");
+    }
+
+    // Fill the database: the first refused upload is a 503 naming the cause.
+    let sid = new_session(&base).await;
+    let mut stored = 0u64;
+    let refusal = loop {
+        let (status, body) = upload(&http, &base, &sid, stored as usize).await;
+        if status != 200 {
+            break (status, body);
+        }
+        assert_eq!(body["frame"].as_u64(), Some(stored), "{body}");
+        stored += 1;
+        assert!(stored < 500, "the size limit never took effect");
+    };
+    eprintln!("{stored} pairs stored before the limit: {}", refusal.1);
+    assert_eq!(refusal.0, 503, "{}", refusal.1);
+    let message = refusal.1["error"]["message"].as_str().unwrap().to_string();
+    assert!(message.contains("full"), "{message}");
+
+    // More uploads are refused too, and the session does not move on.
+    for step in 0..3 {
+        let (status, body) = upload(&http, &base, &sid, step).await;
+        assert_eq!(status, 503, "{body}");
+    }
+    assert_eq!(session_frames(&http, &base, &sid).await, stored);
+    assert_eq!(
+        stored_frames(&http, &base, &sid).await,
+        (0..stored).collect::<Vec<_>>()
+    );
+    let (status, body) = readyz(&http, &base).await;
+    assert_eq!(status, 503, "{body}");
+    assert!(body["reason"].as_str().unwrap().contains("full"), "{body}");
+
+    // Room again: readiness recovers and the session goes on from its last
+    // stored frame.
+    let r = http
+        .delete(format!("{base}/v1/sessions/{ballast}"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(r.status(), 204);
+    let (status, body) = readyz(&http, &base).await;
+    assert_eq!((status, body["status"].as_str()), (200, Some("ok")), "{body}");
+    for _ in 0..3 {
+        let (status, body) = upload(&http, &base, &sid, stored as usize).await;
+        assert_eq!(status, 200, "{body}");
+        assert_eq!(body["frame"].as_u64(), Some(stored), "{body}");
+        stored += 1;
+    }
+    assert_eq!(
+        stored_frames(&http, &base, &sid).await,
+        (0..stored).collect::<Vec<_>>()
+    );
+
+    // A restart finds memory and disk in agreement.
+    server.stop().await.unwrap();
+    let server = TestServer::start(config).await;
+    let base = server.base.clone();
+    assert_eq!(session_frames(&http, &base, &sid).await, stored);
+    let (status, body) = upload(&http, &base, &sid, stored as usize).await;
+    assert_eq!((status, body["frame"].as_u64()), (200, Some(stored)), "{body}");
+    server.stop().await.unwrap();
+}
