@@ -105,6 +105,22 @@ async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
         stored_frames(&http, &base, &sid).await,
         (0..stored).collect::<Vec<_>>()
     );
+    // The size is reported, and stays within the limit.
+    let metrics = http
+        .get(format!("{base}/metrics"))
+        .send()
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    let bytes: u64 = metrics
+        .lines()
+        .find_map(|l| l.strip_prefix("semdepth_storage_bytes "))
+        .expect("semdepth_storage_bytes in /metrics")
+        .parse()
+        .unwrap();
+    assert!((500 * 1024..=640 * 1024).contains(&bytes), "{bytes} bytes");
     let (status, body) = readyz(&http, &base).await;
     assert_eq!(status, 503, "{body}");
     assert!(body["reason"].as_str().unwrap().contains("full"), "{body}");

@@ -28,6 +28,9 @@ pub struct Metrics {
     pub active_websockets: Gauge,
     /// Pair records committed to storage.
     pub stored_pairs: Counter,
+    /// Size of the database file in bytes (pages in use and free), as of
+    /// the last committed batch of pairs.
+    pub storage_bytes: Gauge,
 }
 
 impl Default for Metrics {
@@ -48,6 +51,12 @@ impl Metrics {
         let active_sessions = Gauge::default();
         let active_websockets = Gauge::default();
         let stored_pairs = Counter::default();
+        let storage_bytes = Gauge::default();
+        registry.register(
+            "storage_bytes",
+            "Size of the database file (without its write-ahead log), bytes",
+            storage_bytes.clone(),
+        );
         registry.register(
             "pairs_processed",
             "Stereo pairs that produced a result, by status",
@@ -88,6 +97,7 @@ impl Metrics {
             active_sessions,
             active_websockets,
             stored_pairs,
+            storage_bytes,
         }
     }
 

@@ -76,6 +76,8 @@ pub async fn readyz(State(state): State<AppState>) -> (StatusCode, ApiJson<Healt
     responses((status = 200, description = "Metrics in the OpenMetrics text format", body = String, content_type = "application/openmetrics-text"))
 )]
 pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
+    let bytes = i64::try_from(state.storage.db_bytes()).unwrap_or(i64::MAX);
+    state.metrics.storage_bytes.set(bytes);
     (
         [(
             header::CONTENT_TYPE,

@@ -612,6 +612,12 @@ impl Storage {
         rx.await.unwrap_or(Err(StorageError::Closed))
     }
 
+    /// Size of the database file (page count times page size, free pages
+    /// included, the WAL not) after the last committed batch of pairs.
+    pub fn db_bytes(&self) -> u64 {
+        self.inner.stats.db_bytes.load(Ordering::Relaxed)
+    }
+
     /// Counters for metrics: (pair batches committed, pair records committed).
     pub fn batch_stats(&self) -> (u64, u64) {
         (
@@ -730,6 +736,8 @@ struct Stats {
     records: AtomicU64,
     /// The last pair write's error, until a write succeeds.
     write_failure: std::sync::Mutex<Option<String>>,
+    /// Size of the database file after the last committed batch, bytes.
+    db_bytes: AtomicU64,
 }
 
 /// Clears the flag when the writer thread ends, also by panic.
@@ -873,6 +881,7 @@ impl WriterConn {
             Ok(()) => {
                 stats.add_batch(batch.len());
                 stats.write_succeeded();
+                self.measure_size(stats);
                 for (_, reply) in batch {
                     let _ = reply.send(Ok(()));
                 }
@@ -899,6 +908,20 @@ impl WriterConn {
                     let _ = reply.send(result);
                 }
             }
+        }
+    }
+
+    /// Records the file's size (page count times page size) in `stats`.
+    fn measure_size(&self, stats: &Stats) {
+        let size = self.conn.query_row(
+            "SELECT page_count * page_size FROM pragma_page_count(), pragma_page_size()",
+            [],
+            |r| r.get::<_, i64>(0),
+        );
+        if let Ok(size) = size {
+            stats
+                .db_bytes
+                .store(u64::try_from(size).unwrap_or(0), Ordering::Relaxed);
         }
     }
 
@@ -941,6 +964,7 @@ fn writer_main(
     stats: &Stats,
     _alive: AliveGuard,
 ) {
+    w.measure_size(stats);
     let mut pairs: Vec<(PreparedPair, Reply<()>)> = Vec::new();
     let mut batch: Vec<WriterMsg> = Vec::new();
     while let Ok(first) = rx.recv() {
