@@ -400,6 +400,20 @@ pub struct TrackerState {
     pub prefilter_sigma_px: f64,
 }
 
+impl TrackerState {
+    /// The poses the next pair is predicted at: each view's last pose
+    /// moved on by the left view's velocity (the right view keeps the last
+    /// disparity).
+    fn predicted(&self) -> [Pose; 2] {
+        let v = self.left_velocity;
+        [self.left, self.right].map(|p| Pose {
+            x: p.x + v[0],
+            y: p.y + v[1],
+            theta: p.theta + v[2],
+        })
+    }
+}
+
 /// Buffers for a pair smoothed by the object's pre-filter, reused from
 /// pair to pair.
 #[derive(Clone, Debug, Default)]
@@ -537,19 +551,22 @@ impl StereoTracker {
         let result = match (&self.state, self.template.take()) {
             (Some(state), Some(templates)) if !state.lost => {
                 let state = state.clone();
+                let [left_predicted, right_predicted] = state.predicted();
+                let bands = noise_bands(
+                    &state,
+                    &templates.0,
+                    &templates.1,
+                    [(left, left_predicted), (right, right_predicted)],
+                );
                 let mut prefiltered = std::mem::take(&mut self.prefiltered);
-                let windows = self.prefilter_windows(&state, &templates.0, left);
-                let v = state.left_velocity;
-                let noise = [(left, state.left), (right, state.right)].map(|(raw, pose)| {
-                    let predicted = Pose {
-                        x: pose.x + v[0],
-                        y: pose.y + v[1],
-                        theta: pose.theta + v[2],
-                    };
-                    raw_noise(raw, &templates, predicted, &state)
-                });
-                let (left, right) = prefiltered.pair(left, right, state.prefilter_sigma_px, windows);
-                let result = self.track(frame, (left, right), noise, state, &templates);
+                let sigma = state.prefilter_sigma_px;
+                let (left, right) = if sigma > 0.0 {
+                    let windows = self.prefilter_windows(&state, &templates.0, left);
+                    prefiltered.pair(left, right, sigma, windows)
+                } else {
+                    (left, right)
+                };
+                let result = self.track(frame, (left, right), bands, state, &templates);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
                 result
@@ -573,24 +590,19 @@ impl StereoTracker {
         template: &RigidTemplate,
         frame: &GrayFrame,
     ) -> [PixelRect; 2] {
-        let v = state.left_velocity;
         let reach = self.params.rigid.search_radius_px + 3.0 * state.prefilter_sigma_px + 1.0;
         let rect = |pose: Pose, [sx, sy]: [f64; 2]| {
             let [x0, y0, x1, y1] = template.reach(pose, reach);
             PixelRect::covering(x0 - sx, y0 - sy, x1 + sx, y1 + sy, frame.width, frame.height)
                 .unwrap_or(PixelRect::full(frame))
         };
-        let moved = |p: Pose| Pose {
-            x: p.x + v[0],
-            y: p.y + v[1],
-            ..p
-        };
+        let [left_predicted, right_predicted] = state.predicted();
         // The disparity axis, n = (sin t, -cos t) (see `axis_component`).
         let t = self.params.tilt_axis_deg.to_radians();
         let d = self.params.max_disparity_px;
         [
-            rect(moved(state.left), [0.0, 0.0]),
-            rect(moved(state.right), [d * t.sin().abs(), d * t.cos().abs()]),
+            rect(left_predicted, [0.0, 0.0]),
+            rect(right_predicted, [d * t.sin().abs(), d * t.cos().abs()]),
         ]
     }
 
@@ -740,11 +752,12 @@ impl StereoTracker {
             outline,
             prefilter_sigma_px,
         };
-        let templates = (template, sectors);
-        let noise = [(raw_left, left_pose), (raw_right, right_pose)]
-            .map(|(raw, pose)| raw_noise(raw, &templates, pose, &state).filter(|_| prefilter_sigma_px > 0.0));
-        let (template, sectors) = templates;
-        let [left_bands, right_bands] = noise_bands(&state, noise);
+        let [left_bands, right_bands] = noise_bands(
+            &state,
+            &template,
+            &sectors,
+            [(raw_left, left_pose), (raw_right, right_pose)],
+        );
         let mut left_fit = ImageFit::full(left_pose, left_terms);
         left_fit.axis_std_px = self.axis_std(left, &left_sums, &template, &sectors, &left_fit, left_bands);
         let mut right_fit = ImageFit::full(right_pose, right_terms);
@@ -873,18 +886,13 @@ impl StereoTracker {
         &mut self,
         frame: u64,
         (left, right): (&GrayFrame, &GrayFrame),
-        noise: [Option<f64>; 2],
+        [left_bands, right_bands]: [uncertainty::NoiseBands; 2],
         mut state: TrackerState,
         templates: &(RigidTemplate, SectorTemplate),
     ) -> PairResult {
         let template = &templates.0;
-        let [left_bands, right_bands] = noise_bands(&state, noise);
         let v = state.left_velocity;
-        let left_predicted = Pose {
-            x: state.left.x + v[0],
-            y: state.left.y + v[1],
-            theta: state.left.theta + v[2],
-        };
+        let [left_predicted, _] = state.predicted();
         let left_search = ViewSearch {
             coarse_step_px: self.params.rigid.coarse_step_px,
             rotate: self.params.rigid.rotate,
@@ -1080,8 +1088,7 @@ impl StereoTracker {
             marks.into()
         };
         let arcs = sectors.visible_arcs(pose, &left_out);
-        let outward = Polygon::new(template.points.clone()).signed_area().signum();
-        let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward, bands) else {
+        let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward(template), bands) else {
             return f64::NAN;
         };
         let shifted = |d: f64| Pose {
@@ -1654,35 +1661,45 @@ fn shared_view_limits(
     ]
 }
 
-/// The noise in the bands along the whole outline at `pose` in `raw`, a
-/// frame before smoothing (see [`uncertainty::band_sigma`]); `None` for an
-/// object that is not smoothed.
-fn raw_noise(
-    raw: &GrayFrame,
-    (template, sectors): &(RigidTemplate, SectorTemplate),
-    pose: Pose,
+/// Where the noise is measured for the standard errors of each view, how
+/// the frames were smoothed and, for a smoothed object, the noise each
+/// view had before: measured in the same bands along the whole outline at
+/// its pose in `raws` (the frames before smoothing).
+fn noise_bands(
     state: &TrackerState,
-) -> Option<f64> {
-    if state.prefilter_sigma_px <= 0.0 {
-        return None;
-    }
-    let arcs = sectors.visible_arcs(pose, &[]);
-    let outward = Polygon::new(template.points.clone()).signed_area().signum();
-    let bands = uncertainty::NoiseBands {
-        outer_offset_px: rim_offset(state),
-        ..uncertainty::NoiseBands::default()
-    };
-    uncertainty::band_sigma(raw, &arcs, outward, bands)
+    template: &RigidTemplate,
+    sectors: &SectorTemplate,
+    raws: [(&GrayFrame, Pose); 2],
+) -> [uncertainty::NoiseBands; 2] {
+    let outer_offset_px = rim_offset(state);
+    let smoothing_px = state.prefilter_sigma_px;
+    raws.map(|(raw, pose)| {
+        let unsmoothed = uncertainty::NoiseBands {
+            outer_offset_px,
+            ..uncertainty::NoiseBands::default()
+        };
+        let raw_noise = (smoothing_px > 0.0)
+            .then(|| {
+                uncertainty::band_sigma(
+                    raw,
+                    &sectors.visible_arcs(pose, &[]),
+                    outward(template),
+                    unsmoothed,
+                )
+            })
+            .flatten();
+        uncertainty::NoiseBands {
+            smoothing_px,
+            raw_noise,
+            ..unsmoothed
+        }
+    })
 }
 
-/// Where the noise is measured for the standard errors of each view, how
-/// the frames were smoothed and the noise they had before.
-fn noise_bands(state: &TrackerState, raw_noise: [Option<f64>; 2]) -> [uncertainty::NoiseBands; 2] {
-    raw_noise.map(|raw_noise| uncertainty::NoiseBands {
-        outer_offset_px: rim_offset(state),
-        smoothing_px: state.prefilter_sigma_px,
-        raw_noise,
-    })
+/// The sign of the template's signed area: +1 when its normals, as
+/// [`Polygon::outward_normals`] turns them, point out.
+fn outward(template: &RigidTemplate) -> f64 {
+    Polygon::new(template.points.clone()).signed_area().signum()
 }
 
 /// How far the object's reported outline runs outside its template on
