@@ -489,7 +489,7 @@ impl Storage {
     /// All sessions, ordered by `created_at`, then id. A JSON column that does
     /// not parse is a [`StorageError::Corrupt`] naming the session.
     pub async fn sessions(&self) -> Result<Vec<SessionRecord>, StorageError> {
-        self.read(load_sessions).await
+        self.read(|c| load_sessions(c, None)).await
     }
 
     /// Queues the record NOW (at call time, so call order = commit order) and returns a future that resolves after its batch commits.
@@ -551,7 +551,7 @@ impl Storage {
         let id = id.to_owned();
         let (tx, rx) = oneshot::channel();
         let job: WriteJob = Box::new(move |w: &mut WriterConn| {
-            let found = load_sessions(&w.conn).map(|all| all.into_iter().find(|s| s.id == id));
+            let found = load_sessions(&w.conn, Some(&id)).map(|mut one| one.pop());
             if found.is_ok() {
                 w.behind.remove(&id);
             }
@@ -1089,13 +1089,14 @@ fn load_calibrations(c: &Connection) -> Result<Vec<CalibrationRecord>, StorageEr
     Ok(out)
 }
 
-fn load_sessions(c: &Connection) -> Result<Vec<SessionRecord>, StorageError> {
+/// Every stored session, or only the one with id `only`.
+fn load_sessions(c: &Connection, only: Option<&str>) -> Result<Vec<SessionRecord>, StorageError> {
     let mut stmt = c.prepare_cached(
         "SELECT id, name, calibration_id, params, retention, frames, state, tracker_state,
                 created_at, updated_at, keep
-         FROM sessions ORDER BY created_at, id",
+         FROM sessions WHERE ?1 IS NULL OR id = ?1 ORDER BY created_at, id",
     )?;
-    let rows = stmt.query_map([], |r| {
+    let rows = stmt.query_map(params![only], |r| {
         Ok((
             (
                 r.get::<_, String>(0)?,
