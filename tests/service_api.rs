@@ -12,7 +12,8 @@ use semdepth::service::state::ServiceConfig;
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
 use server::{
-    frames_form, get_json, offset_free_rms, pair_form, post_json, synth_pairs, test_config, TestServer,
+    frames_form, get_json, get_text, offset_free_rms, pair_form, post_json, synth_pairs, test_config,
+    TestServer,
 };
 
 /// Disparity RMS limit (px, offset removed) for a clean sequence uploaded
@@ -294,14 +295,7 @@ async fn calibration_session_upload_results_end_to_end() {
     assert!(r["z_um"].is_number());
 
     // Metrics count what happened.
-    let metrics = http
-        .get(format!("{base}/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = get_text(&format!("{base}/metrics")).await;
     assert!(
         metrics.contains("semdepth_pairs_processed_total{status=\"tracked\"}"),
         "{metrics}"

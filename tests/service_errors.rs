@@ -9,7 +9,9 @@ mod server;
 use reqwest::multipart::{Form, Part};
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
-use server::{frames_form, new_session, pair_form, png, synth_pairs, test_config, upload, TestServer};
+use server::{
+    frames_form, get_json, new_session, pair_form, png, synth_pairs, test_config, upload, TestServer,
+};
 
 /// Checks status and error code, and that the message is not empty.
 async fn expect_error(r: reqwest::Response, status: u16, code: &str) -> String {
@@ -704,13 +706,6 @@ async fn images_too_thin_to_track_are_refused() {
         )
         .await;
     }
-    let s: Value = http
-        .get(format!("{base}/v1/sessions/{sid}"))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+    let s = get_json(&format!("{base}/v1/sessions/{sid}")).await;
     assert_eq!(s["frames"].as_u64(), Some(1), "only the usable pair counted: {s}");
 }

@@ -10,20 +10,14 @@ mod discs;
 mod server;
 
 use serde_json::Value;
-use server::{frames_form, new_session, test_config, TestServer};
+use server::{frames_form, get_json, get_text, new_session, test_config, TestServer};
 
 /// The stored frame numbers of a session, in order.
-async fn stored_frames(http: &reqwest::Client, base: &str, sid: &str) -> Vec<u64> {
-    let page: Value = http
-        .get(format!(
-            "{base}/v1/sessions/{sid}/results?limit=10000&contours=false"
-        ))
-        .send()
-        .await
-        .unwrap()
-        .json()
-        .await
-        .unwrap();
+async fn stored_frames(base: &str, sid: &str) -> Vec<u64> {
+    let page = get_json(&format!(
+        "{base}/v1/sessions/{sid}/results?limit=10000&contours=false"
+    ))
+    .await;
     page["results"]
         .as_array()
         .unwrap()
@@ -32,16 +26,10 @@ async fn stored_frames(http: &reqwest::Client, base: &str, sid: &str) -> Vec<u64
         .collect()
 }
 
-async fn session_frames(http: &reqwest::Client, base: &str, sid: &str) -> u64 {
-    let s: Value = http
-        .get(format!("{base}/v1/sessions/{sid}"))
-        .send()
-        .await
+async fn session_frames(base: &str, sid: &str) -> u64 {
+    get_json(&format!("{base}/v1/sessions/{sid}")).await["frames"]
+        .as_u64()
         .unwrap()
-        .json()
-        .await
-        .unwrap();
-    s["frames"].as_u64().unwrap()
 }
 
 async fn upload(http: &reqwest::Client, base: &str, sid: &str, step: usize) -> (u16, Value) {
@@ -65,7 +53,7 @@ async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
     let dir = tempfile::tempdir().unwrap();
     let db = dir.path().join("db.sqlite3");
     let mut config = test_config(&db);
-    // About 60 results with contours; the empty database takes ~100 KB.
+    // About 130 results of this small scene (the empty schema takes ~100 KB).
     config.max_db_bytes = Some(640 * 1024);
     let server = TestServer::start(config.clone()).await;
     let http = reqwest::Client::new();
@@ -100,20 +88,10 @@ async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
         let (status, body) = upload(&http, &base, &sid, step).await;
         assert_eq!(status, 503, "{body}");
     }
-    assert_eq!(session_frames(&http, &base, &sid).await, stored);
-    assert_eq!(
-        stored_frames(&http, &base, &sid).await,
-        (0..stored).collect::<Vec<_>>()
-    );
+    assert_eq!(session_frames(&base, &sid).await, stored);
+    assert_eq!(stored_frames(&base, &sid).await, (0..stored).collect::<Vec<_>>());
     // The size is reported, and stays within the limit.
-    let metrics = http
-        .get(format!("{base}/metrics"))
-        .send()
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+    let metrics = get_text(&format!("{base}/metrics")).await;
     let bytes: u64 = metrics
         .lines()
         .find_map(|l| l.strip_prefix("semdepth_storage_bytes "))
@@ -141,16 +119,13 @@ async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
         assert_eq!(body["frame"].as_u64(), Some(stored), "{body}");
         stored += 1;
     }
-    assert_eq!(
-        stored_frames(&http, &base, &sid).await,
-        (0..stored).collect::<Vec<_>>()
-    );
+    assert_eq!(stored_frames(&base, &sid).await, (0..stored).collect::<Vec<_>>());
 
     // A restart finds memory and disk in agreement.
     server.stop().await.unwrap();
     let server = TestServer::start(config).await;
     let base = server.base.clone();
-    assert_eq!(session_frames(&http, &base, &sid).await, stored);
+    assert_eq!(session_frames(&base, &sid).await, stored);
     let (status, body) = upload(&http, &base, &sid, stored as usize).await;
     assert_eq!((status, body["frame"].as_u64()), (200, Some(stored)), "{body}");
     server.stop().await.unwrap();

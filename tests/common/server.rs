@@ -186,6 +186,13 @@ pub async fn get_json(url: &str) -> serde_json::Value {
     r.json().await.unwrap()
 }
 
+/// GETs a text body (e.g. `/metrics`); panics on a non-2xx status.
+pub async fn get_text(url: &str) -> String {
+    let r = reqwest::get(url).await.unwrap();
+    assert!(r.status().is_success(), "{url}: {}", r.status());
+    r.text().await.unwrap()
+}
+
 /// Creates a session on default parameters and returns its id.
 pub async fn new_session(base: &str) -> String {
     let s = post_json(&format!("{base}/v1/sessions"), serde_json::json!({})).await;
