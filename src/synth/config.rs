@@ -121,11 +121,19 @@ pub enum Preset {
     /// A substrate with multi-scale relief texture (undulations, grains
     /// with bright boundaries, ridges, speckle), moderate noise.
     Relief,
+    /// A bright or dark bar at its own height that slides in over up to a
+    /// third of the object's area and out again, on its own (see
+    /// [`Occlusion::sweep_frames`]), moderate noise.
+    Crossing,
+    /// The object moves 15-20 px between pairs, reflected at the frame's
+    /// margins (a reversal is a 30-40 px miss of a constant-velocity
+    /// prediction), moderate noise.
+    Fast,
 }
 
 impl Preset {
     /// Every preset, in declaration order.
-    pub const ALL: [Preset; 10] = [
+    pub const ALL: [Preset; 12] = [
         Preset::Clean,
         Preset::Noisy,
         Preset::Cluttered,
@@ -136,6 +144,8 @@ impl Preset {
         Preset::Dark,
         Preset::Blurred,
         Preset::Relief,
+        Preset::Crossing,
+        Preset::Fast,
     ];
 
     /// The original five presets: a bright object fully inside the frame
@@ -160,6 +170,10 @@ impl Preset {
         Preset::Relief,
     ];
 
+    /// The motion conditions of the tracker (an occluder moving on its own,
+    /// 15-20 px between pairs): the object is visible in every pair.
+    pub const MOTION: [Preset; 2] = [Preset::Crossing, Preset::Fast];
+
     /// The snake_case name used in JSON and on the command line.
     pub fn name(self) -> &'static str {
         match self {
@@ -173,6 +187,8 @@ impl Preset {
             Preset::Dark => "dark",
             Preset::Blurred => "blurred",
             Preset::Relief => "relief",
+            Preset::Crossing => "crossing",
+            Preset::Fast => "fast",
         }
     }
 }
@@ -302,9 +318,10 @@ impl Default for Clutter {
 }
 
 /// A second object in front of the tracked one (think of a gripper jaw): it
-/// moves rigidly with the object in the left image, sits `z_offset_um` higher
-/// (so its disparity differs), is absent before `enter_frame` and from then
-/// on hides `fraction` of the object's area in the left image.
+/// sits `z_offset_um` higher (so its disparity differs) and is absent before
+/// `enter_frame`. With `sweep_frames` 0 it moves rigidly with the object in
+/// the left image and hides `fraction` of the object's area there from
+/// `enter_frame` on; otherwise it also slides in and out on its own.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Occlusion {
@@ -319,6 +336,11 @@ pub struct Occlusion {
     /// Direction (object coordinates) from which the occluder covers the
     /// object; `None` picks one from the seed.
     pub cut_angle_rad: Option<f64>,
+    /// 0: the occluder keeps its place on the object. N > 0: it moves on its
+    /// own along the cut direction, from just touching the object at
+    /// `enter_frame` to hiding `fraction` of its area N frames later and back
+    /// out again (a triangle wave of period 2N frames).
+    pub sweep_frames: usize,
 }
 
 impl Default for Occlusion {
@@ -329,6 +351,7 @@ impl Default for Occlusion {
             z_offset_um: 150.0,
             brightness: 0.85,
             cut_angle_rad: None,
+            sweep_frames: 0,
         }
     }
 }
@@ -655,6 +678,23 @@ impl SynthConfig {
                     z_offset_um: q(rng.gen_range(1.0..3.0) / cfg.disparity.px_per_um),
                     ..Occlusion::default()
                 });
+            }
+            Preset::Crossing => {
+                cfg.noise = moderate_noise(&mut rng);
+                let dark = rng.gen_bool(0.4);
+                cfg.occlusion = Some(Occlusion {
+                    fraction: q(rng.gen_range(0.2..0.33)),
+                    brightness: if dark { 0.1 } else { q(rng.gen_range(0.75..0.9)) },
+                    z_offset_um: q(rng.gen_range(1.0..3.0) / cfg.disparity.px_per_um),
+                    sweep_frames: rng.gen_range(3..6),
+                    ..Occlusion::default()
+                });
+            }
+            Preset::Fast => {
+                cfg.noise = moderate_noise(&mut rng);
+                let [dx, dy] = cfg.motion.drift_px_per_frame;
+                let k = rng.gen_range(15.0..20.0) / dx.hypot(dy);
+                cfg.motion.drift_px_per_frame = [q(dx * k), q(dy * k)];
             }
             Preset::Flicker => {
                 cfg.noise = moderate_noise(&mut rng);

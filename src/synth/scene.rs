@@ -69,10 +69,14 @@ impl Pose {
 }
 
 /// The occluder in object coordinates: a convex bar covering the part of
-/// the object beyond a cut line.
+/// the object beyond a cut line, and how far along the cut direction `n` it
+/// withdraws from there at the start of a sweep (0 when it does not sweep).
 #[derive(Clone, Debug)]
 struct Occluder {
     bar: Polygon,
+    n: Point,
+    withdrawal_px: f64,
+    sweep_frames: usize,
     enter_frame: usize,
     z_offset_um: f64,
     brightness: f32,
@@ -296,8 +300,9 @@ impl Scene {
         let occ = self.occluder.as_ref().filter(|o| k >= o.enter_frame)?;
         let pose = self.poses[k];
         let d_occ = self.cfg.disparity.at(pose.z + occ.z_offset_um);
-        let bar_left = pose.polygon(&occ.bar, 0.0);
-        let bar_right = pose.polygon(&occ.bar, d_occ);
+        let bar = occ.bar_at(k);
+        let bar_left = pose.polygon(&bar, 0.0);
+        let bar_right = pose.polygon(&bar, d_occ);
         Some(OccluderTruth {
             fraction_left: overlap_with_convex(&left.points, &bar_left.points) / left.area(),
             fraction_right: overlap_with_convex(&right.points, &bar_right.points) / right.area(),
@@ -896,6 +901,30 @@ fn border_trajectory(
         .collect())
 }
 
+impl Occluder {
+    /// The bar in frame `k >= enter_frame` (object coordinates): in place,
+    /// or on its sweep, withdrawn along `n` by a triangle wave that starts
+    /// at the full withdrawal (touching the object) and reaches 0 (covering
+    /// `fraction` of it) after `sweep_frames` frames.
+    fn bar_at(&self, k: usize) -> Polygon {
+        if self.sweep_frames == 0 {
+            return self.bar.clone();
+        }
+        let period = 2 * self.sweep_frames;
+        let phase = (k - self.enter_frame) % period;
+        let covering = phase.min(period - phase) as f64 / self.sweep_frames as f64;
+        let back = (1.0 - covering) * self.withdrawal_px;
+        let [nx, ny] = self.n;
+        Polygon::new(
+            self.bar
+                .points
+                .iter()
+                .map(|p| [p[0] + back * nx, p[1] + back * ny])
+                .collect(),
+        )
+    }
+}
+
 /// Places the occluder bar (object coordinates) so that it covers the
 /// requested fraction of the outline's area (bisection on the cut line).
 fn place_occluder(cfg: &SynthConfig, outline: &Polygon, occ: &super::config::Occlusion) -> Occluder {
@@ -931,6 +960,9 @@ fn place_occluder(cfg: &SynthConfig, outline: &Polygon, occ: &super::config::Occ
             corner(far, half),
             corner(far, -half),
         ]),
+        n,
+        withdrawal_px: s_max - s,
+        sweep_frames: occ.sweep_frames,
         enter_frame: occ.enter_frame,
         z_offset_um: occ.z_offset_um,
         brightness: occ.brightness as f32,
