@@ -561,13 +561,16 @@ pub fn fit_rigid(
     energy: &EnergyParams,
     params: &RigidParams,
 ) -> RigidOutcome {
-    fit_rigid_on_line(sums, template, start, energy, params, None)
+    fit_rigid_on_line(sums, template, start, energy, params, None, f64::INFINITY)
 }
 
 /// [`fit_rigid`] that, given a `line` (a unit vector in image coordinates),
 /// translates only along it, with [`line_polish`] in place of
 /// [`newton_polish`]: the right view of a stereo pair moves across the tilt
-/// axis, along its epipolar line.
+/// axis, along its epipolar line. Poses further than `within_px` from
+/// `start` are invalid: a tracking step's object moves no further between
+/// pairs, and beyond lie other things (a bar 41 px away captured a partly
+/// occluded blob's contour, which the tables' corners still reached).
 pub fn fit_rigid_on_line(
     sums: &PrefixSums,
     template: &RigidTemplate,
@@ -575,6 +578,7 @@ pub fn fit_rigid_on_line(
     energy: &EnergyParams,
     params: &RigidParams,
     line: Option<Point>,
+    within_px: f64,
 ) -> RigidOutcome {
     // One vertex buffer for every evaluation (no allocation per pose).
     let placed = std::cell::RefCell::new(Vec::with_capacity(template.points.len()));
@@ -584,6 +588,9 @@ pub fn fit_rigid_on_line(
     let lowest = std::cell::Cell::new(None::<(Pose, EnergyTerms)>);
     let outside_area = std::cell::Cell::new(false);
     let eval_terms = |pts: &[Point], length: f64, pose: Pose| {
+        if (pose.x - start.x).hypot(pose.y - start.y) > within_px {
+            return EnergyTerms::INVALID;
+        }
         let mut placed = placed.borrow_mut();
         place_into(pts, pose, &mut placed);
         let terms = template.energy_of(sums, &placed, pose, length, energy);

@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::calib::{axis_component, Calibration, MetaWatch, PairMeta};
 use crate::energy::{michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
-    fit_free, fit_rigid, fit_rigid_on_line, free_fit_tables, line_polish, newton_polish, place,
+    fit_free, fit_rigid, fit_rigid_on_line, free_fit_tables, line_polish, newton_polish, place, place_into,
     CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
 };
 use crate::geometry::{dist, HalfPlane, Point, Polygon};
@@ -897,6 +897,7 @@ impl StereoTracker {
             coarse_step_px: self.params.rigid.coarse_step_px,
             rotate: self.params.rigid.rotate,
             line: None,
+            last: Some(state.left),
         };
         let shared = (!template.cuts.is_empty()).then(|| {
             let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
@@ -930,11 +931,6 @@ impl StereoTracker {
                 left_bands,
             );
         }
-        let right_predicted = Pose {
-            x: left_fit.pose.x + state.right.x - state.left.x,
-            y: left_fit.pose.y + state.right.y - state.left.y,
-            theta: left_fit.pose.theta + state.right.theta - state.left.theta,
-        };
         let right_search = ViewSearch {
             // No coarse stage: the prediction (left pose plus the last
             // disparity) is good, and starting the fine stage there makes
@@ -946,33 +942,38 @@ impl StereoTracker {
                 let t = self.params.tilt_axis_deg.to_radians();
                 [t.sin(), -t.cos()]
             }),
+            last: None,
         };
-        let mut right_fit = self.fit_view(
-            right,
-            right_templates,
-            &state.right_sector_contrasts,
-            right_predicted,
-            right_search,
-            right_bands,
-        );
-        // The disparity jumped (the tilt changed between pairs, or the
-        // right fit walked along a weak edge): the right view is searched
-        // along the whole epipolar line, as on the first pair (the quartz
-        // grain, pairs 01-02 then 01-03: the fit walked 47 px from its
-        // prediction to 73.9 px of disparity along the grain, where the
+        // The right view from a left pose: predicted with the last
+        // disparity and fitted; when the disparity jumped (the tilt changed
+        // between pairs, or the right fit walked along a weak edge), it is
+        // searched along the whole epipolar line, as on the first pair (the
+        // quartz grain, pairs 01-02 then 01-03: the fit walked 47 px from
+        // its prediction to 73.9 px of disparity along the grain, where the
         // pair alone gives 55.1).
-        if dist(right_fit.pose.center(), right_predicted.center()) > DISPARITY_JUMP_PX {
-            if let Some(fit) = self.searched_right(
+        let right_from = |left_pose: Pose| {
+            let right_predicted = Pose {
+                x: left_pose.x + state.right.x - state.left.x,
+                y: left_pose.y + state.right.y - state.left.y,
+                theta: left_pose.theta + state.right.theta - state.left.theta,
+            };
+            let fit = self.fit_view(
                 right,
                 right_templates,
-                left_fit.pose,
-                &right_fit,
+                &state.right_sector_contrasts,
+                right_predicted,
                 right_search,
                 right_bands,
-            ) {
-                right_fit = fit;
-            }
-        }
+            );
+            let fit = if dist(fit.pose.center(), right_predicted.center()) > DISPARITY_JUMP_PX {
+                self.searched_right(right, right_templates, left_pose, &fit, right_search, right_bands)
+                    .unwrap_or(fit)
+            } else {
+                fit
+            };
+            (fit, right_predicted)
+        };
+        let (mut right_fit, right_predicted) = right_from(left_fit.pose);
         // Both fits left their predictions: the object moved unlike its
         // last motion, and the right view, predicted from the left fit,
         // found it elsewhere. The left fit may have settled beside the
@@ -981,9 +982,11 @@ impl StereoTracker {
         // px of disparity error, reported `tracked`). A change of disparity
         // alone moves only the right view and needs no second fit. The left
         // view is fitted again from where the right view puts it, and the
-        // fit with the lower energy stands. Only full fits compare (masked
-        // energies over different sectors do not; with occluders moving
-        // past, the check pulled contours onto them).
+        // fit with the lower energy stands, with the right view fitted
+        // again from it (the right fit moves only along its line and keeps
+        // the old left pose's offset across it). Only full fits compare
+        // (masked energies over different sectors do not; with occluders
+        // moving past, the check pulled contours onto them).
         let full = |fit: &ImageFit| !fit.occluded.contains(&true);
         if dist(left_fit.pose.center(), left_predicted.center()) > CROSS_CHECK_PX
             && dist(right_fit.pose.center(), right_predicted.center()) > CROSS_CHECK_PX
@@ -1008,6 +1011,7 @@ impl StereoTracker {
             );
             if full(&again) && self.lower_energy(left, &left_templates.0, again.pose, left_fit.pose) {
                 left_fit = again;
+                right_fit = right_from(left_fit.pose).0;
             }
         }
         let reach = self.params.rigid.search_radius_px;
@@ -1135,6 +1139,7 @@ impl StereoTracker {
             coarse_step_px,
             rotate,
             line,
+            last,
         }: ViewSearch,
     ) -> (ImageFit, PrefixSums<'f>) {
         let (energy, occlusion) = (&self.params.energy, &self.params.occlusion);
@@ -1144,7 +1149,7 @@ impl StereoTracker {
             ..self.params.rigid.clone()
         };
         let full_fit = |sums: &PrefixSums, start: Pose, rigid: &RigidParams| {
-            let out = fit_rigid_on_line(sums, template, start, energy, rigid, line);
+            let out = fit_rigid_on_line(sums, template, start, energy, rigid, line, rigid.search_radius_px);
             ImageFit::full(out.pose, out.terms)
         };
         let full_reach =
@@ -1186,9 +1191,13 @@ impl StereoTracker {
             // Part of the object looks occluded at the prediction. So do
             // the ends of a slender object that moved along its axis: a
             // full fit that finds every sector as it was stands.
+            // A fit that ran to the edge of the search disc wanted to go
+            // further: onto something else, such as the occluder (a blob
+            // 46% occluded was pulled 24 px onto a bright one).
             widen(&mut sums, &mut widened);
             let fit = full_fit(&sums, predicted, rigid);
-            if !judge(&sums, fit.pose).occluded.contains(&true) {
+            let at_limit = dist(fit.pose.center(), predicted.center()) > rigid.search_radius_px - 1.0;
+            if !at_limit && !judge(&sums, fit.pose).occluded.contains(&true) {
                 return (fit, sums);
             }
         } else {
@@ -1203,7 +1212,15 @@ impl StereoTracker {
                     coarse_step_px: 1.0,
                     ..rigid.clone()
                 };
-                let out = fit_rigid_on_line(&sums, template, predicted, energy, &fine_only, line);
+                let out = fit_rigid_on_line(
+                    &sums,
+                    template,
+                    predicted,
+                    energy,
+                    &fine_only,
+                    line,
+                    rigid.search_radius_px,
+                );
                 if out.outside_area && !widened {
                     widen(&mut sums, &mut widened);
                     full_fit(&sums, predicted, &fine_only)
@@ -1212,7 +1229,53 @@ impl StereoTracker {
                 }
             } else {
                 widen(&mut sums, &mut widened);
-                full_fit(&sums, predicted, rigid)
+                let fit = full_fit(&sums, predicted, rigid);
+                // Where the fit from the prediction lost the object's
+                // appearance (most of its outline without its contrast) or
+                // ran to the edge of the search disc, the object moved unlike its last motion: fits from the
+                // lowest points of the search discs around the prediction
+                // and around the last pose compete, and the lowest energy
+                // among those that show the object stands (energies on
+                // different tables compare: see `NEAR_REACH_PX`). A fit
+                // that keeps the object's look is never replaced: a
+                // partly occluded object's masked energy is higher than
+                // that of a bright occluder nearby.
+                let lost_look = |sums: &PrefixSums, pose: Pose| {
+                    let judged = judge(sums, pose);
+                    widespread(&judged.occluded) || judged.median_ratio < 0.6
+                };
+                let at_limit = dist(fit.pose.center(), predicted.center()) > rigid.search_radius_px - 1.0;
+                if line.is_some() || !(at_limit || lost_look(&sums, fit.pose)) {
+                    fit
+                } else {
+                    let fine_only = RigidParams {
+                        coarse_step_px: 1.0,
+                        ..rigid.clone()
+                    };
+                    let mut best = fit;
+                    let mut from_last = false;
+                    for start in self.disc_starts(&sums, template, predicted, line) {
+                        let fit = full_fit(&sums, start, &fine_only);
+                        if fit.terms.energy < best.terms.energy && !lost_look(&sums, fit.pose) {
+                            best = fit;
+                        }
+                    }
+                    if let Some(last) = last.filter(|l| dist(l.center(), predicted.center()) > 1.0) {
+                        let around = self.sums_around(frame, template, last, rigid.search_radius_px);
+                        let starts = self.disc_starts(&around, template, last, line);
+                        for start in std::iter::once(last).chain(starts) {
+                            let fit = full_fit(&around, start, &fine_only);
+                            if fit.terms.energy < best.terms.energy && !lost_look(&around, fit.pose) {
+                                best = fit;
+                                from_last = true;
+                            }
+                        }
+                        if from_last {
+                            sums = around;
+                        }
+                    }
+                    best
+                }
             };
             // A clear prediction that the fit left by less than a pixel is
             // judged already: judging again there changed nothing on the
@@ -1295,7 +1358,15 @@ impl StereoTracker {
             rotate: search.rotate,
             ..self.params.rigid.clone()
         };
-        let out = fit_rigid_on_line(&sums, template, pose, &self.params.energy, &rigid, search.line);
+        let out = fit_rigid_on_line(
+            &sums,
+            template,
+            pose,
+            &self.params.energy,
+            &rigid,
+            search.line,
+            rigid.search_radius_px,
+        );
         let mut fit = ImageFit::full(out.pose, out.terms);
         if !self.lower_energy(right, template, fit.pose, current.pose) {
             return None;
@@ -1319,6 +1390,84 @@ impl StereoTracker {
         let sums = self.sums_around(frame, template, current, apart + Self::NEAR_REACH_PX);
         let energy = |pose: Pose| template.energy_at(&sums, pose, &self.params.energy).energy;
         energy(candidate) < energy(current)
+    }
+
+    /// Starts for a fit from a prediction that the sectors do not confirm:
+    /// the three lowest local minima of the decimated template's energy on a
+    /// grid over the search disc around the prediction (or along `line`
+    /// through it), in steps of half the template's thickness (area over
+    /// perimeter), 1.5-4 px. A local search from the prediction misses an
+    /// object that moved unlike its last motion: a reversal at 15-20 px per
+    /// pair is 30-40 px from the prediction, and a rod that moved further
+    /// than its width leaves no slope to follow.
+    fn disc_starts(
+        &self,
+        sums: &PrefixSums,
+        template: &RigidTemplate,
+        predicted: Pose,
+        line: Option<Point>,
+    ) -> Vec<Pose> {
+        let step = (template.area / template.length).clamp(1.5, 4.0);
+        let k = (self.params.rigid.search_radius_px / step).floor() as i64;
+        let energy = &self.params.energy;
+        let mut placed = Vec::with_capacity(template.coarse.len());
+        let pose_at = |i: i64, j: i64| {
+            let (dx, dy) = match line {
+                Some(u) => (i as f64 * step * u[0], i as f64 * step * u[1]),
+                None => (i as f64 * step, j as f64 * step),
+            };
+            Pose {
+                x: predicted.x + dx,
+                y: predicted.y + dy,
+                theta: predicted.theta,
+            }
+        };
+        let mut at = |i: i64, j: i64| -> f64 {
+            if i * i + j * j > k * k {
+                return f64::INFINITY;
+            }
+            let pose = pose_at(i, j);
+            place_into(&template.coarse, pose, &mut placed);
+            template
+                .energy_of(sums, &placed, pose, template.coarse_length, energy)
+                .energy
+        };
+        let rows = if line.is_some() { 0 } else { k };
+        let side = (2 * k + 1) as usize;
+        let grid: Vec<f64> = (-rows..=rows)
+            .flat_map(|j| (-k..=k).map(move |i| (i, j)))
+            .map(|(i, j)| at(i, j))
+            .collect();
+        let value = |i: i64, j: i64| -> f64 {
+            if i.abs() > k || j.abs() > rows {
+                f64::INFINITY
+            } else {
+                grid[(j + rows) as usize * side + (i + k) as usize]
+            }
+        };
+        let mut minima: Vec<(f64, i64, i64)> = Vec::new();
+        for j in -rows..=rows {
+            for i in -k..=k {
+                let e = value(i, j);
+                // Below every neighbour; of a plateau, its last point.
+                let lowest = e.is_finite()
+                    && (-1..=1).all(|dj| {
+                        (-1..=1).all(|di| {
+                            let n = value(i + di, j + dj);
+                            (dj, di) == (0, 0) || n > e || ((dj, di) < (0, 0) && n == e)
+                        })
+                    });
+                if lowest && (i, j) != (0, 0) {
+                    minima.push((e, i, j));
+                }
+            }
+        }
+        minima.sort_by(|a, b| a.0.total_cmp(&b.0));
+        minima
+            .into_iter()
+            .take(3)
+            .map(|(_, i, j)| pose_at(i, j))
+            .collect()
     }
 
     /// Searches the right image along the disparity axis for the template
@@ -1576,6 +1725,9 @@ struct ViewSearch {
     /// Translate only along this unit vector (image coordinates; see
     /// [`fit_rigid_on_line`]).
     line: Option<Point>,
+    /// The view's last pose, searched around as well when the prediction
+    /// is not confirmed: a motion that reversed is nearer to it.
+    last: Option<Pose>,
 }
 
 /// The fit of one view of a pair.

@@ -26,12 +26,16 @@ struct Accuracy {
     centroid_max: f64,
     lost: usize,
     pairs: usize,
+    /// Tracked pairs off by more than 1 px in disparity or 3 px in the left
+    /// centroid, after removing each sequence's median offsets (issue #17).
+    confident_wrong: usize,
 }
 
 fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_count: usize) -> Accuracy {
     let (mut sq_disparity, mut sq_centroid, mut pairs, mut lost) = (0.0, 0.0, 0usize, 0usize);
     let mut sum_std = 0.0;
     let mut centroid_max = 0.0f64;
+    let mut confident_wrong = 0usize;
     for &shape in shapes {
         for seed in seeds.clone() {
             let config = SynthConfig {
@@ -40,6 +44,7 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
             };
             let mut tracker = StereoTracker::new(TrackerParams::default());
             let mut errors = Vec::new();
+            let mut centroid_errors = Vec::new();
             for pair in frames(&config).unwrap() {
                 let result = tracker.process(&pair.left, &pair.right).unwrap();
                 if result.status == Status::Lost {
@@ -59,8 +64,31 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
                     .expect("a tracked pair has a standard error");
                 let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
                 let centroid_error = (c[0] - t[0]).hypot(c[1] - t[1]);
+                centroid_errors.push([c[0] - t[0], c[1] - t[1]]);
                 sq_centroid += centroid_error.powi(2);
                 centroid_max = centroid_max.max(centroid_error);
+            }
+            let median = |mut v: Vec<f64>| {
+                v.sort_by(f64::total_cmp);
+                v.get(v.len() / 2).copied().unwrap_or(0.0)
+            };
+            let (md, mx, my) = (
+                median(errors.clone()),
+                median(centroid_errors.iter().map(|c| c[0]).collect()),
+                median(centroid_errors.iter().map(|c| c[1]).collect()),
+            );
+            for (e, c) in errors.iter().zip(&centroid_errors) {
+                if (e - md).abs() > 1.0 || (c[0] - mx).hypot(c[1] - my) > 3.0 {
+                    eprintln!(
+                        "{}/{}/{seed}: confident wrong: disparity {:+.2} px, centroid ({:+.1}, {:+.1}) px from the medians",
+                        preset.name(),
+                        shape.name(),
+                        e - md,
+                        c[0] - mx,
+                        c[1] - my
+                    );
+                    confident_wrong += 1;
+                }
             }
             let offset = errors.iter().sum::<f64>() / errors.len().max(1) as f64;
             sq_disparity += errors.iter().map(|e| (e - offset).powi(2)).sum::<f64>();
@@ -75,16 +103,18 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
         centroid_max,
         lost,
         pairs,
+        confident_wrong,
     };
     eprintln!(
-        "{:>9}: disparity RMS {:.4} px (reported std / RMS {:.2}), left centroid RMS {:.3} px (max {:.3}), {} pairs, {} lost",
+        "{:>9}: disparity RMS {:.4} px (reported std / RMS {:.2}), left centroid RMS {:.3} px (max {:.3}), {} pairs, {} lost, {} confident wrong",
         preset.name(),
         accuracy.disparity_rms,
         accuracy.std_ratio,
         accuracy.centroid_rms,
         accuracy.centroid_max,
         accuracy.pairs,
-        accuracy.lost
+        accuracy.lost,
+        accuracy.confident_wrong
     );
     accuracy
 }
@@ -143,6 +173,43 @@ fn grey_level_flicker() {
 fn cluttered_background() {
     // Not a condition of the issue; held to the noisy limit.
     check(Preset::Cluttered, 0.15);
+}
+
+/// Issue #17, items 3 and 4: a bright or dark bar at its own height that
+/// slides in over up to a third of the object's area and out again on its
+/// own (10 pairs), and motion of 15-20 px between pairs with reversals at
+/// the frame's margins, 30-40 px from a constant-velocity prediction (20
+/// pairs). 4 shapes x seeds 100..105 (developed on 0..10 and 900..905):
+/// disparity RMS <= 0.15 px, no confident wrong pair, at most 5% of the
+/// pairs not tracked (the object is visible in all), the reported std
+/// calibrated. Measured: crossing 0.053 px, fast 0.040 px, none lost.
+/// Before the search was held to its disc and a fit that lost the object
+/// searched the discs around the prediction and the last pose: fast lost
+/// a pair and put one 1.3 px off here (seeds 0..10: 29 of 800 pairs lost,
+/// every other pair of a rod), and on crossing seeds 0..10 (20 pairs) a
+/// blob's contour was pulled 41 px onto the bar, 9 pairs confident wrong.
+/// Not yet held: over 20 pairs, the crossing rod of seed 103 slides 4-12 px
+/// along its axis under the bar (its disparity stays within 0.07 px).
+#[test]
+fn occluders_moving_on_their_own_and_fast_motion() {
+    for (preset, frame_count) in [(Preset::Crossing, FRAMES), (Preset::Fast, 20)] {
+        let a = measure(preset, &Shape::ALL, SEEDS, frame_count);
+        let total = a.pairs + a.lost;
+        assert!(
+            a.lost as f64 <= 0.05 * total as f64,
+            "{}: {} of {total} pairs not tracked (limit 5%)",
+            preset.name(),
+            a.lost
+        );
+        assert_eq!(a.confident_wrong, 0, "{}: confident wrong pairs", preset.name());
+        assert!(
+            a.disparity_rms <= 0.15,
+            "{}: disparity RMS {:.4} px > 0.15",
+            preset.name(),
+            a.disparity_rms
+        );
+        assert_calibrated_std(preset, &a);
+    }
 }
 
 #[test]
