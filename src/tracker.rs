@@ -33,6 +33,15 @@ pub use crate::energy::INTENSITY_OFFSET;
 /// sub-pixel discretisation), pixels.
 pub const DISPARITY_STD_FLOOR_PX: f64 = 0.02;
 
+/// After a loss, pairs on which the object is sought by its own template
+/// (over the hint box, or the whole image) before the tracker initialises
+/// afresh: a lost object is not replaced by whatever is largest.
+pub const REACQUIRE_PAIRS: u32 = 10;
+
+/// Reason of a tracked pair whose object was found again by its template
+/// after a loss.
+pub const REACQUIRED: &str = "reacquired";
+
 /// Shortest side of an image's working copy that initialisation accepts
 /// (see [`InitParams::working_size`]).
 const MIN_WORKING_SIDE: u32 = 8;
@@ -240,7 +249,8 @@ pub struct PairResult {
     pub frame: u64,
     /// What happened.
     pub status: Status,
-    /// Why the pair is lost (or re-initialised); null otherwise.
+    /// Why the pair is lost, or `reacquired` on a tracked pair whose object
+    /// was found again by its template after a loss; null otherwise.
     pub reason: Option<String>,
     /// The left contour (null when nothing was found).
     pub left: Option<ImageResult>,
@@ -367,7 +377,8 @@ pub struct TrackerState {
     pub width: u32,
     /// See `width`.
     pub height: u32,
-    /// True after a lost pair: the next pair initialises again.
+    /// True after a lost pair: the next pair searches for the template
+    /// (or, after [`REACQUIRE_PAIRS`] searches in vain, initialises again).
     pub lost: bool,
     /// Left pose change over the last pair (x, y, rotation): the next pair
     /// is predicted to continue it.
@@ -398,6 +409,10 @@ pub struct TrackerState {
     /// 0: none.
     #[serde(default)]
     pub prefilter_sigma_px: f64,
+    /// Pairs since the object was lost whose search for its template found
+    /// nothing (see [`REACQUIRE_PAIRS`]).
+    #[serde(default)]
+    pub missed_searches: u32,
 }
 
 impl TrackerState {
@@ -526,7 +541,12 @@ impl StereoTracker {
                 });
             }
         }
-        let initialising = self.state.as_ref().is_none_or(|s| s.lost);
+        let searching = self
+            .state
+            .as_ref()
+            .is_some_and(|s| s.lost && s.missed_searches < REACQUIRE_PAIRS)
+            && self.template.is_some();
+        let initialising = self.state.as_ref().is_none_or(|s| s.lost) && !searching;
         if initialising {
             let (working_width, working_height) = self.params.init.working_size(left.width, left.height);
             if working_width < MIN_WORKING_SIDE || working_height < MIN_WORKING_SIDE {
@@ -567,6 +587,17 @@ impl StereoTracker {
                     (left, right)
                 };
                 let result = self.track(frame, (left, right), bands, state, &templates);
+                self.prefiltered = prefiltered;
+                self.template = Some(templates);
+                result
+            }
+            (Some(state), Some(templates)) if searching => {
+                let state = state.clone();
+                let mut prefiltered = std::mem::take(&mut self.prefiltered);
+                let sigma = state.prefilter_sigma_px;
+                let whole = [PixelRect::full(left); 2];
+                let smoothed = prefiltered.pair(left, right, sigma, whole);
+                let result = self.reacquire(frame, (left, right), smoothed, state, &templates);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
                 result
@@ -751,6 +782,7 @@ impl StereoTracker {
             right_sector_contrasts,
             outline,
             prefilter_sigma_px,
+            missed_searches: 0,
         };
         let [left_bands, right_bands] = noise_bands(
             &state,
@@ -1409,34 +1441,47 @@ impl StereoTracker {
     ) -> Vec<Pose> {
         let step = (template.area / template.length).clamp(1.5, 4.0);
         let k = (self.params.rigid.search_radius_px / step).floor() as i64;
-        let energy = &self.params.energy;
-        let mut placed = Vec::with_capacity(template.coarse.len());
+        let rows = if line.is_some() { 0 } else { k };
         let pose_at = |i: i64, j: i64| {
             let (dx, dy) = match line {
                 Some(u) => (i as f64 * step * u[0], i as f64 * step * u[1]),
                 None => (i as f64 * step, j as f64 * step),
             };
-            Pose {
+            (i * i + j * j <= k * k && (i, j) != (0, 0)).then_some(Pose {
                 x: predicted.x + dx,
                 y: predicted.y + dy,
                 theta: predicted.theta,
-            }
+            })
         };
-        let mut at = |i: i64, j: i64| -> f64 {
-            if i * i + j * j > k * k {
-                return f64::INFINITY;
-            }
-            let pose = pose_at(i, j);
-            place_into(&template.coarse, pose, &mut placed);
-            template
-                .energy_of(sums, &placed, pose, template.coarse_length, energy)
-                .energy
-        };
-        let rows = if line.is_some() { 0 } else { k };
+        self.lowest_on_grid(sums, template, [k, rows], pose_at, 3)
+    }
+
+    /// The `count` lowest local minima of the decimated template's energy
+    /// over the grid `-half[0]..=half[0]` x `-half[1]..=half[1]`, whose
+    /// points `pose_at` places (`None`: not searched).
+    fn lowest_on_grid(
+        &self,
+        sums: &PrefixSums,
+        template: &RigidTemplate,
+        half: [i64; 2],
+        pose_at: impl Fn(i64, i64) -> Option<Pose>,
+        count: usize,
+    ) -> Vec<Pose> {
+        let [k, rows] = half;
+        let energy = &self.params.energy;
+        let mut placed = Vec::with_capacity(template.coarse.len());
         let side = (2 * k + 1) as usize;
         let grid: Vec<f64> = (-rows..=rows)
             .flat_map(|j| (-k..=k).map(move |i| (i, j)))
-            .map(|(i, j)| at(i, j))
+            .map(|(i, j)| match pose_at(i, j) {
+                Some(pose) => {
+                    place_into(&template.coarse, pose, &mut placed);
+                    template
+                        .energy_of(sums, &placed, pose, template.coarse_length, energy)
+                        .energy
+                }
+                None => f64::INFINITY,
+            })
             .collect();
         let value = |i: i64, j: i64| -> f64 {
             if i.abs() > k || j.abs() > rows {
@@ -1457,7 +1502,7 @@ impl StereoTracker {
                             (dj, di) == (0, 0) || n > e || ((dj, di) < (0, 0) && n == e)
                         })
                     });
-                if lowest && (i, j) != (0, 0) {
+                if lowest {
                     minima.push((e, i, j));
                 }
             }
@@ -1465,9 +1510,157 @@ impl StereoTracker {
         minima.sort_by(|a, b| a.0.total_cmp(&b.0));
         minima
             .into_iter()
-            .take(3)
-            .map(|(_, i, j)| pose_at(i, j))
+            .filter_map(|(_, i, j)| pose_at(i, j))
+            .take(count)
             .collect()
+    }
+
+    /// The object sought by its template over the hint box (or the whole
+    /// image) after a loss: the five lowest local minima of the decimated
+    /// template's energy on a grid of centres (steps of half the template's
+    /// thickness, coarser on large images: at most about 20,000 points) at
+    /// the last rotation, each fitted rigidly within two steps; the lowest
+    /// energy among the fits whose sectors show the object as on the first
+    /// pair stands.
+    fn search_template<'f>(
+        &self,
+        frame: &'f GrayFrame,
+        (template, sectors): &(RigidTemplate, SectorTemplate),
+        reference: &[f64],
+        theta: f64,
+    ) -> Option<(ImageFit, PrefixSums<'f>)> {
+        let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
+        let (x0, y0, x1, y1) = (x as f64, y as f64, (x + w) as f64, (y + h) as f64);
+        let reach = template.radius + template.margin + 2.0;
+        let rect = PixelRect::covering(
+            x0 - reach,
+            y0 - reach,
+            x1 + reach,
+            y1 + reach,
+            frame.width,
+            frame.height,
+        )?;
+        let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
+        let step = (template.area / template.length)
+            .max(((x1 - x0) * (y1 - y0) / 20_000.0).sqrt())
+            .max(1.5);
+        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+        let half = [
+            (0.5 * (x1 - x0) / step).ceil() as i64,
+            (0.5 * (y1 - y0) / step).ceil() as i64,
+        ];
+        let pose_at = |i: i64, j: i64| {
+            Some(Pose {
+                x: cx + i as f64 * step,
+                y: cy + j as f64 * step,
+                theta,
+            })
+        };
+        let rigid = &self.params.rigid;
+        let occlusion = &self.params.occlusion;
+        self.lowest_on_grid(&sums, template, half, pose_at, 5)
+            .into_iter()
+            .map(|start| {
+                let out = fit_rigid_on_line(
+                    &sums,
+                    template,
+                    start,
+                    &self.params.energy,
+                    rigid,
+                    None,
+                    2.0 * step,
+                );
+                ImageFit::full(out.pose, out.terms)
+            })
+            .filter(|fit| {
+                fit.terms.energy.is_finite()
+                    && shows_object(
+                        &judge_sectors(
+                            reference,
+                            &sectors.contrasts(&sums, fit.pose),
+                            occlusion.min_contrast_ratio,
+                            occlusion.max_contrast_ratio,
+                        ),
+                        occlusion.max_occluded_fraction,
+                    )
+            })
+            .min_by(|a, b| a.terms.energy.total_cmp(&b.terms.energy))
+            .map(|fit| (fit, sums))
+    }
+
+    /// A pair after a loss: the object sought by its own template in the
+    /// left view ([`StereoTracker::search_template`]) and along the epipolar
+    /// line in the right one, found where both views show the object as on
+    /// the first pair; tracked from there, with reason [`REACQUIRED`].
+    /// Otherwise lost; after [`REACQUIRE_PAIRS`] such pairs the next one
+    /// initialises afresh.
+    fn reacquire(
+        &mut self,
+        frame: u64,
+        (raw_left, raw_right): (&GrayFrame, &GrayFrame),
+        (left, right): (&GrayFrame, &GrayFrame),
+        mut state: TrackerState,
+        templates: &(RigidTemplate, SectorTemplate),
+    ) -> PairResult {
+        let (template, sectors) = templates;
+        let occlusion = &self.params.occlusion;
+        let found = self
+            .search_template(left, templates, &state.left_sector_contrasts, state.left.theta)
+            .and_then(|(left_fit, left_sums)| {
+                let pose = self.search_right(right, template, left_fit.pose)?;
+                let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
+                let judged = judge_sectors(
+                    &state.right_sector_contrasts,
+                    &sectors.contrasts(&sums, pose),
+                    occlusion.min_contrast_ratio,
+                    occlusion.max_contrast_ratio,
+                );
+                let right_fit = ImageFit::full(pose, template.energy_at(&sums, pose, &self.params.energy));
+                shows_object(&judged, occlusion.max_occluded_fraction)
+                    .then_some(((left_fit, left_sums), (right_fit, sums)))
+            });
+        let Some(((mut left_fit, left_sums), (mut right_fit, right_sums))) = found else {
+            state.missed_searches += 1;
+            let reason = format!(
+                "lost; its template was not found in this pair ({} of {REACQUIRE_PAIRS} pairs searched; then the object is initialised afresh)",
+                state.missed_searches
+            );
+            self.state = Some(state);
+            return lost_result(frame, reason);
+        };
+        let candidate = TrackerState {
+            left: left_fit.pose,
+            right: right_fit.pose,
+            left_velocity: [0.0; 3],
+            lost: false,
+            missed_searches: 0,
+            ..state.clone()
+        };
+        let [left_bands, right_bands] = noise_bands(
+            &candidate,
+            template,
+            sectors,
+            [(raw_left, left_fit.pose), (raw_right, right_fit.pose)],
+        );
+        left_fit.axis_std_px = self.axis_std(left, &left_sums, template, sectors, &left_fit, left_bands);
+        right_fit.axis_std_px = self.axis_std(right, &right_sums, template, sectors, &right_fit, right_bands);
+        let mut result = self.pair_result(
+            frame,
+            Status::Tracked,
+            &candidate,
+            template,
+            &left_fit,
+            &right_fit,
+        );
+        if let Some(reason) = self.loss_reason(&candidate, template, &left_fit, &right_fit) {
+            state.missed_searches += 1;
+            result.mark_lost(reason);
+            self.state = Some(state);
+            return result;
+        }
+        result.reason = Some(REACQUIRED.into());
+        self.state = Some(candidate);
+        result
     }
 
     /// Searches the right image along the disparity axis for the template
@@ -1775,6 +1968,13 @@ const CROSS_CHECK_PX: f64 = 1.5;
 const DISPARITY_JUMP_PX: f64 = 3.0;
 
 /// Fraction of true marks.
+/// Whether a judgement shows the object as on the first pair: at most
+/// `max_occluded` of its sectors without their contrast, and the median
+/// sector within 0.7-1.43 of its first contrast.
+fn shows_object(judged: &crate::occlusion::SectorJudgement, max_occluded: f64) -> bool {
+    fraction(&judged.occluded) <= max_occluded && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
+}
+
 fn fraction(marks: &[bool]) -> f64 {
     if marks.is_empty() {
         0.0
@@ -1962,10 +2162,11 @@ mod tests {
         assert!(r.left.is_some(), "the left contour is kept for display");
         let reason = r.reason.unwrap();
         assert!(reason.contains("right image"), "{reason}");
-        // The next pair initialises again and measures normally, with a
-        // standard error.
+        // The next pair finds the object again by its template (issue #17)
+        // and measures normally, with a standard error.
         let again = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
-        assert_eq!(again.status, Status::Initialised, "{:?}", again.reason);
+        assert_eq!(again.status, Status::Tracked, "{:?}", again.reason);
+        assert_eq!(again.reason.as_deref(), Some(REACQUIRED));
         let std = again.disparity_std_px.expect("a standard error");
         assert!(std > 0.0 && std < 0.2, "clean sphere: {std}");
     }

@@ -1304,6 +1304,7 @@ mod tests {
             template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
             outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
             prefilter_sigma_px: 0.5 * f,
+            missed_searches: (i % 3) as u32,
         }
     }
 
