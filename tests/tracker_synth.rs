@@ -530,7 +530,12 @@ fn two_hundred_turning_pairs_do_not_creep() {
             "{name}: largest centroid creep {:.3} px (pair {}), disparity RMS {rms:.4} px",
             worst.0, worst.1
         );
-        assert!(worst.0 < 0.5, "{name}: the left centroid crept {:.3} px by pair {}", worst.0, worst.1);
+        assert!(
+            worst.0 < 0.5,
+            "{name}: the left centroid crept {:.3} px by pair {}",
+            worst.0,
+            worst.1
+        );
         assert!(rms <= 0.15, "{name}: disparity RMS {rms:.4} px > 0.15");
     }
 }

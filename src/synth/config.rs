@@ -129,11 +129,14 @@ pub enum Preset {
     /// margins (a reversal is a 30-40 px miss of a constant-velocity
     /// prediction), moderate noise.
     Fast,
+    /// `noisy`'s strong noise, `occluded`'s occluder and `flicker`'s
+    /// grey-level changes together.
+    Combined,
 }
 
 impl Preset {
     /// Every preset, in declaration order.
-    pub const ALL: [Preset; 12] = [
+    pub const ALL: [Preset; 13] = [
         Preset::Clean,
         Preset::Noisy,
         Preset::Cluttered,
@@ -146,6 +149,7 @@ impl Preset {
         Preset::Relief,
         Preset::Crossing,
         Preset::Fast,
+        Preset::Combined,
     ];
 
     /// The original five presets: a bright object fully inside the frame
@@ -170,9 +174,10 @@ impl Preset {
         Preset::Relief,
     ];
 
-    /// The motion conditions of the tracker (an occluder moving on its own,
-    /// 15-20 px between pairs): the object is visible in every pair.
-    pub const MOTION: [Preset; 2] = [Preset::Crossing, Preset::Fast];
+    /// The tracker's hard conditions (an occluder moving on its own, 15-20
+    /// px between pairs, strong noise with occlusion and flicker): the
+    /// object is visible in every pair.
+    pub const TRACKING: [Preset; 3] = [Preset::Crossing, Preset::Fast, Preset::Combined];
 
     /// The snake_case name used in JSON and on the command line.
     pub fn name(self) -> &'static str {
@@ -189,6 +194,7 @@ impl Preset {
             Preset::Relief => "relief",
             Preset::Crossing => "crossing",
             Preset::Fast => "fast",
+            Preset::Combined => "combined",
         }
     }
 }
@@ -698,6 +704,22 @@ impl SynthConfig {
             }
             Preset::Flicker => {
                 cfg.noise = moderate_noise(&mut rng);
+                cfg.flicker = 0.2;
+            }
+            Preset::Combined => {
+                let object_level = cfg.background_level + cfg.object_contrast;
+                cfg.noise = Noise {
+                    dose: Some(q(rng.gen_range(8.0..15.0) / object_level)),
+                    read_noise: 0.02,
+                    line_jitter_px: q(rng.gen_range(0.2..0.4)),
+                    line_gain: 0.03,
+                };
+                let dark = rng.gen_bool(0.3);
+                cfg.occlusion = Some(Occlusion {
+                    brightness: if dark { 0.1 } else { q(rng.gen_range(0.75..0.9)) },
+                    z_offset_um: q(rng.gen_range(1.0..3.0) / cfg.disparity.px_per_um),
+                    ..Occlusion::default()
+                });
                 cfg.flicker = 0.2;
             }
             Preset::BorderTool => cfg.make_border_tool(&mut rng),
