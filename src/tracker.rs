@@ -1046,6 +1046,26 @@ impl StereoTracker {
                 right_fit = right_from(left_fit.pose).0;
             }
         }
+        // The disparity jumped while much of the left outline is hidden:
+        // too little is visible to tell the object's disparity from the
+        // occluder's, or from a guess along the line (a rod 58% occluded
+        // was reported 32 px off, `tracked`).
+        let jump = dist(
+            [
+                right_fit.pose.x - left_fit.pose.x,
+                right_fit.pose.y - left_fit.pose.y,
+            ],
+            [state.right.x - state.left.x, state.right.y - state.left.y],
+        );
+        let occluded_jump = (jump > DISPARITY_JUMP_PX
+            && left_fit.occluded_fraction() > OCCLUDED_JUMP_FRACTION)
+            .then(|| {
+                format!(
+                    "occluded: the disparity jumped {jump:.1} px while {:.0}% of the left outline is hidden (limit {:.0}%)",
+                    100.0 * left_fit.occluded_fraction(),
+                    100.0 * OCCLUDED_JUMP_FRACTION
+                )
+            });
         let reach = self.params.rigid.search_radius_px;
         let candidate = TrackerState {
             left: left_fit.pose,
@@ -1065,8 +1085,11 @@ impl StereoTracker {
             &left_fit,
             &right_fit,
         );
-        if let Some(reason) = self.loss_reason(&candidate, template, &left_fit, &right_fit) {
-            // Keep the last good poses; the next pair initialises again.
+        if let Some(reason) =
+            occluded_jump.or_else(|| self.loss_reason(&candidate, template, &left_fit, &right_fit))
+        {
+            // Keep the last good poses; the next pair searches for the
+            // template.
             result.mark_lost(reason);
             state.lost = true;
             self.state = Some(state);
@@ -1966,6 +1989,10 @@ const CROSS_CHECK_PX: f64 = 1.5;
 /// before the right image is searched along the whole epipolar line (see
 /// [`StereoTracker::track`]).
 const DISPARITY_JUMP_PX: f64 = 3.0;
+
+/// Largest occluded share of the left outline at which a disparity that
+/// jumped by more than [`DISPARITY_JUMP_PX`] is still trusted.
+const OCCLUDED_JUMP_FRACTION: f64 = 0.25;
 
 /// Fraction of true marks.
 /// Whether a judgement shows the object as on the first pair: at most
