@@ -43,7 +43,8 @@ import tempfile
 import time
 
 CONDITIONS = ("clean", "noisy", "occluded", "flicker", "cluttered",
-              "border_tool", "scratched", "dark", "blurred", "relief")
+              "border_tool", "scratched", "dark", "blurred", "relief",
+              "crossing", "fast", "combined")
 SHAPES = ("blob", "sphere", "tip", "rod")
 TEMPLATE_MARGIN = 4          # px added on every side of the true bounding box
 LEFT_SEARCH = (24, 24)       # +-x, +-y around the last left position
