@@ -11,9 +11,9 @@ use clap::{Args, ValueEnum};
 use super::CliError;
 use crate::imageio::DecodeLimits;
 use crate::service::state::{
-    ServiceConfig, DEFAULT_DB_PATH, DEFAULT_LISTEN, DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_MESSAGE_MIB,
-    DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H,
-    DEFAULT_WS_QUEUE,
+    ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_MAX_BODY_MIB,
+    DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_MESSAGE_MIB, DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S,
+    DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_QUEUE,
 };
 
 /// Log output format.
@@ -73,6 +73,14 @@ pub struct ServeArgs {
     /// disk fills. 0: no limit but the disk's.
     #[arg(long, env = "SEMDEPTH_MAX_DB_MIB", default_value_t = 0)]
     pub max_db_mib: u64,
+    /// Longest time a client may take to send a request's headers,
+    /// seconds; the connection is closed after it.
+    #[arg(long, env = "SEMDEPTH_HEADER_TIMEOUT_S", default_value_t = DEFAULT_HEADER_TIMEOUT_S)]
+    pub header_timeout_s: f64,
+    /// Most HTTP connections open at once (a WebSocket leaves the count
+    /// once upgraded); beyond it new connections are closed at once.
+    #[arg(long, env = "SEMDEPTH_MAX_CONNECTIONS", default_value_t = DEFAULT_MAX_CONNECTIONS)]
+    pub max_connections: usize,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -85,6 +93,12 @@ impl ServeArgs {
             return Err(CliError::input(format!(
                 "invalid --request-timeout-s {} (expected 0.1..=86400)",
                 self.request_timeout_s
+            )));
+        }
+        if !(self.header_timeout_s.is_finite() && (0.1..=3_600.0).contains(&self.header_timeout_s)) {
+            return Err(CliError::input(format!(
+                "invalid --header-timeout-s {} (expected 0.1..=3600)",
+                self.header_timeout_s
             )));
         }
         if !(self.session_expiry_h.is_finite() && (0.0..=100_000.0).contains(&self.session_expiry_h)) {
@@ -112,6 +126,8 @@ impl ServeArgs {
             session_expiry: (self.session_expiry_h > 0.0)
                 .then(|| Duration::from_secs_f64(self.session_expiry_h * 3600.0)),
             max_db_bytes: (self.max_db_mib > 0).then(|| self.max_db_mib.saturating_mul(1 << 20)),
+            header_timeout: Duration::from_secs_f64(self.header_timeout_s),
+            max_connections: self.max_connections,
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

@@ -5,6 +5,7 @@
 //!
 //! - [`serve`]: runs the server on a given listener until a shutdown future
 //!   resolves (tests pass a port-0 listener).
+//! - [`listener`]: the accept loop (header deadline, connection cap).
 //! - [`state`]: configuration, sessions and calibrations in memory.
 //! - [`pipeline`]: decode and track one pair, in session order, bounded.
 //! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
@@ -32,6 +33,7 @@ use utoipa_axum::router::OpenApiRouter;
 
 pub mod calibrations;
 pub mod error;
+pub mod listener;
 pub mod metrics;
 pub mod model;
 pub mod ops;
@@ -98,9 +100,11 @@ pub async fn serve(
         "semdepth listening"
     );
     let stop = state.shutdown.clone();
-    axum::serve(listener, app)
-        .with_graceful_shutdown(async move { stop.cancelled().await })
-        .await?;
+    let limits = listener::Limits {
+        header_timeout: state.config.header_timeout,
+        max_connections: state.config.max_connections,
+    };
+    listener::serve(listener, app, limits, stop).await;
     // HTTP connections are drained; the WebSocket tasks finish their queued
     // pairs and send close frames.
     state.sockets.close();

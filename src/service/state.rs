@@ -35,6 +35,13 @@ pub const DEFAULT_MAX_SESSIONS: usize = 256;
 pub const DEFAULT_RETENTION: u64 = 100_000;
 /// Default longest time of one HTTP request, seconds.
 pub const DEFAULT_REQUEST_TIMEOUT_S: f64 = 60.0;
+
+/// Default for [`ServiceConfig::header_timeout`], seconds.
+pub const DEFAULT_HEADER_TIMEOUT_S: f64 = 10.0;
+
+/// Default for [`ServiceConfig::max_connections`]: well inside a 1024
+/// file-descriptor limit, with room for the database and its journal.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
 /// Default number of pairs waiting per WebSocket under `policy=all`.
 pub const DEFAULT_WS_QUEUE: usize = 4;
 /// Default time after which a session without activity is deleted, hours
@@ -72,6 +79,12 @@ pub struct ServiceConfig {
     pub session_expiry: Option<Duration>,
     /// Largest size of the database file in bytes; None: the disk's.
     pub max_db_bytes: Option<u64>,
+    /// Longest time a client may take to send a request's headers; the
+    /// connection is closed after it (a slow-header client holds nothing).
+    pub header_timeout: Duration,
+    /// Most HTTP connections open at once (a WebSocket leaves the count
+    /// once upgraded); beyond it new connections are closed at once, unread.
+    pub max_connections: usize,
 }
 
 impl Default for ServiceConfig {
@@ -89,6 +102,8 @@ impl Default for ServiceConfig {
             ws_queue: DEFAULT_WS_QUEUE,
             session_expiry: Some(Duration::from_secs_f64(DEFAULT_SESSION_EXPIRY_H * 3600.0)),
             max_db_bytes: None,
+            header_timeout: Duration::from_secs_f64(DEFAULT_HEADER_TIMEOUT_S),
+            max_connections: DEFAULT_MAX_CONNECTIONS,
         }
     }
 }
@@ -120,6 +135,15 @@ impl ServiceConfig {
         }
         if self.default_retention == 0 {
             return Err("invalid retention 0 (expected at least 1)".into());
+        }
+        if self.max_connections < 2 {
+            return Err(format!(
+                "invalid max connections {} (expected at least 2)",
+                self.max_connections
+            ));
+        }
+        if self.header_timeout.is_zero() {
+            return Err("invalid header timeout 0 s (expected more than 0)".into());
         }
         if !(1..=64).contains(&self.ws_queue) {
             return Err(format!(
