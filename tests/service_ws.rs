@@ -545,3 +545,55 @@ async fn broken_streams_close_with_the_reason() {
     assert_eq!(reply["status"], "initialised", "{reply}");
     ws.close(None).await.unwrap();
 }
+
+/// Issue #21, item 1: a stream on which no whole message arrives within
+/// the idle timeout (here 1 s) is closed with 1008 and the reason: a
+/// half-sent frame (its header only) and a silent client alike. The
+/// session still streams afterwards.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn idle_and_half_sent_streams_are_closed_at_the_idle_timeout() {
+    use tokio::io::AsyncWriteExt;
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.ws_idle_timeout = Duration::from_secs(1);
+    let server = TestServer::start(config).await;
+    let sid = new_session(&server.base).await;
+
+    // A frame header announcing 100 bytes, then nothing.
+    let mut half = raw_stream(&server, &sid).await;
+    let started = Instant::now();
+    half.write_all(&[0x80 | 0x02, 0x80 | 100, 1, 2, 3, 4])
+        .await
+        .unwrap();
+    let (code, reason) = raw_close_of(&mut half).await;
+    assert_eq!(code, 1008, "{reason}");
+    assert!(reason.contains("idle"), "{reason}");
+    let after = started.elapsed();
+    assert!(
+        after >= Duration::from_millis(900) && after < Duration::from_secs(10),
+        "closed after {after:?} (timeout 1 s)"
+    );
+
+    // A client that says nothing at all.
+    let mut silent = raw_stream(&server, &sid).await;
+    let (code, reason) = raw_close_of(&mut silent).await;
+    assert_eq!(code, 1008, "{reason}");
+
+    // A client that streams is not cut off between its pairs.
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 1, 3);
+    for (i, pair) in pairs.iter().enumerate() {
+        tokio::time::sleep(Duration::from_millis(600)).await;
+        ws.send(Message::Binary(sdp1_raw(i as u64, pair).into()))
+            .await
+            .unwrap();
+        let reply = next_reply(&mut ws).await;
+        assert!(
+            reply["status"] == "initialised" || reply["status"] == "tracked",
+            "{reply}"
+        );
+    }
+    ws.close(None).await.unwrap();
+}

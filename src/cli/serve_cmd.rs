@@ -13,7 +13,7 @@ use crate::imageio::DecodeLimits;
 use crate::service::state::{
     ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_MAX_BODY_MIB,
     DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_MESSAGE_MIB, DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S,
-    DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_QUEUE,
+    DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
 };
 
 /// Log output format.
@@ -81,6 +81,10 @@ pub struct ServeArgs {
     /// once upgraded); beyond it new connections are closed at once.
     #[arg(long, env = "SEMDEPTH_MAX_CONNECTIONS", default_value_t = DEFAULT_MAX_CONNECTIONS)]
     pub max_connections: usize,
+    /// Close a WebSocket on which no whole message arrives for this many
+    /// seconds (1008, saying so).
+    #[arg(long, env = "SEMDEPTH_WS_IDLE_TIMEOUT_S", default_value_t = DEFAULT_WS_IDLE_TIMEOUT_S)]
+    pub ws_idle_timeout_s: f64,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -99,6 +103,12 @@ impl ServeArgs {
             return Err(CliError::input(format!(
                 "invalid --header-timeout-s {} (expected 0.1..=3600)",
                 self.header_timeout_s
+            )));
+        }
+        if !(self.ws_idle_timeout_s.is_finite() && (0.1..=86_400.0).contains(&self.ws_idle_timeout_s)) {
+            return Err(CliError::input(format!(
+                "invalid --ws-idle-timeout-s {} (expected 0.1..=86400)",
+                self.ws_idle_timeout_s
             )));
         }
         if !(self.session_expiry_h.is_finite() && (0.0..=100_000.0).contains(&self.session_expiry_h)) {
@@ -128,6 +138,7 @@ impl ServeArgs {
             max_db_bytes: (self.max_db_mib > 0).then(|| self.max_db_mib.saturating_mul(1 << 20)),
             header_timeout: Duration::from_secs_f64(self.header_timeout_s),
             max_connections: self.max_connections,
+            ws_idle_timeout: Duration::from_secs_f64(self.ws_idle_timeout_s),
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

@@ -39,6 +39,9 @@ pub const DEFAULT_REQUEST_TIMEOUT_S: f64 = 60.0;
 /// Default for [`ServiceConfig::header_timeout`], seconds.
 pub const DEFAULT_HEADER_TIMEOUT_S: f64 = 10.0;
 
+/// Default for [`ServiceConfig::ws_idle_timeout`], seconds.
+pub const DEFAULT_WS_IDLE_TIMEOUT_S: f64 = 300.0;
+
 /// Default for [`ServiceConfig::max_connections`]: well inside a 1024
 /// file-descriptor limit, with room for the database and its journal.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
@@ -85,6 +88,9 @@ pub struct ServiceConfig {
     /// Most HTTP connections open at once (a WebSocket leaves the count
     /// once upgraded); beyond it new connections are closed at once, unread.
     pub max_connections: usize,
+    /// A WebSocket on which no whole message arrives for this long is
+    /// closed (1008, saying so): a half-sent frame holds nothing for good.
+    pub ws_idle_timeout: Duration,
 }
 
 impl Default for ServiceConfig {
@@ -104,6 +110,7 @@ impl Default for ServiceConfig {
             max_db_bytes: None,
             header_timeout: Duration::from_secs_f64(DEFAULT_HEADER_TIMEOUT_S),
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            ws_idle_timeout: Duration::from_secs_f64(DEFAULT_WS_IDLE_TIMEOUT_S),
         }
     }
 }
@@ -144,6 +151,9 @@ impl ServiceConfig {
         }
         if self.header_timeout.is_zero() {
             return Err("invalid header timeout 0 s (expected more than 0)".into());
+        }
+        if self.ws_idle_timeout.is_zero() {
+            return Err("invalid WebSocket idle timeout 0 s (expected more than 0)".into());
         }
         if !(1..=64).contains(&self.ws_queue) {
             return Err(format!(

@@ -491,10 +491,25 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
 
     // Reader (this task).
     loop {
+        let idle = state.config.ws_idle_timeout;
         let message = tokio::select! {
             _ = state.shutdown.cancelled() => break,
             _ = done.cancelled() => break,
-            m = stream.next() => m,
+            m = tokio::time::timeout(idle, stream.next()) => match m {
+                Ok(m) => m,
+                // Nothing whole arrived (a half-sent frame, a client gone
+                // silent): the stream ends and says why.
+                Err(_) => {
+                    tracing::info!(session = %session.id, idle_s = idle.as_secs_f64(), "stream idle; closing");
+                    if let Ok(mut b) = broken.lock() {
+                        *b = Some(CloseFrame {
+                            code: close_code::POLICY,
+                            reason: format!("no message for {} s (idle timeout)", idle.as_secs_f64()).into(),
+                        });
+                    }
+                    break;
+                }
+            },
         };
         let message = match message {
             Some(Ok(m)) => m,
