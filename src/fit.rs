@@ -102,15 +102,7 @@ pub fn free_fit_tables<'f>(
     energy: &EnergyParams,
 ) -> Option<PrefixSums<'f>> {
     let slack = energy.margin_for_area(contour.area()) + FREE_FIT_SLACK_PX;
-    let [x0, y0, x1, y1] = contour.bounds();
-    let rect = PixelRect::covering(
-        x0 - slack,
-        y0 - slack,
-        x1 + slack,
-        y1 + slack,
-        frame.width,
-        frame.height,
-    )?;
+    let rect = PixelRect::around(contour.bounds(), slack, frame.width, frame.height)?;
     Some(PrefixSums::new(frame, rect, INTENSITY_OFFSET))
 }
 

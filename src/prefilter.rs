@@ -136,16 +136,8 @@ pub fn substrate_whiteness(frame: &GrayFrame, contour: &Polygon) -> Option<f64> 
     const GAP_PX: f64 = 4.0;
     const RING_PX: f64 = 8.0;
     let near = contour.offset_along_normals(GAP_PX);
-    let [x0, y0, x1, y1] = contour.bounds();
     let reach = GAP_PX + RING_PX;
-    let rect = PixelRect::covering(
-        x0 - reach,
-        y0 - reach,
-        x1 + reach,
-        y1 + reach,
-        frame.width,
-        frame.height,
-    )?;
+    let rect = PixelRect::around(contour.bounds(), reach, frame.width, frame.height)?;
     let (w, h) = (rect.width as usize, rect.height as usize);
     let local = |p: &Polygon| {
         p.translated([-(rect.x as f64), -(rect.y as f64)])

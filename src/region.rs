@@ -73,6 +73,12 @@ impl PixelRect {
         }
     }
 
+    /// [`PixelRect::covering`] the box `[x0, y0, x1, y1]` grown by `reach`
+    /// on every side.
+    pub fn around([x0, y0, x1, y1]: [f64; 4], reach: f64, width: u32, height: u32) -> Option<Self> {
+        Self::covering(x0 - reach, y0 - reach, x1 + reach, y1 + reach, width, height)
+    }
+
     /// The pixels whose boxes meet the continuous box `[x0, x1] x [y0, y1]`,
     /// clipped to a `width` x `height` image; `None` when nothing is left.
     pub fn covering(x0: f64, y0: f64, x1: f64, y1: f64, width: u32, height: u32) -> Option<Self> {

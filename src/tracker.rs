@@ -1555,14 +1555,7 @@ impl StereoTracker {
         let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
         let (x0, y0, x1, y1) = (x as f64, y as f64, (x + w) as f64, (y + h) as f64);
         let reach = template.radius + template.margin + 2.0;
-        let rect = PixelRect::covering(
-            x0 - reach,
-            y0 - reach,
-            x1 + reach,
-            y1 + reach,
-            frame.width,
-            frame.height,
-        )?;
+        let rect = PixelRect::around([x0, y0, x1, y1], reach, frame.width, frame.height)?;
         let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
         let step = (template.area / template.length)
             .max(((x1 - x0) * (y1 - y0) / 20_000.0).sqrt())
@@ -1789,14 +1782,7 @@ impl StereoTracker {
         // tables. Split tables that would not be smaller are not built.
         let guard = SectorTemplate::outer_band_width(template);
         let r = template.radius + guard + Self::NEAR_REACH_PX + 2.0;
-        let polygons = PixelRect::covering(
-            pose.x - r,
-            pose.y - r,
-            pose.x + r,
-            pose.y + r,
-            frame.width,
-            frame.height,
-        );
+        let polygons = PixelRect::around([pose.x, pose.y, pose.x, pose.y], r, frame.width, frame.height);
         let Some(polygons) = polygons.filter(|p| p.width * p.height < near.width * near.height) else {
             return PrefixSums::new(frame, near, INTENSITY_OFFSET);
         };

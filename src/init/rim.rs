@@ -56,15 +56,7 @@ pub(super) fn grow_over_rim(
     min_excess: f64,
 ) -> Option<Grown> {
     let reach = max_px + SUBSTRATE_BAND_PX[1] + 2.0;
-    let [x0, y0, x1, y1] = contour.bounds();
-    let rect = PixelRect::covering(
-        x0 - reach,
-        y0 - reach,
-        x1 + reach,
-        y1 + reach,
-        frame.width,
-        frame.height,
-    )?;
+    let rect = PixelRect::around(contour.bounds(), reach, frame.width, frame.height)?;
     let n = contour.len();
     if n < 16 {
         return None;
