@@ -600,6 +600,30 @@ fn moderate_noise(rng: &mut ChaCha8Rng) -> Noise {
     }
 }
 
+/// "Strong" noise of the noisy and combined presets: 8-15 electrons at the
+/// object's grey level, read noise, scan-line jitter and gain.
+fn strong_noise(cfg: &SynthConfig, rng: &mut ChaCha8Rng) -> Noise {
+    let object_level = cfg.background_level + cfg.object_contrast;
+    Noise {
+        dose: Some(q(rng.gen_range(8.0..15.0) / object_level)),
+        read_noise: 0.02,
+        line_jitter_px: q(rng.gen_range(0.2..0.4)),
+        line_gain: 0.03,
+    }
+}
+
+/// The occluder of the occluded and combined presets: dark in 30% of the
+/// seeds, otherwise bright, 1-3 px of disparity above the object, hiding a
+/// quarter of it.
+fn quarter_occluder(cfg: &SynthConfig, rng: &mut ChaCha8Rng) -> Occlusion {
+    let dark = rng.gen_bool(0.3);
+    Occlusion {
+        brightness: if dark { 0.1 } else { q(rng.gen_range(0.75..0.9)) },
+        z_offset_um: q(rng.gen_range(1.0..3.0) / cfg.disparity.px_per_um),
+        ..Occlusion::default()
+    }
+}
+
 /// Seed-dependent motion and stereo geometry for a 640x480-like frame.
 fn random_motion(rng: &mut ChaCha8Rng) -> (Motion, Disparity) {
     let dir = rng.gen_range(0.0..std::f64::consts::TAU);
@@ -658,16 +682,7 @@ impl SynthConfig {
                 cfg.object_texture = 0.02;
                 cfg.clutter.texture_amplitude = 0.015;
             }
-            Preset::Noisy => {
-                // 8-15 electrons at the object's grey level.
-                let object_level = cfg.background_level + cfg.object_contrast;
-                cfg.noise = Noise {
-                    dose: Some(q(rng.gen_range(8.0..15.0) / object_level)),
-                    read_noise: 0.02,
-                    line_jitter_px: q(rng.gen_range(0.2..0.4)),
-                    line_gain: 0.03,
-                };
-            }
+            Preset::Noisy => cfg.noise = strong_noise(&cfg, &mut rng),
             Preset::Cluttered => {
                 cfg.noise = moderate_noise(&mut rng);
                 cfg.clutter = Clutter {
@@ -678,12 +693,7 @@ impl SynthConfig {
             }
             Preset::Occluded => {
                 cfg.noise = moderate_noise(&mut rng);
-                let dark = rng.gen_bool(0.3);
-                cfg.occlusion = Some(Occlusion {
-                    brightness: if dark { 0.1 } else { q(rng.gen_range(0.75..0.9)) },
-                    z_offset_um: q(rng.gen_range(1.0..3.0) / cfg.disparity.px_per_um),
-                    ..Occlusion::default()
-                });
+                cfg.occlusion = Some(quarter_occluder(&cfg, &mut rng));
             }
             Preset::Crossing => {
                 cfg.noise = moderate_noise(&mut rng);
@@ -707,19 +717,8 @@ impl SynthConfig {
                 cfg.flicker = 0.2;
             }
             Preset::Combined => {
-                let object_level = cfg.background_level + cfg.object_contrast;
-                cfg.noise = Noise {
-                    dose: Some(q(rng.gen_range(8.0..15.0) / object_level)),
-                    read_noise: 0.02,
-                    line_jitter_px: q(rng.gen_range(0.2..0.4)),
-                    line_gain: 0.03,
-                };
-                let dark = rng.gen_bool(0.3);
-                cfg.occlusion = Some(Occlusion {
-                    brightness: if dark { 0.1 } else { q(rng.gen_range(0.75..0.9)) },
-                    z_offset_um: q(rng.gen_range(1.0..3.0) / cfg.disparity.px_per_um),
-                    ..Occlusion::default()
-                });
+                cfg.noise = strong_noise(&cfg, &mut rng);
+                cfg.occlusion = Some(quarter_occluder(&cfg, &mut rng));
                 cfg.flicker = 0.2;
             }
             Preset::BorderTool => cfg.make_border_tool(&mut rng),
