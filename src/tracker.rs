@@ -1227,6 +1227,10 @@ impl StereoTracker {
             )
         };
         let widespread = |mask: &[bool]| fraction(mask) > occlusion.max_occluded_fraction;
+        // A fit that ran to the edge of the search disc wanted to go
+        // further: onto something else, such as an occluder.
+        let at_limit =
+            |fit: &ImageFit| dist(fit.pose.center(), predicted.center()) > rigid.search_radius_px - 1.0;
         // The tables first cover only a short reach around the prediction:
         // enough to judge it and, when the sectors confirm it, to fit from
         // it. Every other path, and a fit that reached the edge of the short
@@ -1245,14 +1249,12 @@ impl StereoTracker {
         if !cut && median >= 0.6 && mask.contains(&true) && !widespread(&mask) {
             // Part of the object looks occluded at the prediction. So do
             // the ends of a slender object that moved along its axis: a
-            // full fit that finds every sector as it was stands.
-            // A fit that ran to the edge of the search disc wanted to go
-            // further: onto something else, such as the occluder (a blob
-            // 46% occluded was pulled 24 px onto a bright one).
+            // full fit that finds every sector as it was stands, unless it
+            // ran to the edge of the disc (a blob 46% occluded was pulled
+            // 24 px onto a bright occluder).
             widen(&mut sums, &mut widened);
             let fit = full_fit(&sums, predicted, rigid);
-            let at_limit = dist(fit.pose.center(), predicted.center()) > rigid.search_radius_px - 1.0;
-            if !at_limit && !judge(&sums, fit.pose).occluded.contains(&true) {
+            if !at_limit(&fit) && !judge(&sums, fit.pose).occluded.contains(&true) {
                 return (fit, sums);
             }
         } else {
@@ -1299,8 +1301,7 @@ impl StereoTracker {
                     let judged = judge(sums, pose);
                     widespread(&judged.occluded) || judged.median_ratio < 0.6
                 };
-                let at_limit = dist(fit.pose.center(), predicted.center()) > rigid.search_radius_px - 1.0;
-                if line.is_some() || !(at_limit || lost_look(&sums, fit.pose)) {
+                if line.is_some() || !(at_limit(&fit) || lost_look(&sums, fit.pose)) {
                     fit
                 } else {
                     let fine_only = RigidParams {
@@ -1309,7 +1310,7 @@ impl StereoTracker {
                     };
                     let mut best = fit;
                     let mut from_last = false;
-                    for start in self.disc_starts(&sums, template, predicted, line) {
+                    for start in self.disc_starts(&sums, template, predicted) {
                         let fit = full_fit(&sums, start, &fine_only);
                         if fit.terms.energy < best.terms.energy && !lost_look(&sums, fit.pose) {
                             best = fit;
@@ -1317,7 +1318,7 @@ impl StereoTracker {
                     }
                     if let Some(last) = last.filter(|l| dist(l.center(), predicted.center()) > 1.0) {
                         let around = self.sums_around(frame, template, last, rigid.search_radius_px);
-                        let starts = self.disc_starts(&around, template, last, line);
+                        let starts = self.disc_starts(&around, template, last);
                         for start in std::iter::once(last).chain(starts) {
                             let fit = full_fit(&around, start, &fine_only);
                             if fit.terms.energy < best.terms.energy && !lost_look(&around, fit.pose) {
@@ -1449,34 +1450,22 @@ impl StereoTracker {
 
     /// Starts for a fit from a prediction that the sectors do not confirm:
     /// the three lowest local minima of the decimated template's energy on a
-    /// grid over the search disc around the prediction (or along `line`
-    /// through it), in steps of half the template's thickness (area over
-    /// perimeter), 1.5-4 px. A local search from the prediction misses an
+    /// grid over the search disc around the prediction, in steps of half the
+    /// template's thickness (area over perimeter), 1.5-4 px. A local search from the prediction misses an
     /// object that moved unlike its last motion: a reversal at 15-20 px per
     /// pair is 30-40 px from the prediction, and a rod that moved further
     /// than its width leaves no slope to follow.
-    fn disc_starts(
-        &self,
-        sums: &PrefixSums,
-        template: &RigidTemplate,
-        predicted: Pose,
-        line: Option<Point>,
-    ) -> Vec<Pose> {
+    fn disc_starts(&self, sums: &PrefixSums, template: &RigidTemplate, predicted: Pose) -> Vec<Pose> {
         let step = (template.area / template.length).clamp(1.5, 4.0);
         let k = (self.params.rigid.search_radius_px / step).floor() as i64;
-        let rows = if line.is_some() { 0 } else { k };
         let pose_at = |i: i64, j: i64| {
-            let (dx, dy) = match line {
-                Some(u) => (i as f64 * step * u[0], i as f64 * step * u[1]),
-                None => (i as f64 * step, j as f64 * step),
-            };
             (i * i + j * j <= k * k && (i, j) != (0, 0)).then_some(Pose {
-                x: predicted.x + dx,
-                y: predicted.y + dy,
+                x: predicted.x + i as f64 * step,
+                y: predicted.y + j as f64 * step,
                 theta: predicted.theta,
             })
         };
-        self.lowest_on_grid(sums, template, [k, rows], pose_at, 3)
+        self.lowest_on_grid(sums, template, [k, k], pose_at, 3)
     }
 
     /// The `count` lowest local minima of the decimated template's energy
@@ -1538,6 +1527,28 @@ impl StereoTracker {
             .collect()
     }
 
+    /// Whether the template at `pose` shows the object as on the first pair
+    /// (`reference`: that pair's sector contrasts in this view): at most
+    /// `max_occluded_fraction` of its sectors without their contrast, and
+    /// the median sector within 0.7-1.43 of its first contrast.
+    fn shows_object(
+        &self,
+        sums: &PrefixSums,
+        sectors: &SectorTemplate,
+        reference: &[f64],
+        pose: Pose,
+    ) -> bool {
+        let occlusion = &self.params.occlusion;
+        let judged = judge_sectors(
+            reference,
+            &sectors.contrasts(sums, pose),
+            occlusion.min_contrast_ratio,
+            occlusion.max_contrast_ratio,
+        );
+        fraction(&judged.occluded) <= occlusion.max_occluded_fraction
+            && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
+    }
+
     /// The object sought by its template over the hint box (or the whole
     /// image) after a loss: the five lowest local minima of the decimated
     /// template's energy on a grid of centres (steps of half the template's
@@ -1573,7 +1584,6 @@ impl StereoTracker {
             })
         };
         let rigid = &self.params.rigid;
-        let occlusion = &self.params.occlusion;
         self.lowest_on_grid(&sums, template, half, pose_at, 5)
             .into_iter()
             .map(|start| {
@@ -1589,16 +1599,7 @@ impl StereoTracker {
                 ImageFit::full(out.pose, out.terms)
             })
             .filter(|fit| {
-                fit.terms.energy.is_finite()
-                    && shows_object(
-                        &judge_sectors(
-                            reference,
-                            &sectors.contrasts(&sums, fit.pose),
-                            occlusion.min_contrast_ratio,
-                            occlusion.max_contrast_ratio,
-                        ),
-                        occlusion.max_occluded_fraction,
-                    )
+                fit.terms.energy.is_finite() && self.shows_object(&sums, sectors, reference, fit.pose)
             })
             .min_by(|a, b| a.terms.energy.total_cmp(&b.terms.energy))
             .map(|fit| (fit, sums))
@@ -1619,20 +1620,13 @@ impl StereoTracker {
         templates: &(RigidTemplate, SectorTemplate),
     ) -> PairResult {
         let (template, sectors) = templates;
-        let occlusion = &self.params.occlusion;
         let found = self
             .search_template(left, templates, &state.left_sector_contrasts, state.left.theta)
             .and_then(|(left_fit, left_sums)| {
                 let pose = self.search_right(right, template, left_fit.pose)?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-                let judged = judge_sectors(
-                    &state.right_sector_contrasts,
-                    &sectors.contrasts(&sums, pose),
-                    occlusion.min_contrast_ratio,
-                    occlusion.max_contrast_ratio,
-                );
                 let right_fit = ImageFit::full(pose, template.energy_at(&sums, pose, &self.params.energy));
-                shows_object(&judged, occlusion.max_occluded_fraction)
+                self.shows_object(&sums, sectors, &state.right_sector_contrasts, pose)
                     .then_some(((left_fit, left_sums), (right_fit, sums)))
             });
         let Some(((mut left_fit, left_sums), (mut right_fit, right_sums))) = found else {
@@ -1981,13 +1975,6 @@ const DISPARITY_JUMP_PX: f64 = 3.0;
 const OCCLUDED_JUMP_FRACTION: f64 = 0.25;
 
 /// Fraction of true marks.
-/// Whether a judgement shows the object as on the first pair: at most
-/// `max_occluded` of its sectors without their contrast, and the median
-/// sector within 0.7-1.43 of its first contrast.
-fn shows_object(judged: &crate::occlusion::SectorJudgement, max_occluded: f64) -> bool {
-    fraction(&judged.occluded) <= max_occluded && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
-}
-
 fn fraction(marks: &[bool]) -> f64 {
     if marks.is_empty() {
         0.0
