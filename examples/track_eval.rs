@@ -10,7 +10,7 @@
 //! rotation per pair (rad). "Confident wrong":
 //! tracked pairs off by more than 1 px in disparity or 3 px in the left
 //! centroid, after removing the sequence's median offsets.
-use semdepth::synth::{frames, Preset, Shape, SynthConfig};
+use semdepth::synth::{deviations_from_medians, frames, Preset, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
 fn main() {
@@ -128,20 +128,10 @@ fn main() {
                 let mean = errs.iter().sum::<f64>() / errs.len().max(1) as f64;
                 // Confident wrong (issue #17): tracked while the disparity
                 // is off by more than 1 px or the left centroid by more than
-                // 3 px, after removing the sequence's median offset.
-                let median = |mut v: Vec<f64>| {
-                    v.sort_by(f64::total_cmp);
-                    v.get(v.len() / 2).copied().unwrap_or(0.0)
-                };
-                let (md, mx, my) = (
-                    median(errs.clone()),
-                    median(cents.iter().map(|c| c[0]).collect()),
-                    median(cents.iter().map(|c| c[1]).collect()),
-                );
-                wrong += errs
+                // 3 px, after removing the sequence's median offsets.
+                wrong += deviations_from_medians(&errs, &cents)
                     .iter()
-                    .zip(&cents)
-                    .filter(|(e, c)| (*e - md).abs() > 1.0 || (c[0] - mx).hypot(c[1] - my) > 3.0)
+                    .filter(|d| d.confident_wrong())
                     .count();
                 if std::env::var("VERBOSE").is_ok() {
                     let rms = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>()

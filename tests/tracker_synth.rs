@@ -8,7 +8,7 @@
 //! all pairs of the condition. Left centroid error: Euclidean, no offset
 //! removed. Lost pairs count as failures.
 
-use semdepth::synth::{frames, Preset, Shape, SynthConfig, SynthPair};
+use semdepth::synth::{deviations_from_medians, frames, Preset, Shape, SynthConfig, SynthPair};
 use semdepth::tracker::{PairResult, Status, StereoTracker, TrackerParams};
 
 const SEEDS: std::ops::Range<u64> = 100..105;
@@ -68,24 +68,15 @@ fn measure(preset: Preset, shapes: &[Shape], seeds: std::ops::Range<u64>, frame_
                 sq_centroid += centroid_error.powi(2);
                 centroid_max = centroid_max.max(centroid_error);
             }
-            let median = |mut v: Vec<f64>| {
-                v.sort_by(f64::total_cmp);
-                v.get(v.len() / 2).copied().unwrap_or(0.0)
-            };
-            let (md, mx, my) = (
-                median(errors.clone()),
-                median(centroid_errors.iter().map(|c| c[0]).collect()),
-                median(centroid_errors.iter().map(|c| c[1]).collect()),
-            );
-            for (e, c) in errors.iter().zip(&centroid_errors) {
-                if (e - md).abs() > 1.0 || (c[0] - mx).hypot(c[1] - my) > 3.0 {
+            for d in deviations_from_medians(&errors, &centroid_errors) {
+                if d.confident_wrong() {
                     eprintln!(
                         "{}/{}/{seed}: confident wrong: disparity {:+.2} px, centroid ({:+.1}, {:+.1}) px from the medians",
                         preset.name(),
                         shape.name(),
-                        e - md,
-                        c[0] - mx,
-                        c[1] - my
+                        d.disparity_px,
+                        d.centroid_px[0],
+                        d.centroid_px[1]
                     );
                     confident_wrong += 1;
                 }

@@ -41,7 +41,9 @@ pub use output::{write_sequence, SequenceSummary};
 pub use scene::Scene;
 pub use shapes::MIN_VERTICES;
 pub use substrate::SubstrateLine;
-pub use truth::{clip_to_frame, FrameTruth, ObjectTruth, OccluderTruth, SynthPair};
+pub use truth::{
+    clip_to_frame, deviations_from_medians, Deviation, FrameTruth, ObjectTruth, OccluderTruth, SynthPair,
+};
 
 /// Why a sequence could not be generated or written.
 #[derive(Debug, thiserror::Error)]

@@ -958,3 +958,26 @@ fn assert_invalid(cases: Vec<(SynthConfig, &str)>) {
         }
     }
 }
+
+/// Issue #17's "confident wrong" rule: errors less the sequence's medians;
+/// more than 1 px of disparity or 3 px of centroid flags a pair.
+#[test]
+fn confident_wrong_pairs_are_those_far_from_the_medians() {
+    use super::deviations_from_medians;
+    // Offsets 5 px (disparity) and (10, -4) px (centroid) are removed.
+    let disparity = [5.0, 5.1, 4.9, 6.2, 5.0];
+    let centroid = [
+        [10.0, -4.0],
+        [10.2, -4.1],
+        [10.0, -0.8],
+        [10.1, -4.0],
+        [9.9, -3.9],
+    ];
+    let flags: Vec<bool> = deviations_from_medians(&disparity, &centroid)
+        .iter()
+        .map(|d| d.confident_wrong())
+        .collect();
+    assert_eq!(flags, [false, false, true, true, false]);
+    let d = deviations_from_medians(&disparity, &centroid)[3];
+    assert!((d.disparity_px - 1.2).abs() < 1e-12, "{d:?}");
+}

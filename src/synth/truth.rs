@@ -157,6 +157,48 @@ pub fn clip_to_frame(polygon: &Polygon, width: u32, height: u32) -> Polygon {
     polygon.clipped_to_box([-0.5, -0.5, xmax, ymax])
 }
 
+/// One tracked pair's errors against the truth less its sequence's median
+/// errors: what is left once the constant offsets (the template's own
+/// reference point, the disparity offset a calibration absorbs) are gone.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Deviation {
+    /// Disparity error along x minus the sequence's median, pixels.
+    pub disparity_px: f64,
+    /// Left-centroid error minus the sequence's medians (x and y), pixels.
+    pub centroid_px: Point,
+}
+
+impl Deviation {
+    /// "Confident wrong" (issue #17): a pair reported tracked while its
+    /// disparity is off by more than 1 px or its left centroid by more
+    /// than 3 px, after the medians are removed.
+    pub fn confident_wrong(&self) -> bool {
+        self.disparity_px.abs() > 1.0 || self.centroid_px[0].hypot(self.centroid_px[1]) > 3.0
+    }
+}
+
+/// The deviations of a sequence's tracked pairs: `disparity_errors[i]` and
+/// `centroid_errors[i]` are pair i's errors against the truth (measured
+/// minus true); each is taken less its median over the sequence (the
+/// upper median of an even count).
+pub fn deviations_from_medians(disparity_errors: &[f64], centroid_errors: &[Point]) -> Vec<Deviation> {
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let md = median(disparity_errors.to_vec());
+    let mx = median(centroid_errors.iter().map(|c| c[0]).collect());
+    let my = median(centroid_errors.iter().map(|c| c[1]).collect());
+    disparity_errors
+        .iter()
+        .zip(centroid_errors)
+        .map(|(e, c)| Deviation {
+            disparity_px: e - md,
+            centroid_px: [c[0] - mx, c[1] - my],
+        })
+        .collect()
+}
+
 /// The occluder of one frame (present from `Occlusion::enter_frame` on).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
