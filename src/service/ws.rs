@@ -490,8 +490,13 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
     };
 
     // Reader (this task).
+    let idle = state.config.ws_idle_timeout;
+    let say_why = |frame: CloseFrame| {
+        if let Ok(mut b) = broken.lock() {
+            *b = Some(frame);
+        }
+    };
     loop {
-        let idle = state.config.ws_idle_timeout;
         let message = tokio::select! {
             _ = state.shutdown.cancelled() => break,
             _ = done.cancelled() => break,
@@ -501,12 +506,10 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                 // silent): the stream ends and says why.
                 Err(_) => {
                     tracing::info!(session = %session.id, idle_s = idle.as_secs_f64(), "stream idle; closing");
-                    if let Ok(mut b) = broken.lock() {
-                        *b = Some(CloseFrame {
-                            code: close_code::POLICY,
-                            reason: format!("no message for {} s (idle timeout)", idle.as_secs_f64()).into(),
-                        });
-                    }
+                    say_why(CloseFrame {
+                        code: close_code::POLICY,
+                        reason: format!("no message for {} s (idle timeout)", idle.as_secs_f64()).into(),
+                    });
                     break;
                 }
             },
@@ -517,9 +520,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
             Some(Err(e)) => {
                 tracing::info!(session = %session.id, error = %e, "stream ended with an error");
                 if let Some(frame) = close_frame_for(e, state.config.max_ws_message_bytes) {
-                    if let Ok(mut b) = broken.lock() {
-                        *b = Some(frame);
-                    }
+                    say_why(frame);
                 }
                 break;
             }
