@@ -60,13 +60,14 @@ async fn slow_headers_are_cut_off_at_the_deadline() {
 }
 
 /// With a cap of 4 connections, 4 idle connections fill it: a fifth is
-/// closed at once, unread. Once the header deadline has closed the idle
+/// closed at once, unread. Once the header deadline (4 s: a busy machine
+/// must not free a slot before the fifth arrives) has closed the idle
 /// ones, `/healthz` answers again.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn connections_beyond_the_cap_are_closed_and_the_server_recovers() {
     let dir = tempfile::tempdir().unwrap();
     let mut config = test_config(&dir.path().join("db.sqlite3"));
-    config.header_timeout = Duration::from_secs(1);
+    config.header_timeout = Duration::from_secs(4);
     config.max_connections = 4;
     let server = TestServer::start(config).await;
     let mut idle = Vec::new();
@@ -83,7 +84,7 @@ async fn connections_beyond_the_cap_are_closed_and_the_server_recovers() {
     // answers again.
     for tcp in &mut idle {
         assert!(
-            closed_within(tcp, Duration::from_secs(5)).await.is_some(),
+            closed_within(tcp, Duration::from_secs(10)).await.is_some(),
             "an idle connection outlived the header deadline"
         );
     }
