@@ -18,6 +18,7 @@
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
 //! - [`uncertainty`]: standard error of a fitted position along the disparity axis (sandwich estimate from the energy's curvature and the pixel noise).
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
+//! - [`display`]: 8-bit PNG renderings of frames with contours drawn over them (the live view's images).
 //! - [`report`]: CSV rows of pair results (shared by the CLI and the service).
 //! - [`cli`]: the command-line front end used by `main.rs`.
 //!
@@ -26,6 +27,7 @@
 
 pub mod calib;
 pub mod cli;
+pub mod display;
 pub mod energy;
 pub mod fit;
 pub mod geometry;

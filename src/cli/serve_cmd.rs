@@ -11,9 +11,10 @@ use clap::{Args, ValueEnum};
 use super::CliError;
 use crate::imageio::DecodeLimits;
 use crate::service::state::{
-    ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_MAX_BODY_MIB,
-    DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_MESSAGE_MIB, DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S,
-    DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
+    ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_LIVE_VIEW_MIB,
+    DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_MESSAGE_MIB, DEFAULT_MAX_SESSIONS,
+    DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S,
+    DEFAULT_WS_QUEUE,
 };
 
 /// Log output format.
@@ -85,6 +86,11 @@ pub struct ServeArgs {
     /// seconds (1008, saying so).
     #[arg(long, env = "SEMDEPTH_WS_IDLE_TIMEOUT_S", default_value_t = DEFAULT_WS_IDLE_TIMEOUT_S)]
     pub ws_idle_timeout_s: f64,
+    /// Most MiB of decoded images kept for the live view (each session's
+    /// latest pair); beyond it the sessions updated longest ago show no
+    /// image until their next pair. 0 keeps none.
+    #[arg(long, env = "SEMDEPTH_LIVE_VIEW_MIB", default_value_t = DEFAULT_LIVE_VIEW_MIB)]
+    pub live_view_mib: usize,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -139,6 +145,7 @@ impl ServeArgs {
             header_timeout: Duration::from_secs_f64(self.header_timeout_s),
             max_connections: self.max_connections,
             ws_idle_timeout: Duration::from_secs_f64(self.ws_idle_timeout_s),
+            live_view_bytes: self.live_view_mib.saturating_mul(1 << 20),
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

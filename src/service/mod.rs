@@ -9,6 +9,7 @@
 //! - [`state`]: configuration, sessions and calibrations in memory.
 //! - [`pipeline`]: decode and track one pair, in session order, bounded.
 //! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
+//! - [`live`]: the browser page at `/`, latest frames as PNG, result events.
 //! - [`storage`]: the SQLite writer thread (group commit) and migrations.
 //! - [`model`], [`error`]: JSON shapes and the one error type.
 //! - [`metrics`]: Prometheus counters and histograms.
@@ -34,6 +35,7 @@ use utoipa_axum::router::OpenApiRouter;
 pub mod calibrations;
 pub mod error;
 pub mod listener;
+pub mod live;
 pub mod metrics;
 pub mod model;
 pub mod ops;
@@ -183,6 +185,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         metrics,
         shutdown: tokio_util::sync::CancellationToken::new(),
         sockets: tokio_util::task::TaskTracker::new(),
+        display: tokio::sync::Semaphore::new(1),
     })))
 }
 
@@ -193,6 +196,7 @@ pub fn app(state: AppState) -> Router {
     let timeout = config.request_timeout;
     let max_body = config.max_body_bytes;
     router
+        .merge(live::ui_router())
         .fallback(route_not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(middleware::from_fn(move |req: Request, next: Next| {
@@ -222,6 +226,7 @@ fn routes(token: Option<Arc<str>>) -> OpenApiRouter<AppState> {
         .merge(calibrations::router())
         .merge(sessions::router())
         .merge(ws::router())
+        .merge(live::router())
         .layer(middleware::from_fn(move |req: Request, next: Next| {
             require_token(token.clone(), req, next)
         }));
@@ -268,7 +273,7 @@ pub fn openapi_yaml_text() -> String {
         (name = "depth", description = "One-shot measurement without a session"),
         (name = "operations", description = "Health, readiness, metrics, this document"),
     ),
-    components(schemas(ws::PairHeader, ws::SkippedReply, ws::StreamErrorReply, ws::Encoding, ws::Policy))
+    components(schemas(ws::PairHeader, ws::SkippedReply, ws::StreamErrorReply, ws::Encoding, ws::Policy, live::Side, live::PngImage))
 )]
 struct ApiDoc;
 

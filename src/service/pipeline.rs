@@ -20,6 +20,7 @@ use crate::meta::{read_meta, ImageMeta};
 use crate::tracker::{PairResult, StereoTracker, TrackerParams};
 
 use super::error::ApiError;
+use super::live::{publish, LiveFrame};
 use super::model::{FrameResult, Provenance, TimingMs};
 use super::state::{now_rfc3339, AppState, Session, SessionCore};
 use super::storage::{PairRecord, StorageError};
@@ -161,19 +162,19 @@ pub async fn acknowledge(
 
 async fn run_session_pair(
     state: &AppState,
-    session: &Session,
+    session: &Arc<Session>,
     input: PairInput,
     provenance: Provenance,
     received: Instant,
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
     let (core, permit) = claim(state, session).await?;
-    let (task_state, session_id) = (state.clone(), session.id.clone());
+    let (task_state, task_session) = (state.clone(), session.clone());
     let outcome = tokio::task::spawn_blocking(move || {
         let mut core = core;
         track_locked(
             &task_state,
-            &session_id,
+            &task_session,
             &mut core,
             &input,
             provenance,
@@ -240,7 +241,7 @@ where
             return (queue, go_on);
         }
     };
-    let (task_state, session_id) = (state.clone(), session.id.clone());
+    let (task_state, task_session) = (state.clone(), session.clone());
     let joined = tokio::task::spawn_blocking(move || {
         let mut core = core;
         let started = Instant::now();
@@ -251,7 +252,7 @@ where
             let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                 track_locked(
                     &task_state,
-                    &session_id,
+                    &task_session,
                     &mut core,
                     &pair.input,
                     std::mem::take(&mut pair.provenance),
@@ -285,10 +286,11 @@ where
 
 /// Decodes and tracks one pair of a session whose core the caller holds
 /// (on the blocking pool), then queues the result and the tracker snapshot
-/// for storage. Pairs queued this way commit in frame order.
+/// for storage. Pairs queued this way commit in frame order; once committed,
+/// the pair becomes the session's [`LiveFrame`].
 fn track_locked(
     state: &AppState,
-    session_id: &str,
+    session: &Session,
     core: &mut SessionCore,
     input: &PairInput,
     provenance: Provenance,
@@ -297,8 +299,9 @@ fn track_locked(
 ) -> Result<TrackedPair, ApiError> {
     let calibration_id = core.calibration_id.clone();
     let (calibration, calibration_version) = state.calibration_model(calibration_id.as_deref()).unzip();
+    let session_id = session.id.as_str();
     let queue = ms(received.elapsed());
-    let (mut result, decode_ms, track_ms) =
+    let (mut result, decode_ms, track_ms, [left, right]) =
         decode_and_track(input, &state.config.decode_limits, &mut core.tracker)?;
     result.apply_calibration(calibration.as_ref(), &mut core.meta_watch);
     let now = now_rfc3339();
@@ -345,6 +348,19 @@ fn track_locked(
         tracker_state: core.tracker.state().cloned(),
         updated_at: now,
     });
+    let shown = LiveFrame {
+        result: frame.clone(),
+        images: Some(Arc::new([left, right])),
+        at: Instant::now(),
+    };
+    let (live_state, live_session) = (state.clone(), session.id.clone());
+    let commit = async move {
+        commit.await?;
+        if let Ok(session) = live_state.session(&live_session) {
+            publish(&live_state, &session, shown);
+        }
+        Ok(())
+    };
     Ok(TrackedPair {
         result: FrameResult { seq, ..frame },
         commit: Box::pin(commit),
@@ -372,7 +388,7 @@ pub async fn process_one_shot(
     let queue = ms(received.elapsed());
     let outcome = tokio::task::spawn_blocking(move || {
         let mut tracker = StereoTracker::new(params);
-        decode_and_track(&input, &limits, &mut tracker)
+        decode_and_track(&input, &limits, &mut tracker).map(|(r, d, t, _)| (r, d, t))
     })
     .await
     .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
@@ -430,12 +446,13 @@ async fn worker_permit(state: &AppState) -> Result<OwnedSemaphorePermit, ApiErro
     })
 }
 
-/// Decodes and tracks; returns the result and the decode and track times (ms).
+/// Decodes and tracks; returns the result, the decode and track times (ms)
+/// and the decoded images.
 fn decode_and_track(
     input: &PairInput,
     limits: &DecodeLimits,
     tracker: &mut StereoTracker,
-) -> Result<(PairResult, f64, f64), ApiError> {
+) -> Result<(PairResult, f64, f64, [GrayFrame; 2]), ApiError> {
     let started = Instant::now();
     let (left, right, meta) = input.decode(limits)?;
     let decoded = Instant::now();
@@ -443,7 +460,12 @@ fn decode_and_track(
     if let Some((l, r)) = meta {
         result.apply_metadata(&l, &r);
     }
-    Ok((result, ms(decoded - started), ms(decoded.elapsed())))
+    Ok((
+        result,
+        ms(decoded - started),
+        ms(decoded.elapsed()),
+        [left, right],
+    ))
 }
 
 fn ms(d: std::time::Duration) -> f64 {

@@ -42,6 +42,10 @@ pub const DEFAULT_HEADER_TIMEOUT_S: f64 = 10.0;
 /// Default for [`ServiceConfig::ws_idle_timeout`], seconds.
 pub const DEFAULT_WS_IDLE_TIMEOUT_S: f64 = 300.0;
 
+/// Default for [`ServiceConfig::live_view_bytes`], MiB: the latest pairs
+/// of about 80 sessions at 1024x768, 16 bits per sample.
+pub const DEFAULT_LIVE_VIEW_MIB: usize = 256;
+
 /// Default for [`ServiceConfig::max_connections`]: well inside a 1024
 /// file-descriptor limit, with room for the database and its journal.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
@@ -91,6 +95,10 @@ pub struct ServiceConfig {
     /// A WebSocket on which no whole message arrives for this long is
     /// closed (1008, saying so): a half-sent frame holds nothing for good.
     pub ws_idle_timeout: Duration,
+    /// Most bytes of decoded images kept for the live view (each session's
+    /// latest pair); beyond it the images of the sessions updated longest
+    /// ago are let go.
+    pub live_view_bytes: usize,
 }
 
 impl Default for ServiceConfig {
@@ -111,6 +119,7 @@ impl Default for ServiceConfig {
             header_timeout: Duration::from_secs_f64(DEFAULT_HEADER_TIMEOUT_S),
             max_connections: DEFAULT_MAX_CONNECTIONS,
             ws_idle_timeout: Duration::from_secs_f64(DEFAULT_WS_IDLE_TIMEOUT_S),
+            live_view_bytes: DEFAULT_LIVE_VIEW_MIB << 20,
         }
     }
 }
@@ -207,6 +216,8 @@ pub struct Inner {
     pub shutdown: CancellationToken,
     /// WebSocket tasks, awaited on shutdown.
     pub sockets: TaskTracker,
+    /// One live-view image rendered at a time (outside `workers`).
+    pub display: Semaphore,
 }
 
 /// One tracked object: its metadata and tracker behind one async lock, so
@@ -221,6 +232,9 @@ pub struct Session {
     /// Set when a pair of this session failed to store: the core has moved
     /// on without it and is reloaded from storage before its next use.
     pub behind: std::sync::atomic::AtomicBool,
+    /// The latest committed pair and its result, for the live view: outside
+    /// the core's lock, so viewers never wait for (or delay) a pair.
+    pub live: tokio::sync::watch::Sender<Option<Arc<super::live::LiveFrame>>>,
 }
 
 impl Session {
@@ -230,6 +244,7 @@ impl Session {
             id,
             core: Arc::new(Mutex::new(core)),
             behind: Default::default(),
+            live: tokio::sync::watch::Sender::new(None),
         }
     }
 
