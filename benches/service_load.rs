@@ -26,7 +26,7 @@
 //! under 20 ms at 100 pairs/s, under 5 MB of server memory per idle session.
 //!
 //! `cargo bench --bench service_load [-- --quick] [-- SCENARIO...]`
-//! (scenario names: ws_one, ws_paced, ws_eight, rest_one, rest_four,
+//! (scenario names: ws_one, ws_viewed, ws_paced, ws_eight, rest_one, rest_four,
 //! idle_memory; a name filters by substring; unknown flags are ignored).
 //! Prints a table and writes the figures as JSON to
 //! `target/service_load.json`.
@@ -732,6 +732,43 @@ impl CpuMeter {
 
 // --------------------------------------------------------------- scenarios
 
+/// What a live-view page does while a stream runs: follows the session's
+/// result events and, after each batch of them, fetches both latest images
+/// at the page's size (900 px). Counts events and images.
+async fn viewer(http: reqwest::Client, url: String, counts: Arc<[AtomicU64; 2]>) {
+    let Ok(mut events) = http.get(format!("{url}/events")).send().await else {
+        return;
+    };
+    let mut text = String::new();
+    while let Ok(Some(chunk)) = events.chunk().await {
+        text.push_str(&String::from_utf8_lossy(&chunk));
+        let mut fresh = 0;
+        while let Some(end) = text.find("\n\n") {
+            let block: String = text.drain(..end + 2).collect();
+            fresh += u64::from(block.contains("event: result"));
+        }
+        if fresh == 0 {
+            continue;
+        }
+        counts[0].fetch_add(fresh, Ordering::Relaxed);
+        for side in ["left", "right"] {
+            let image = http
+                .get(format!("{url}/frames/latest/{side}?max_side=900"))
+                .send()
+                .await;
+            if let Ok(r) = image {
+                if r.status().is_success() && r.bytes().await.is_ok() {
+                    counts[1].fetch_add(1, Ordering::Relaxed);
+                }
+            }
+        }
+    }
+}
+
+/// `clients` WebSockets (one session each), each optionally watched by a
+/// [`viewer`]; returns the runs and the CPU used, and the viewers' event and
+/// image counts.
+#[allow(clippy::too_many_arguments)]
 async fn ws_scenario(
     server: &Server,
     http: &reqwest::Client,
@@ -740,11 +777,18 @@ async fn ws_scenario(
     clients: usize,
     warmup: usize,
     pace: Option<Duration>,
-) -> (Vec<Run>, Usage) {
+    viewed: bool,
+) -> (Vec<Run>, Usage, [u64; 2]) {
     let barrier = Arc::new(Barrier::new(clients + 1));
     let mut tasks = Vec::new();
+    let counts = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
+    let mut viewers = Vec::new();
     for _ in 0..clients {
         let session = create_session(http, server).await;
+        if viewed {
+            let url = format!("http://{}/v1/sessions/{session}", server.addr);
+            viewers.push(tokio::spawn(viewer(http.clone(), url, counts.clone())));
+        }
         let ws = connect(server, &session).await;
         tasks.push(tokio::spawn(ws_client(
             ws,
@@ -754,7 +798,15 @@ async fn ws_scenario(
             barrier.clone(),
         )));
     }
-    measure(server, ticks, &barrier, tasks).await
+    let (runs, usage) = measure(server, ticks, &barrier, tasks).await;
+    for v in viewers {
+        v.abort();
+    }
+    let seen = [
+        counts[0].load(Ordering::Relaxed),
+        counts[1].load(Ordering::Relaxed),
+    ];
+    (runs, usage, seen)
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -1010,7 +1062,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
 
     let mut summaries = Vec::new();
     let largest = sizes.ws_warmup + sizes.ws_pairs.max(sizes.paced_pairs);
-    let ws_messages = if wanted("ws_one") || wanted("ws_paced") {
+    let ws_messages = if wanted("ws_one") || wanted("ws_viewed") || wanted("ws_paced") {
         messages(&data, largest)
     } else {
         Arc::new(Vec::new())
@@ -1018,10 +1070,22 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
     if wanted("ws_one") {
         eprintln!("service_load: ws_one");
         let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
-        let (runs, cpu) = ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None).await;
+        let (runs, cpu, _) = ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None, false).await;
         summaries.push(Summary::new(
             "ws_one",
             "1 WebSocket, raw 8-bit, pipelined, policy=all".into(),
+            &runs,
+            cpu,
+        ));
+    }
+    if wanted("ws_viewed") {
+        eprintln!("service_load: ws_viewed");
+        let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
+        let (runs, cpu, [events, images]) =
+            ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None, true).await;
+        summaries.push(Summary::new(
+            "ws_viewed",
+            format!("as ws_one, watched by a live view ({events} events, {images} images of 900 px)"),
             &runs,
             cpu,
         ));
@@ -1030,7 +1094,17 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
         eprintln!("service_load: ws_paced");
         let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.paced_pairs].to_vec());
         let pace = Duration::from_secs_f64(1.0 / PACED_RATE);
-        let (runs, cpu) = ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, Some(pace)).await;
+        let (runs, cpu, _) = ws_scenario(
+            &server,
+            &http,
+            ticks,
+            &msgs,
+            1,
+            sizes.ws_warmup,
+            Some(pace),
+            false,
+        )
+        .await;
         summaries.push(Summary::new(
             "ws_paced",
             format!("1 WebSocket, raw 8-bit, paced at {PACED_RATE} pairs/s"),
@@ -1042,7 +1116,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
     if wanted("ws_eight") {
         eprintln!("service_load: ws_eight");
         let msgs = messages(&data, sizes.multi_warmup + sizes.multi_pairs_each);
-        let (runs, cpu) = ws_scenario(
+        let (runs, cpu, _) = ws_scenario(
             &server,
             &http,
             ticks,
@@ -1050,6 +1124,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
             sizes.multi_clients,
             sizes.multi_warmup,
             None,
+            false,
         )
         .await;
         summaries.push(Summary::new(
