@@ -1227,10 +1227,9 @@ impl StereoTracker {
             )
         };
         let widespread = |mask: &[bool]| fraction(mask) > occlusion.max_occluded_fraction;
-        // Every sector may keep its contrast relative to the others on
-        // something else: a bright bar over a dim rod and parallel to it has
-        // twice its contrast all round (combined rod, seed 101, was taken
-        // 23 px onto one).
+        // Whether the typical sector keeps its first contrast (sectors are
+        // judged against each other, so a fit on something else can have
+        // none marked, or all).
         let keeps_contrast = |median_ratio: f64| (0.6..=1.0 / 0.6).contains(&median_ratio);
         // A fit that ran to the edge of the search disc wanted to go
         // further: onto something else, such as an occluder.
@@ -1259,8 +1258,7 @@ impl StereoTracker {
             // 24 px onto a bright occluder).
             widen(&mut sums, &mut widened);
             let fit = full_fit(&sums, predicted, rigid);
-            let judged = judge(&sums, fit.pose);
-            if !at_limit(&fit) && !judged.occluded.contains(&true) && keeps_contrast(judged.median_ratio) {
+            if !at_limit(&fit) && !judge(&sums, fit.pose).occluded.contains(&true) {
                 return (fit, sums);
             }
         } else {
@@ -1305,7 +1303,7 @@ impl StereoTracker {
                 // that of a bright occluder nearby.
                 let lost_look = |sums: &PrefixSums, pose: Pose| {
                     let judged = judge(sums, pose);
-                    widespread(&judged.occluded) || !keeps_contrast(judged.median_ratio)
+                    widespread(&judged.occluded) || judged.median_ratio < 0.6
                 };
                 if line.is_some() || !(at_limit(&fit) || lost_look(&sums, fit.pose)) {
                     fit
@@ -1347,15 +1345,20 @@ impl StereoTracker {
             if !cut && median >= 0.6 && !mask.contains(&true) && moved < 1.0 {
                 return (fit, sums);
             }
-            mask = judge(&sums, fit.pose).occluded;
-            if !mask.contains(&true) {
+            let judged = judge(&sums, fit.pose);
+            mask = judged.occluded;
+            if !mask.contains(&true) || (widespread(&mask) && keeps_contrast(judged.median_ratio)) {
                 return (fit, sums);
             }
             if widespread(&mask) {
-                // Most of the outline lost its contrast: too little is
-                // visible to trust, and the fit says so (a rod half under a
-                // bright bar parallel to it was taken onto the bar and
-                // reported `tracked`, 0% occluded, 1.5-3 px off).
+                // Most of the outline lost its contrast, and the typical
+                // sector too: the fit found something else, and says so, to
+                // be lost as occluded (a rod half under a bright bar
+                // parallel to it was taken 24 px onto the bar, its median
+                // sector at 0.06 of its contrast, and reported `tracked`,
+                // 0% occluded, 1.5-3 px off). With the typical sector's
+                // contrast kept it is the object whose look changed (a real
+                // grain at another tilt): a full fit.
                 return (
                     ImageFit {
                         occluded: mask,
