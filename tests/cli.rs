@@ -222,6 +222,26 @@ fn serve_refuses_the_example_token() {
     assert!(!db.exists(), "no database is created before the check");
 }
 
+/// Issue #21: a memory budget for work in flight smaller than the largest
+/// body it must admit is refused at start-up (exit 2), naming both.
+#[test]
+fn serve_refuses_a_budget_below_the_largest_body() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("db.sqlite3");
+    let out = semdepth(&[
+        "serve",
+        "--listen",
+        "127.0.0.1:0",
+        "--db",
+        db.to_str().unwrap(),
+        "--max-body-mib",
+        "200",
+        "--max-inflight-mib",
+        "100",
+    ]);
+    assert_input_error(&out, &["in-flight memory 100 MiB", "200 MiB"]);
+}
+
 /// Issue #22: `--roi` and `--point` take their numbers with spaces or with
 /// commas, with the same result; a wrong count names the flag (exit 2).
 #[test]

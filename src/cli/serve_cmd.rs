@@ -12,9 +12,9 @@ use super::CliError;
 use crate::imageio::DecodeLimits;
 use crate::service::state::{
     ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_LIVE_VIEW_MIB,
-    DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_MESSAGE_MIB, DEFAULT_MAX_SESSIONS,
-    DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S,
-    DEFAULT_WS_QUEUE,
+    DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_INFLIGHT_MIB, DEFAULT_MAX_MESSAGE_MIB,
+    DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H,
+    DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
 };
 
 /// Log output format.
@@ -91,6 +91,12 @@ pub struct ServeArgs {
     /// image until their next pair. 0 keeps none.
     #[arg(long, env = "SEMDEPTH_LIVE_VIEW_MIB", default_value_t = DEFAULT_LIVE_VIEW_MIB)]
     pub live_view_mib: usize,
+    /// Most MiB of request bodies, stream messages and the images decoded
+    /// from them held at once: a request beyond it is answered 503 `busy`
+    /// with Retry-After, a stream waits (at least the larger of
+    /// --max-body-mib and --max-message-mib).
+    #[arg(long, env = "SEMDEPTH_MAX_INFLIGHT_MIB", default_value_t = DEFAULT_MAX_INFLIGHT_MIB)]
+    pub max_inflight_mib: usize,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -146,6 +152,7 @@ impl ServeArgs {
             max_connections: self.max_connections,
             ws_idle_timeout: Duration::from_secs_f64(self.ws_idle_timeout_s),
             live_view_bytes: self.live_view_mib.saturating_mul(1 << 20),
+            max_inflight_bytes: self.max_inflight_mib.saturating_mul(1 << 20),
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

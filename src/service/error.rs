@@ -126,6 +126,12 @@ impl IntoResponse for ApiError {
                 message: self.message.clone(),
             });
         }
+        if self.status == StatusCode::SERVICE_UNAVAILABLE && self.code == "busy" {
+            response.headers_mut().insert(
+                header::RETRY_AFTER,
+                HeaderValue::from(super::budget::RETRY_AFTER_S),
+            );
+        }
         if self.status == StatusCode::UNAUTHORIZED {
             response
                 .headers_mut()

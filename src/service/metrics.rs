@@ -31,6 +31,11 @@ pub struct Metrics {
     /// Size of the database file in bytes (pages in use and free), as of
     /// the last committed batch of pairs.
     pub storage_bytes: Gauge,
+    /// Bytes of the memory budget for work in flight in use, as of the
+    /// scrape (`--max-inflight-mib`).
+    pub inflight_bytes: Gauge,
+    /// Requests answered 503 `busy` because the memory budget was in use.
+    pub refused_busy: Counter,
 }
 
 impl Default for Metrics {
@@ -52,6 +57,18 @@ impl Metrics {
         let active_websockets = Gauge::default();
         let stored_pairs = Counter::default();
         let storage_bytes = Gauge::default();
+        let inflight_bytes = Gauge::default();
+        let refused_busy = Counter::default();
+        registry.register(
+            "inflight_bytes",
+            "Bytes of the budget for request bodies, stream messages and decoded images in flight in use",
+            inflight_bytes.clone(),
+        );
+        registry.register(
+            "refused_busy",
+            "Requests answered 503 busy because the memory budget was in use",
+            refused_busy.clone(),
+        );
         registry.register(
             "storage_bytes",
             "Size of the database file (without its write-ahead log), bytes",
@@ -98,6 +115,8 @@ impl Metrics {
             active_websockets,
             stored_pairs,
             storage_bytes,
+            inflight_bytes,
+            refused_busy,
         }
     }
 

@@ -8,6 +8,7 @@
 //! - [`listener`]: the accept loop (header deadline, connection cap).
 //! - [`state`]: configuration, sessions and calibrations in memory.
 //! - [`pipeline`]: decode and track one pair, in session order, bounded.
+//! - [`budget`]: the memory budget for bodies, messages and decoded images in flight.
 //! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
 //! - [`live`]: the browser page at `/`, latest frames as PNG, result events.
 //! - [`storage`]: the SQLite writer thread (group commit) and migrations.
@@ -32,6 +33,7 @@ use utoipa::openapi::OpenApi as OpenApiDoc;
 use utoipa::{Modify, OpenApi};
 use utoipa_axum::router::OpenApiRouter;
 
+pub mod budget;
 pub mod calibrations;
 pub mod error;
 pub mod listener;
@@ -175,6 +177,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         "restored from storage"
     );
     let workers = config.workers;
+    let config_budget = config.max_inflight_bytes;
     Ok(AppState(Arc::new(Inner {
         config,
         storage,
@@ -186,6 +189,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         shutdown: tokio_util::sync::CancellationToken::new(),
         sockets: tokio_util::task::TaskTracker::new(),
         display: tokio::sync::Semaphore::new(1),
+        budget: budget::MemoryBudget::new(config_budget),
     })))
 }
 
@@ -195,6 +199,7 @@ pub fn app(state: AppState) -> Router {
     let (router, _) = routes(config.token.clone().map(Arc::from)).split_for_parts();
     let timeout = config.request_timeout;
     let max_body = config.max_body_bytes;
+    let budget_state = state.clone();
     router
         .merge(live::ui_router())
         .fallback(route_not_found)
@@ -203,6 +208,9 @@ pub fn app(state: AppState) -> Router {
             request_timeout(timeout, req, next)
         }))
         .layer(DefaultBodyLimit::max(max_body))
+        .layer(middleware::from_fn(move |req: Request, next: Next| {
+            reserve_body(budget_state.clone(), max_body, req, next)
+        }))
         .layer(middleware::from_fn(move |req: Request, next: Next| {
             declared_length_limit(max_body, req, next)
         }))
@@ -358,6 +366,35 @@ async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Respon
             .insert(header::CONNECTION, header::HeaderValue::from_static("close"));
     }
     response
+}
+
+/// Holds a request body's bytes of the memory budget (its declared length,
+/// or the body limit when it comes chunked) until the answer, and answers
+/// 503 `busy` with `Retry-After` before reading it when they are not free.
+async fn reserve_body(state: AppState, max_body: usize, req: Request, next: Next) -> Response {
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<usize>().ok());
+    let bytes = match declared {
+        Some(n) => n,
+        None if req.headers().contains_key(header::TRANSFER_ENCODING) => max_body,
+        None => 0,
+    };
+    match state.budget.try_reserve(bytes, "this request's body") {
+        Ok(held) => {
+            let response = next.run(req).await;
+            drop(held);
+            response
+        }
+        Err(e) => {
+            if e.code == "busy" {
+                state.metrics.refused_busy.inc();
+            }
+            e.into_response()
+        }
+    }
 }
 
 async fn request_timeout(limit: Duration, req: Request, next: Next) -> Response {

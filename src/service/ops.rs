@@ -78,6 +78,8 @@ pub async fn readyz(State(state): State<AppState>) -> (StatusCode, ApiJson<Healt
 pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
     let bytes = i64::try_from(state.storage.db_bytes()).unwrap_or(i64::MAX);
     state.metrics.storage_bytes.set(bytes);
+    let inflight = i64::try_from(state.budget.used_bytes()).unwrap_or(i64::MAX);
+    state.metrics.inflight_bytes.set(inflight);
     (
         [(
             header::CONTENT_TYPE,

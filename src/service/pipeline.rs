@@ -19,6 +19,7 @@ use crate::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
 use crate::meta::{read_meta, ImageMeta};
 use crate::tracker::{PairResult, StereoTracker, TrackerParams};
 
+use super::budget::{Reservation, DECODED_BYTES_PER_PIXEL};
 use super::error::ApiError;
 use super::live::{publish, LiveFrame};
 use super::model::{FrameResult, Provenance, TimingMs};
@@ -51,6 +52,24 @@ pub enum PairInput {
 }
 
 impl PairInput {
+    /// Bytes the two decoded images take while they are decoded and
+    /// tracked ([`DECODED_BYTES_PER_PIXEL`] per pixel), from the left
+    /// image's size as its header gives it; 0 when that cannot be read
+    /// (decoding then fails on its own).
+    pub fn decoded_bytes(&self) -> usize {
+        let (width, height) = match self {
+            Self::Raw { width, height, .. } => (*width, *height),
+            Self::Encoded { left, .. } => image::ImageReader::new(std::io::Cursor::new(left))
+                .with_guessed_format()
+                .ok()
+                .and_then(|r| r.into_dimensions().ok())
+                .unwrap_or((0, 0)),
+        };
+        (width as usize)
+            .saturating_mul(height as usize)
+            .saturating_mul(DECODED_BYTES_PER_PIXEL)
+    }
+
     /// Decodes both images and reads their microscope metadata (raw
     /// samples carry none). CPU-heavy: call on the blocking pool.
     pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
@@ -168,9 +187,11 @@ async fn run_session_pair(
     received: Instant,
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
+    let held = reserve_decoding(state, &input).await?;
     let (core, permit) = claim(state, session).await?;
     let (task_state, task_session) = (state.clone(), session.clone());
     let outcome = tokio::task::spawn_blocking(move || {
+        let _held = held;
         let mut core = core;
         track_locked(
             &task_state,
@@ -198,6 +219,9 @@ pub struct StreamPair {
     pub received: Instant,
     /// The client's sequence number.
     pub seq: u64,
+    /// Its bytes and its decoded images' of the memory budget, held until
+    /// it is tracked.
+    pub held: Reservation,
 }
 
 /// A stream's queue of waiting pairs, as the blocking batch sees it.
@@ -384,9 +408,11 @@ pub async fn process_one_shot(
         None => (None, None),
     };
     let limits = state.config.decode_limits;
+    let held = reserve_decoding(state, &input).await?;
     let permit = worker_permit(state).await?;
     let queue = ms(received.elapsed());
     let outcome = tokio::task::spawn_blocking(move || {
+        let _held = held;
         let mut tracker = StereoTracker::new(params);
         decode_and_track(&input, &limits, &mut tracker).map(|(r, d, t, _)| (r, d, t))
     })
@@ -433,6 +459,23 @@ async fn claim(
         return Err(ApiError::not_found("session", &session.id));
     }
     Ok((core, worker_permit(state).await?))
+}
+
+/// Longest an uploaded pair waits for its decoded images' bytes of the
+/// memory budget before it is answered 503 `busy` (a wait without end could
+/// hold every body's bytes while each waits for the others').
+const DECODE_BUDGET_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// The decoded images' bytes of the memory budget for an uploaded pair.
+async fn reserve_decoding(state: &AppState, input: &PairInput) -> Result<Reservation, ApiError> {
+    let bytes = input.decoded_bytes();
+    match tokio::time::timeout(DECODE_BUDGET_WAIT, state.budget.reserve(bytes)).await {
+        Ok(held) => held,
+        Err(_) => {
+            state.metrics.refused_busy.inc();
+            state.budget.try_reserve(bytes, "decoding this pair")
+        }
+    }
 }
 
 /// One of the `workers` slots for a pair.

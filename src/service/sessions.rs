@@ -330,7 +330,7 @@ pub async fn delete_sessions(
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
         (status = 422, description = "The session's hints do not fit the pair's images (`invalid_hint`: init.roi outside the image, init.point outside the image or the roi); the pair is not counted", body = ErrorBody),
-        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+        (status = 503, description = "Storage failed, the server is shutting down, or `busy`: the memory for work in flight (--max-inflight-mib) is in use; retry after the `Retry-After` seconds (the pair is not counted)", body = ErrorBody),
     )
 )]
 pub async fn upload_pair(
@@ -671,7 +671,7 @@ impl DepthQuery {
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
         (status = 422, description = "Invalid hint (`invalid_hint`): roi under 16 px a side or outside the image, point not finite or outside the image or the roi", body = ErrorBody),
-        (status = 503, description = "The server is shutting down", body = ErrorBody),
+        (status = 503, description = "The server is shutting down, or `busy`: the memory for work in flight (--max-inflight-mib) is in use; retry after the `Retry-After` seconds", body = ErrorBody),
     )
 )]
 pub async fn one_shot_depth(

@@ -46,6 +46,11 @@ pub const DEFAULT_WS_IDLE_TIMEOUT_S: f64 = 300.0;
 /// of about 80 sessions at 1024x768, 16 bits per sample.
 pub const DEFAULT_LIVE_VIEW_MIB: usize = 256;
 
+/// Default for [`ServiceConfig::max_inflight_bytes`], MiB: well inside the
+/// compose file's 2 GB limit, with room for the live view's frames and the
+/// sessions.
+pub const DEFAULT_MAX_INFLIGHT_MIB: usize = 768;
+
 /// Default for [`ServiceConfig::max_connections`]: well inside a 1024
 /// file-descriptor limit, with room for the database and its journal.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
@@ -99,6 +104,10 @@ pub struct ServiceConfig {
     /// latest pair); beyond it the images of the sessions updated longest
     /// ago are let go.
     pub live_view_bytes: usize,
+    /// Most bytes of request bodies, stream messages and images decoded
+    /// from them held at once; a request beyond it is answered 503 `busy`,
+    /// a stream waits.
+    pub max_inflight_bytes: usize,
 }
 
 impl Default for ServiceConfig {
@@ -120,6 +129,7 @@ impl Default for ServiceConfig {
             max_connections: DEFAULT_MAX_CONNECTIONS,
             ws_idle_timeout: Duration::from_secs_f64(DEFAULT_WS_IDLE_TIMEOUT_S),
             live_view_bytes: DEFAULT_LIVE_VIEW_MIB << 20,
+            max_inflight_bytes: DEFAULT_MAX_INFLIGHT_MIB << 20,
         }
     }
 }
@@ -141,6 +151,14 @@ impl ServiceConfig {
             return Err(format!(
                 "invalid max WebSocket message {} bytes (expected at least 1024)",
                 self.max_ws_message_bytes
+            ));
+        }
+        let largest = self.max_body_bytes.max(self.max_ws_message_bytes);
+        if self.max_inflight_bytes < largest {
+            return Err(format!(
+                "invalid max in-flight memory {} MiB (expected at least the largest body or message, {} MiB)",
+                self.max_inflight_bytes >> 20,
+                largest.div_ceil(1 << 20)
             ));
         }
         if !(1..=1024).contains(&self.workers) {
@@ -218,6 +236,8 @@ pub struct Inner {
     pub sockets: TaskTracker,
     /// One live-view image rendered at a time (outside `workers`).
     pub display: Semaphore,
+    /// Bytes of request bodies, stream messages and decoded images in flight.
+    pub budget: super::budget::MemoryBudget,
 }
 
 /// One tracked object: its metadata and tracker behind one async lock, so

@@ -35,6 +35,7 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::budget::Reservation;
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
 use super::model::Provenance;
 use super::pipeline::{acknowledge, track_stream_batch, PairInput, PairQueue, StreamPair, TrackedPair};
@@ -287,6 +288,8 @@ pub fn parse_pair_message(bytes: &Bytes) -> Result<PairMessage, (Option<u64>, Ap
 struct Job {
     message: PairMessage,
     received: Instant,
+    /// The message's bytes and its decoded images' of the memory budget.
+    held: Reservation,
 }
 
 /// The `latest` queue: at most one waiting pair; a newer one replaces it.
@@ -357,6 +360,7 @@ impl Job {
             provenance: self.message.provenance,
             received: self.received,
             seq: self.message.seq,
+            held: self.held,
         }
     }
 }
@@ -529,37 +533,54 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
         let received = Instant::now();
         match message {
             Message::Binary(bytes) => match parse_pair_message(&bytes) {
-                Ok(message) => match &queue_in {
-                    QueueIn::Latest(latest) => {
-                        let replaced = latest.slot.lock().ok().and_then(|mut s| {
-                            let old = s.pop_front();
-                            s.push_back(Job { message, received });
-                            old
-                        });
-                        latest.ready.notify_one();
-                        if let Some(old) = replaced {
-                            state.metrics.pairs_skipped.inc();
-                            let reply = SkippedReply {
-                                seq: old.message.seq,
-                                status: "skipped".into(),
-                            };
-                            if let Ok(text) = serde_json::to_string(&reply) {
-                                if reply_tx.send(Message::Text(text.into())).await.is_err() {
-                                    break;
+                Ok(message) => {
+                    // The message and its decoded images wait within the memory
+                    // budget; meanwhile this socket is not read (back-pressure).
+                    let needed = bytes.len() + message.input.decoded_bytes();
+                    let held = tokio::select! {
+                        held = state.budget.reserve(needed) => match held {
+                            Ok(held) => held,
+                            Err(_) => break,
+                        },
+                        _ = state.shutdown.cancelled() => break,
+                        _ = done.cancelled() => break,
+                    };
+                    match &queue_in {
+                        QueueIn::Latest(latest) => {
+                            let replaced = latest.slot.lock().ok().and_then(|mut s| {
+                                let old = s.pop_front();
+                                s.push_back(Job {
+                                    message,
+                                    received,
+                                    held,
+                                });
+                                old
+                            });
+                            latest.ready.notify_one();
+                            if let Some(old) = replaced {
+                                state.metrics.pairs_skipped.inc();
+                                let reply = SkippedReply {
+                                    seq: old.message.seq,
+                                    status: "skipped".into(),
+                                };
+                                if let Ok(text) = serde_json::to_string(&reply) {
+                                    if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                                        break;
+                                    }
                                 }
                             }
                         }
-                    }
-                    QueueIn::All(tx) => {
-                        let sent = tokio::select! {
-                            r = tx.send(Job { message, received }) => r.is_ok(),
-                            _ = state.shutdown.cancelled() => false,
-                        };
-                        if !sent {
-                            break;
+                        QueueIn::All(tx) => {
+                            let sent = tokio::select! {
+                                r = tx.send(Job { message, received, held }) => r.is_ok(),
+                                _ = state.shutdown.cancelled() => false,
+                            };
+                            if !sent {
+                                break;
+                            }
                         }
                     }
-                },
+                }
                 Err((seq, e)) => {
                     state.metrics.failed(&e.code);
                     let reply = StreamErrorReply {
