@@ -208,8 +208,9 @@ impl Status {
 /// The contour in one image of a pair.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
 pub struct ImageResult {
-    /// Contour vertices, pixels.
+    /// Contour vertices, pixels (written to a thousandth of a pixel).
     #[schema(schema_with = contour_schema)]
+    #[serde(serialize_with = "thousandths")]
     pub contour: Vec<Point>,
     /// Area centroid of the contour, pixels.
     #[schema(value_type = Vec<f64>, min_items = 2, max_items = 2)]
@@ -223,6 +224,14 @@ pub struct ImageResult {
     pub contrast: f64,
     /// Fraction of the outline found occluded (0 when fully visible).
     pub occluded_fraction: f64,
+}
+
+/// Writes vertices to a thousandth of a pixel: far below the tracking
+/// accuracy (0.02-0.15 px), and it halves a stored result (a 1024x768 rod's
+/// JSON record: 6.9 KB at full precision, 3.5 KB rounded).
+fn thousandths<S: serde::Serializer>(points: &[Point], s: S) -> Result<S::Ok, S::Error> {
+    let round = |v: f64| (v * 1000.0).round() / 1000.0;
+    s.collect_seq(points.iter().map(|p| [round(p[0]), round(p[1])]))
 }
 
 /// OpenAPI schema of [`ImageResult::contour`]: `[x, y]` pairs.
