@@ -59,6 +59,62 @@ async fn slow_headers_are_cut_off_at_the_deadline() {
     assert!(get_text(&format!("{}/healthz", server.base)).await.contains("ok"));
 }
 
+/// Open WebSockets count against the cap: with a cap of 3 and three
+/// streams open, a new connection is closed unread; once a stream closes,
+/// the server answers again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn open_websockets_count_against_the_cap() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.max_connections = 3;
+    let server = TestServer::start(config).await;
+    let sid = server::new_session(&server.base).await;
+    let mut streams = Vec::new();
+    for _ in 0..3 {
+        let (ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+            .await
+            .unwrap();
+        streams.push(ws);
+    }
+    let mut extra = TcpStream::connect(server.addr).await.unwrap();
+    let _ = extra.write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n").await;
+    let mut answer = Vec::new();
+    let closed = tokio::time::timeout(Duration::from_secs(3), async {
+        let mut buf = [0u8; 1024];
+        loop {
+            match extra.read(&mut buf).await {
+                Ok(0) | Err(_) => return,
+                Ok(n) => answer.extend_from_slice(&buf[..n]),
+            }
+        }
+    })
+    .await;
+    assert!(
+        answer.is_empty() && closed.is_ok(),
+        "a connection beyond three open streams was served: {:?}",
+        String::from_utf8_lossy(&answer)
+    );
+    let mut first = streams.remove(0);
+    first.close(None).await.unwrap();
+    // The server sees the close and lets the stream's slot go.
+    let mut served = false;
+    for _ in 0..50 {
+        if let Ok(Ok(r)) = tokio::time::timeout(
+            Duration::from_secs(1),
+            reqwest::get(format!("{}/healthz", server.base)),
+        )
+        .await
+        {
+            served = r.status() == 200;
+            if served {
+                break;
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(served, "the server did not answer after a stream closed");
+}
+
 /// With a cap of 4 connections, 4 idle connections fill it: a fifth is
 /// closed at once, unread. Once the header deadline (4 s: a busy machine
 /// must not free a slot before the fifth arrives) has closed the idle

@@ -78,8 +78,8 @@ pub struct ServeArgs {
     /// seconds; the connection is closed after it.
     #[arg(long, env = "SEMDEPTH_HEADER_TIMEOUT_S", default_value_t = DEFAULT_HEADER_TIMEOUT_S)]
     pub header_timeout_s: f64,
-    /// Most HTTP connections open at once (a WebSocket leaves the count
-    /// once upgraded); beyond it new connections are closed at once.
+    /// Most connections open at once, WebSockets included (each is a file
+    /// descriptor); beyond it new connections are closed at once.
     #[arg(long, env = "SEMDEPTH_MAX_CONNECTIONS", default_value_t = DEFAULT_MAX_CONNECTIONS)]
     pub max_connections: usize,
     /// Close a WebSocket on which no whole message arrives for this many

@@ -12,7 +12,7 @@ use hyper::body::Incoming;
 use hyper_util::rt::{TokioIo, TokioTimer};
 use hyper_util::service::TowerToHyperService;
 use tokio::net::TcpListener;
-use tokio::sync::{watch, Semaphore};
+use tokio::sync::{watch, OwnedSemaphorePermit, Semaphore};
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 use tower::ServiceExt;
@@ -23,11 +23,16 @@ pub struct Limits {
     /// Longest time a client may take to send a request's headers (each
     /// request's, on a kept-alive connection too).
     pub header_timeout: Duration,
-    /// Most HTTP connections open at once; one more is closed unread. A
-    /// connection upgraded to a WebSocket leaves the count (its stream has
-    /// limits of its own).
+    /// Most connections open at once, WebSockets included; one more is
+    /// closed unread.
     pub max_connections: usize,
 }
+
+/// A connection's place under the cap, in every request's extensions: an
+/// upgraded WebSocket keeps a clone for as long as it is open, so that it
+/// still counts once the HTTP connection has handed its socket over.
+#[derive(Clone)]
+pub struct ConnectionSlot(#[allow(dead_code)] Arc<OwnedSemaphorePermit>);
 
 /// Serves `app` on `listener` until `stop` is cancelled, then lets every
 /// open connection finish its requests (upgraded WebSockets are the
@@ -63,10 +68,14 @@ pub async fn serve(listener: TcpListener, app: Router, limits: Limits, stop: Can
             continue;
         };
         refused_logged = false;
-        let service = TowerToHyperService::new(
-            app.clone()
-                .map_request(|request: axum::http::Request<Incoming>| request.map(axum::body::Body::new)),
-        );
+        let slot = ConnectionSlot(Arc::new(slot));
+        let held = slot.clone();
+        let service = TowerToHyperService::new(app.clone().map_request(
+            move |mut request: axum::http::Request<Incoming>| {
+                request.extensions_mut().insert(held.clone());
+                request.map(axum::body::Body::new)
+            },
+        ));
         let mut closing = closing.subscribe();
         tasks.spawn(async move {
             let connection = hyper::server::conn::http1::Builder::new()

@@ -94,8 +94,8 @@ pub struct ServiceConfig {
     /// Longest time a client may take to send a request's headers; the
     /// connection is closed after it (a slow-header client holds nothing).
     pub header_timeout: Duration,
-    /// Most HTTP connections open at once (a WebSocket leaves the count
-    /// once upgraded); beyond it new connections are closed at once, unread.
+    /// Most connections open at once, WebSockets included; beyond it new
+    /// connections are closed at once, unread.
     pub max_connections: usize,
     /// A WebSocket on which no whole message arrives for this long is
     /// closed (1008, saying so): a half-sent frame holds nothing for good.

@@ -159,6 +159,7 @@ pub async fn stream_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
     ApiQuery(query): ApiQuery<StreamQuery>,
+    slot: Option<axum::Extension<super::listener::ConnectionSlot>>,
     upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     let session = state.session(&id)?;
@@ -179,7 +180,13 @@ pub async fn stream_session(
     Ok(upgrade
         .max_message_size(limit)
         .max_frame_size(limit)
-        .on_upgrade(move |socket| tracker.track_future(run_stream(state, session, query, socket))))
+        .on_upgrade(move |socket| {
+            tracker.track_future(async move {
+                // The stream counts against the connection cap while open.
+                let _slot = slot;
+                run_stream(state, session, query, socket).await
+            })
+        }))
 }
 
 /// Builds a pair message: [`MAGIC`], the header's length (u32 little
