@@ -28,6 +28,13 @@
 //! `cargo bench --bench service_load [-- --quick] [-- SCENARIO...]`
 //! (scenario names: ws_one, ws_viewed, ws_paced, ws_eight, rest_one, rest_four,
 //! idle_memory; a name filters by substring; unknown flags are ignored).
+//!
+//! `cargo bench --bench service_load -- soak` runs only the soak test
+//! (issue #21): 4 WebSocket streams, each sending a pair as soon as the
+//! previous one is answered, for `SOAK_MINUTES` (default 20) minutes; the
+//! server's RSS and the latency percentiles are sampled every 10 s, printed,
+//! and written to `target/soak.json` with the slope of the RSS over the
+//! second half.
 //! Prints a table and writes the figures as JSON to
 //! `target/service_load.json`.
 
@@ -1023,7 +1030,106 @@ fn main() {
         .enable_all()
         .build()
         .expect("tokio runtime");
+    if filters.iter().any(|f| f == "soak") {
+        let minutes = std::env::var("SOAK_MINUTES")
+            .ok()
+            .and_then(|m| m.parse::<f64>().ok())
+            .unwrap_or(20.0);
+        runtime.block_on(soak(sizes.pool, minutes));
+        return;
+    }
     runtime.block_on(run(sizes, quick, &wanted));
+}
+
+/// Streams of the soak test.
+const SOAK_STREAMS: usize = 4;
+/// Sampling period of the soak test.
+const SOAK_SAMPLE: Duration = Duration::from_secs(10);
+
+/// The soak test: [`SOAK_STREAMS`] streams for `minutes`, sampled every
+/// [`SOAK_SAMPLE`].
+async fn soak(pool: usize, minutes: f64) {
+    let data = render(pool);
+    let server = Server::start();
+    let http = reqwest::Client::new();
+    let messages = messages(&data, 2 * pool);
+    let deadline = Instant::now() + Duration::from_secs_f64(minutes * 60.0);
+    let latencies = Arc::new(Mutex::new(Vec::<f64>::new()));
+    let mut clients = Vec::new();
+    for _ in 0..SOAK_STREAMS {
+        let session = create_session(&http, &server).await;
+        let ws = connect(&server, &session).await;
+        let (messages, latencies) = (messages.clone(), latencies.clone());
+        clients.push(tokio::spawn(async move {
+            let (mut sink, mut stream) = ws.split();
+            let mut k = 0usize;
+            while Instant::now() < deadline {
+                let t = Instant::now();
+                sink.send(Message::Binary(messages[k % messages.len()].clone()))
+                    .await
+                    .expect("send");
+                let v = next_json(&mut stream).await;
+                assert!(v.get("error").is_none(), "{v}");
+                latencies.lock().unwrap().push(ms(t.elapsed()));
+                k += 1;
+            }
+            let _ = sink.send(Message::Close(None)).await;
+            k
+        }));
+    }
+    let start = Instant::now();
+    let mut samples = Vec::new();
+    println!("soak: {SOAK_STREAMS} streams of {WIDTH}x{HEIGHT} raw pairs for {minutes} min");
+    println!(
+        "{:>7} {:>9} {:>7} {:>8} {:>8}",
+        "t s", "RSS MiB", "pairs", "p50 ms", "p99 ms"
+    );
+    while Instant::now() < deadline {
+        tokio::time::sleep(SOAK_SAMPLE.min(deadline.saturating_duration_since(Instant::now()))).await;
+        let window: Vec<f64> = std::mem::take(&mut *latencies.lock().unwrap());
+        let rss = server.rss_kib() as f64 / 1024.0;
+        let t = start.elapsed().as_secs_f64();
+        let (p50, p99) = (median(&window), percentile(&window, 0.99));
+        println!("{t:>7.0} {rss:>9.1} {:>7} {p50:>8.2} {p99:>8.2}", window.len());
+        samples.push(json!({"t_s": r3(t), "rss_mib": r3(rss), "pairs": window.len(), "p50_ms": r3(p50), "p99_ms": r3(p99)}));
+    }
+    let mut pairs = 0;
+    for c in clients {
+        pairs += c.await.expect("soak client");
+    }
+    // Least-squares slope of the RSS over the second half, MiB per minute.
+    let half: Vec<(f64, f64)> = samples[samples.len() / 2..]
+        .iter()
+        .map(|s| (s["t_s"].as_f64().unwrap() / 60.0, s["rss_mib"].as_f64().unwrap()))
+        .collect();
+    let n = half.len() as f64;
+    let (mt, mr) = (
+        half.iter().map(|h| h.0).sum::<f64>() / n,
+        half.iter().map(|h| h.1).sum::<f64>() / n,
+    );
+    let slope = half.iter().map(|h| (h.0 - mt) * (h.1 - mr)).sum::<f64>()
+        / half.iter().map(|h| (h.0 - mt).powi(2)).sum::<f64>().max(1e-12);
+    let rss: Vec<f64> = samples.iter().map(|s| s["rss_mib"].as_f64().unwrap()).collect();
+    let summary = json!({
+        "streams": SOAK_STREAMS,
+        "minutes": minutes,
+        "pairs": pairs,
+        "rss_first_mib": rss.first(),
+        "rss_last_mib": rss.last(),
+        "rss_max_mib": rss.iter().cloned().fold(0.0, f64::max),
+        "rss_slope_second_half_mib_per_min": r3(slope),
+        "samples": samples,
+    });
+    println!(
+        "soak: {pairs} pairs; RSS {:.1} MiB after {:.0} s, {:.1} MiB at the end, max {:.1}; second half {slope:+.3} MiB/min",
+        rss.first().unwrap_or(&0.0),
+        SOAK_SAMPLE.as_secs_f64(),
+        rss.last().unwrap_or(&0.0),
+        rss.iter().cloned().fold(0.0, f64::max)
+    );
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/soak.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary).unwrap()).expect("write soak.json");
+    println!("written to {}", path.display());
 }
 
 async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
