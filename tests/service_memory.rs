@@ -8,11 +8,12 @@
 //! was all served and peaked at 334 MiB above the idle server's 14 MiB,
 //! against 121 MiB with the budget.)
 
-use std::io::{BufRead, BufReader};
-use std::net::SocketAddr;
-use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+#[path = "common/child_server.rs"]
+mod child_server;
+
 use std::time::Duration;
+
+use child_server::ChildServer;
 
 use futures_util::{SinkExt, StreamExt};
 use serde_json::Value;
@@ -25,75 +26,6 @@ const BURST: usize = 12;
 /// Peak resident memory allowed above the idle server's, beyond the budget:
 /// the tracker's own buffers of one pair and the allocator's slack.
 const SLACK_MIB: u64 = 110;
-
-struct Server {
-    child: Child,
-    addr: SocketAddr,
-    _dir: tempfile::TempDir,
-}
-
-impl Server {
-    fn start(args: &[&str]) -> Server {
-        let dir = tempfile::tempdir().unwrap();
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_semdepth"));
-        for (key, _) in std::env::vars_os() {
-            if key.to_string_lossy().starts_with("SEMDEPTH_") {
-                cmd.env_remove(key);
-            }
-        }
-        cmd.args(["serve", "--listen", "127.0.0.1:0", "--db"])
-            .arg(dir.path().join("db.sqlite3"))
-            .args(args)
-            .env("SEMDEPTH_LOG", "warn,semdepth=info")
-            .env("NO_COLOR", "1")
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped());
-        let mut child = cmd.spawn().expect("start semdepth serve");
-        let stderr = child.stderr.take().unwrap();
-        let (tx, rx) = mpsc::channel();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines() {
-                let Ok(line) = line else { break };
-                if line.contains("semdepth listening") {
-                    let addr = line
-                        .split_whitespace()
-                        .find_map(|w| w.strip_prefix("address="))
-                        .and_then(|a| a.parse::<SocketAddr>().ok());
-                    let _ = tx.send(addr);
-                }
-            }
-        });
-        let addr = rx
-            .recv_timeout(Duration::from_secs(60))
-            .ok()
-            .flatten()
-            .expect("the server announces its address");
-        Server {
-            child,
-            addr,
-            _dir: dir,
-        }
-    }
-
-    /// A field of /proc/PID/status in KiB (VmRSS, VmHWM).
-    fn status_kib(&self, field: &str) -> u64 {
-        let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).unwrap();
-        status
-            .lines()
-            .find_map(|l| l.strip_prefix(field))
-            .and_then(|v| v.trim_start_matches(':').split_whitespace().next())
-            .and_then(|v| v.parse().ok())
-            .unwrap_or_else(|| panic!("no {field} in /proc status"))
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
 
 /// A 16-bit PNG of noise (incompressible: the body is as large as the
 /// pixels).
@@ -121,7 +53,7 @@ fn noise_png(width: u32, height: u32, seed: u32) -> Vec<u8> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
     let budget = BUDGET_MIB.to_string();
-    let server = Server::start(&[
+    let server = ChildServer::start(&[
         "--max-body-mib",
         "40",
         "--max-message-mib",
@@ -142,7 +74,7 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
     // 3000x2000 16-bit noise: about 12 MB per image, 24 MB per body, and
     // 48 MB decoded: one upload takes 72 of the 120 MiB.
     let (left, right) = (noise_png(3000, 2000, 1), noise_png(3000, 2000, 2));
-    let idle_kib = server.status_kib("VmRSS");
+    let idle_kib = server.rss_kib();
 
     let mut uploads = Vec::new();
     for _ in 0..BURST {
@@ -178,7 +110,7 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
     for u in uploads {
         answers.push(u.await.unwrap());
     }
-    let peak_kib = server.status_kib("VmHWM");
+    let peak_kib = server.peak_rss_kib();
     let above_idle_mib = peak_kib.saturating_sub(idle_kib) / 1024;
     let served = answers.iter().filter(|a| a.0 == 200).count();
     let busy: Vec<_> = answers.iter().filter(|a| a.0 == 503).collect();
@@ -264,7 +196,7 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
     for s in streams {
         assert_eq!(s.await.unwrap(), vec![0, 1, 2]);
     }
-    let peak_kib = server.status_kib("VmHWM");
+    let peak_kib = server.peak_rss_kib();
     let above_idle_mib = peak_kib.saturating_sub(idle_kib) / 1024;
     eprintln!("after two streams: peak RSS {above_idle_mib} MiB above idle");
     // Each socket may hold one message of 24 MB that it has read and not
