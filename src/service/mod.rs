@@ -80,6 +80,7 @@ pub async fn serve(
     let path = config.db_path.clone();
     let options = StorageOptions {
         max_db_bytes: config.max_db_bytes,
+        default_retention: Some(config.default_retention),
         ..StorageOptions::default()
     };
     let storage = tokio::task::spawn_blocking(move || Storage::open(&path, options))
