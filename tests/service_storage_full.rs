@@ -48,6 +48,34 @@ async fn readyz(http: &reqwest::Client, base: &str) -> (u16, Value) {
     (r.status().as_u16(), r.json().await.unwrap())
 }
 
+/// Item 8: with less free disk than `--min-free-disk-mib` keeps (here more
+/// than any disk has), results are refused with a 503 naming the free space
+/// and the limit before the disk fills; the session stays at its stored
+/// frames, and `/readyz` says why it is not ready.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn results_are_refused_before_the_disk_fills() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.min_free_disk_bytes = u64::MAX / 2;
+    let server = TestServer::start_unready(config).await;
+    let http = reqwest::Client::new();
+    let base = server.base.clone();
+    let sid = new_session(&base).await;
+    let (status, body) = upload(&http, &base, &sid, 0).await;
+    assert_eq!(status, 503, "{body}");
+    assert_eq!(body["error"]["code"], "disk_nearly_full", "{body}");
+    let message = body["error"]["message"].as_str().unwrap();
+    assert!(
+        message.contains("MiB free") && message.contains("--min-free-disk-mib"),
+        "{message}"
+    );
+    assert_eq!(session_frames(&base, &sid).await, 0);
+    assert!(stored_frames(&base, &sid).await.is_empty());
+    let (status, ready) = readyz(&http, &base).await;
+    assert_eq!(status, 503, "{ready}");
+    assert!(ready.to_string().contains("--min-free-disk-mib"), "{ready}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
     let dir = tempfile::tempdir().unwrap();

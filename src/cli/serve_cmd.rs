@@ -13,8 +13,8 @@ use crate::imageio::DecodeLimits;
 use crate::service::state::{
     ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_LIVE_VIEW_MIB,
     DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_INFLIGHT_MIB, DEFAULT_MAX_MESSAGE_MIB,
-    DEFAULT_MAX_SESSIONS, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H,
-    DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
+    DEFAULT_MAX_SESSIONS, DEFAULT_MIN_FREE_DISK_MIB, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION,
+    DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
 };
 
 /// Log output format.
@@ -97,6 +97,11 @@ pub struct ServeArgs {
     /// --max-body-mib and --max-message-mib).
     #[arg(long, env = "SEMDEPTH_MAX_INFLIGHT_MIB", default_value_t = DEFAULT_MAX_INFLIGHT_MIB)]
     pub max_inflight_mib: usize,
+    /// MiB kept free on the database's disk: below it new results are
+    /// refused (503 disk_nearly_full) before the disk fills, and /readyz
+    /// says so. 0: none.
+    #[arg(long, env = "SEMDEPTH_MIN_FREE_DISK_MIB", default_value_t = DEFAULT_MIN_FREE_DISK_MIB)]
+    pub min_free_disk_mib: u64,
     /// Log format.
     #[arg(long, env = "SEMDEPTH_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
     pub log_format: LogFormat,
@@ -153,6 +158,7 @@ impl ServeArgs {
             ws_idle_timeout: Duration::from_secs_f64(self.ws_idle_timeout_s),
             live_view_bytes: self.live_view_mib.saturating_mul(1 << 20),
             max_inflight_bytes: self.max_inflight_mib.saturating_mul(1 << 20),
+            min_free_disk_bytes: self.min_free_disk_mib.saturating_mul(1 << 20),
         };
         config.validate().map_err(CliError::input)?;
         Ok(config)

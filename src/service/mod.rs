@@ -81,6 +81,7 @@ pub async fn serve(
     let options = StorageOptions {
         max_db_bytes: config.max_db_bytes,
         default_retention: Some(config.default_retention),
+        min_free_disk_bytes: config.min_free_disk_bytes,
         ..StorageOptions::default()
     };
     let storage = tokio::task::spawn_blocking(move || Storage::open(&path, options))

@@ -51,6 +51,9 @@ pub const DEFAULT_LIVE_VIEW_MIB: usize = 256;
 /// sessions.
 pub const DEFAULT_MAX_INFLIGHT_MIB: usize = 768;
 
+/// Default for [`ServiceConfig::min_free_disk_bytes`], MiB.
+pub const DEFAULT_MIN_FREE_DISK_MIB: u64 = 512;
+
 /// Default for [`ServiceConfig::max_connections`]: well inside a 1024
 /// file-descriptor limit, with room for the database and its journal.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
@@ -108,6 +111,10 @@ pub struct ServiceConfig {
     /// from them held at once; a request beyond it is answered 503 `busy`,
     /// a stream waits.
     pub max_inflight_bytes: usize,
+    /// Free bytes kept on the database's file system: below them new
+    /// results are refused (503 `disk_nearly_full`) before the disk fills,
+    /// and `/readyz` says so. 0: none.
+    pub min_free_disk_bytes: u64,
 }
 
 impl Default for ServiceConfig {
@@ -130,6 +137,7 @@ impl Default for ServiceConfig {
             ws_idle_timeout: Duration::from_secs_f64(DEFAULT_WS_IDLE_TIMEOUT_S),
             live_view_bytes: DEFAULT_LIVE_VIEW_MIB << 20,
             max_inflight_bytes: DEFAULT_MAX_INFLIGHT_MIB << 20,
+            min_free_disk_bytes: DEFAULT_MIN_FREE_DISK_MIB << 20,
         }
     }
 }

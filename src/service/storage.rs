@@ -90,6 +90,10 @@ pub struct StorageOptions {
     /// Results kept for a session without a retention of its own (the
     /// server's `--retention`); None: all.
     pub default_retention: Option<u64>,
+    /// Free bytes kept on the database's file system: below them, results
+    /// are refused ([`StorageError::DiskNearlyFull`]) before the disk fills.
+    /// 0: none.
+    pub min_free_disk_bytes: u64,
 }
 
 impl Default for StorageOptions {
@@ -98,7 +102,32 @@ impl Default for StorageOptions {
             max_batch: 256,
             max_db_bytes: None,
             default_retention: None,
+            min_free_disk_bytes: 0,
         }
+    }
+}
+
+/// The free space kept on the database's file system.
+#[derive(Clone, Debug)]
+struct DiskGuard {
+    /// The database's directory.
+    dir: std::path::PathBuf,
+    /// Bytes kept free.
+    min_free: u64,
+}
+
+impl DiskGuard {
+    /// Ok while more than `min_free` bytes are free for unprivileged writes.
+    fn check(&self) -> Result<(), StorageError> {
+        let st = rustix::fs::statvfs(&self.dir).map_err(std::io::Error::from)?;
+        let free = st.f_bavail.saturating_mul(st.f_frsize);
+        if free < self.min_free {
+            return Err(StorageError::DiskNearlyFull {
+                free_mib: free >> 20,
+                min_mib: self.min_free >> 20,
+            });
+        }
+        Ok(())
     }
 }
 
@@ -137,6 +166,18 @@ pub enum StorageError {
     /// from its last stored pair.
     #[error("storage: an earlier pair of session {0:?} could not be stored, so this one is not stored either (the session goes on from its last stored pair)")]
     Behind(String),
+    /// The database's file system has less free space than is kept free.
+    #[error(
+        "storage: the disk holding the database has {free_mib} MiB free, below the {min_mib} MiB \
+         kept free (--min-free-disk-mib); new results are refused until space is freed (delete \
+         sessions, lower their retention, or free the disk)"
+    )]
+    DiskNearlyFull {
+        /// Free MiB.
+        free_mib: u64,
+        /// MiB kept free.
+        min_mib: u64,
+    },
     /// The last write failed (for readiness), with SQLite's message.
     #[error("storage: writes are failing: {0}")]
     WritesFailing(String),
@@ -155,6 +196,7 @@ impl StorageError {
             Self::Unstorable(_) => "unstorable_record",
             Self::Closed => "storage_closed",
             Self::Behind(_) => "storage_behind",
+            Self::DiskNearlyFull { .. } => "disk_nearly_full",
             Self::WritesFailing(_) => "storage_writes_failing",
             Self::Io(_) => "storage_io",
         }
@@ -289,12 +331,21 @@ impl Storage {
                 );
             }
         }
+        let disk_guard = (!memory && options.min_free_disk_bytes > 0).then(|| DiskGuard {
+            dir: Path::new(path)
+                .parent()
+                .filter(|p| !p.as_os_str().is_empty())
+                .unwrap_or(Path::new("."))
+                .to_path_buf(),
+            min_free: options.min_free_disk_bytes,
+        });
         let mut writer = WriterConn {
             conn,
             synchronous: None,
             default_retention: options
                 .default_retention
                 .map(|r| i64::try_from(r).unwrap_or(i64::MAX)),
+            disk_guard: disk_guard.clone(),
             behind: HashSet::new(),
         };
         writer.set_synchronous(Synchronous::Full)?;
@@ -344,6 +395,7 @@ impl Storage {
                 closed: AtomicBool::new(false),
                 writer_alive,
                 stats,
+                disk_guard,
             }),
         })
     }
@@ -577,6 +629,11 @@ impl Storage {
         if !self.inner.writer_alive.load(Ordering::Acquire) {
             return Err(StorageError::Closed);
         }
+        if let Some(guard) = &self.inner.disk_guard {
+            guard
+                .check()
+                .map_err(|e| StorageError::WritesFailing(e.to_string()))?;
+        }
         let failing = self.inner.stats.write_failure.lock().ok().and_then(|f| f.clone());
         if let Some(reason) = failing {
             // Try a write that needs room (two pages), rolled back by
@@ -735,6 +792,8 @@ struct Inner {
     closed: AtomicBool,
     writer_alive: Arc<AtomicBool>,
     stats: Arc<Stats>,
+    /// The free space kept on the database's file system (None: memory).
+    disk_guard: Option<DiskGuard>,
 }
 
 #[derive(Default)]
@@ -817,6 +876,8 @@ struct WriterConn {
     synchronous: Option<Synchronous>,
     /// [`StorageOptions::default_retention`].
     default_retention: Option<i64>,
+    /// Checked before every batch of results.
+    disk_guard: Option<DiskGuard>,
     /// Sessions with a pair that failed to store: their later pairs are
     /// refused until [`Storage::reload_session`].
     behind: HashSet<String>,
@@ -857,6 +918,9 @@ impl WriterConn {
         &mut self,
         pairs: impl Iterator<Item = &'a PreparedPair>,
     ) -> Result<(), StorageError> {
+        if let Some(guard) = &self.disk_guard {
+            guard.check()?;
+        }
         self.set_synchronous(Synchronous::Normal)?;
         let tx = self
             .conn

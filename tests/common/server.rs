@@ -35,8 +35,17 @@ pub fn test_config(db: &Path) -> ServiceConfig {
 }
 
 impl TestServer {
-    /// Starts a server with `config` on 127.0.0.1 port 0.
+    /// Starts a server with `config` on 127.0.0.1 port 0 and waits until it
+    /// is ready.
     pub async fn start(config: ServiceConfig) -> Self {
+        let server = Self::start_unready(config).await;
+        server.wait_ready().await;
+        server
+    }
+
+    /// Starts a server with `config` on 127.0.0.1 port 0; the listener is
+    /// bound when it returns, readiness is not awaited.
+    pub async fn start_unready(config: ServiceConfig) -> Self {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         let (stop, stopped) = oneshot::channel::<()>();
@@ -44,15 +53,13 @@ impl TestServer {
         let task = tokio::spawn(semdepth::service::serve(listener, config, async move {
             let _ = stopped.await;
         }));
-        let server = Self {
+        Self {
             base: format!("http://{addr}"),
             addr,
             db,
             stop: Some(stop),
             task: Some(task),
-        };
-        server.wait_ready().await;
-        server
+        }
     }
 
     /// Polls `/readyz` until it answers 200 (at most 30 s).
