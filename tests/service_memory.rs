@@ -10,6 +10,8 @@
 
 #[path = "common/child_server.rs"]
 mod child_server;
+#[path = "common/server.rs"]
+mod server;
 
 use std::time::Duration;
 
@@ -148,20 +150,8 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
     // sending 3 pairs each, every pair answered with a result.
     let mut streams = Vec::new();
     for _ in 0..2 {
-        let session: Value = http
-            .post(format!("{base}/v1/sessions"))
-            .json(&serde_json::json!({}))
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap();
-        let url = format!(
-            "ws://{}/v1/sessions/{}/stream?policy=all",
-            server.addr,
-            session["id"].as_str().unwrap()
-        );
+        let session = server::new_session(&base).await;
+        let url = format!("ws://{}/v1/sessions/{session}/stream?policy=all", server.addr);
         let (left, right) = (left.clone(), right.clone());
         streams.push(tokio::spawn(async move {
             let (mut ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
