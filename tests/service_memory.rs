@@ -57,9 +57,9 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
     let budget = BUDGET_MIB.to_string();
     let server = ChildServer::start(&[
         "--max-body-mib",
-        "40",
+        "25",
         "--max-message-mib",
-        "40",
+        "25",
         "--max-inflight-mib",
         &budget,
         "--workers",
@@ -73,8 +73,9 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    // 3000x2000 16-bit noise: about 12 MB per image, 24 MB per body, and
-    // 48 MB decoded: one upload takes 72 of the 120 MiB.
+    // 3000x2000 16-bit noise: about 12 MB per image, 24 MB per body (near
+    // the 25 MiB body limit), and 48 MB decoded: one upload takes 72 of the
+    // 120 MiB.
     let (left, right) = (noise_png(3000, 2000, 1), noise_png(3000, 2000, 2));
     let idle_kib = server.rss_kib();
 
