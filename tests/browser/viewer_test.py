@@ -16,7 +16,8 @@ What it checks, each with an assertion on what the page shows:
      box names the one the automatic initialisation did not take;
   4. the calibration page shows the samples and R^2, and adds a sample from
      the session's latest disparity;
-  5. with a token, the page without it shows a prompt, not a broken page;
+  5. a session deleted while its page is open is reported deleted;
+  6. with a token, the page without it shows a prompt, not a broken page;
      a wrong token is refused, the right one opens the sessions, and the
      token never appears in a URL.
 Screenshots go to SCREENSHOT_DIR; look at them.
@@ -257,6 +258,18 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
     page.screenshot(path=str(shots / "05-calibration.png"), full_page=True)
 
     check(not problems, f"no console errors or page errors: {problems}")
+
+    # 5. A session deleted while it is watched: the page says so.
+    doomed = api.create_session(name="to delete")["id"]
+    page.goto(f"{server.base}/#/sessions/{doomed}")
+    page.wait_for_selector("#view-left")
+    api.delete_session(doomed)
+    page.wait_for_selector("#message:has-text('The session was deleted')")
+    check(True, "a session deleted while watched is reported deleted")
+
+    # Its last lookup is an expected 404, and nothing else went wrong.
+    unexpected = [p for p in problems if "404" not in p or ("HTTP 404" in p and doomed not in p)]
+    check(not unexpected, f"no other errors after the deletion: {unexpected}")
     page.close()
 
 

@@ -302,7 +302,7 @@ async function sessionPage(id, signal) {
   };
 
   let lastSessionFetch = 0;
-  await followEvents(`${path}/events`, (event, data) => {
+  const onEvent = (event, data) => {
     if (event !== "result") return;
     const r = JSON.parse(data);
     if (latest && r.frame < latest.frame) return;
@@ -324,8 +324,33 @@ async function sessionPage(id, signal) {
       lastSessionFetch = performance.now();
       api(path, { signal }).then((s) => { session = s; renderHeader(); }).catch(() => {});
     }
-  }, signal);
-  message.textContent = "The session ended (deleted, or the server stopped).";
+  };
+  // Follow the events; when the stream ends (a server restart, a network
+  // glitch), say so and follow again every 2 s until the session is gone.
+  for (;;) {
+    try {
+      await followEvents(`${path}/events`, onEvent, signal);
+    } catch (e) {
+      if (e instanceof AuthError || e.name === "AbortError") throw e;
+      if (e instanceof ApiError && e.status === 404) {
+        message.textContent = "The session was deleted.";
+        return;
+      }
+    }
+    message.textContent = "Connection to the server lost; reconnecting…";
+    await sleep(2000, signal);
+    try {
+      session = await api(path, { signal });
+      renderHeader();
+      message.textContent = "Reconnected.";
+    } catch (e) {
+      if (e instanceof AuthError || e.name === "AbortError") throw e;
+      if (e instanceof ApiError && e.status === 404) {
+        message.textContent = "The session was deleted.";
+        return;
+      }
+    }
+  }
 }
 
 function hintText(init) {
