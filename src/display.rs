@@ -33,12 +33,19 @@ pub struct Overlay<'a> {
     pub colour: [u8; 3],
 }
 
+/// The integer factor that shrinks a `width` x `height` frame until its
+/// longest side is at most `max_side` (1 without a limit); shrunk pixel i
+/// averages frame pixels i f ..= i f + f - 1.
+pub fn shrink_factor(width: u32, height: u32, max_side: Option<u32>) -> u32 {
+    let longest = width.max(height).max(1);
+    max_side.map_or(1, |m| longest.div_ceil(m.max(1))).max(1)
+}
+
 /// Renders `frame` as PNG: shrunk by an integer factor so that its longest
 /// side is at most `max_side` (when given), with `overlays` drawn 2 px wide.
 /// Grey PNG without overlays, RGB with them.
 pub fn render_png(frame: &GrayFrame, max_side: Option<u32>, overlays: &[Overlay]) -> Result<Vec<u8>, String> {
-    let longest = frame.width.max(frame.height).max(1);
-    let factor = max_side.map_or(1, |m| longest.div_ceil(m.max(1))).max(1);
+    let factor = shrink_factor(frame.width, frame.height, max_side);
     let (w, h, samples) = shrink(frame, factor);
     let grey = to_8bit(&samples, frame.bit_depth);
     let mut png = Vec::new();

@@ -72,7 +72,7 @@ impl MemoryBudget {
                 self.used_bytes() as f64 / 1048576.0,
                 f64::from(self.total_kib) / 1024.0
             ))),
-            Err(TryAcquireError::Closed) => Err(shutting_down()),
+            Err(TryAcquireError::Closed) => Err(ApiError::shutting_down()),
         }
     }
 
@@ -89,21 +89,13 @@ impl MemoryBudget {
             .map(|permit| Reservation {
                 _permit: Some(permit),
             })
-            .map_err(|_| shutting_down())
+            .map_err(|_| ApiError::shutting_down())
     }
 }
 
 /// 503 `busy` (answered with `Retry-After`).
 pub fn busy(message: String) -> ApiError {
     ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
-}
-
-fn shutting_down() -> ApiError {
-    ApiError::new(
-        StatusCode::SERVICE_UNAVAILABLE,
-        "shutting_down",
-        "the server is shutting down",
-    )
 }
 
 #[cfg(test)]

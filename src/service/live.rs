@@ -25,7 +25,7 @@ use serde::Deserialize;
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
-use crate::display::{render_png, Overlay, LOST_COLOUR, PALETTE};
+use crate::display::{render_png, shrink_factor, Overlay, LOST_COLOUR, PALETTE};
 use crate::imageio::GrayFrame;
 use crate::tracker::Status;
 
@@ -197,16 +197,14 @@ pub async fn latest_frame(
     let images = live.images.clone().ok_or_else(|| {
         no_frame("its latest pair's images were let go to keep the live view within --live-view-mib")
     })?;
-    let _turn = state.display.acquire().await.map_err(|_| {
-        ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "shutting_down",
-            "the server is shutting down",
-        )
-    })?;
+    let _turn = state
+        .display
+        .acquire()
+        .await
+        .map_err(|_| ApiError::shutting_down())?;
     let frame_index = live.result.result.frame;
     let (width, height) = (images[0].width, images[0].height);
-    let scale = query.max_side.map_or(1, |m| width.max(height).div_ceil(m).max(1));
+    let scale = shrink_factor(width, height, query.max_side);
     let png = tokio::task::spawn_blocking(move || {
         let (frame, shown) = match side {
             Side::Left => (&images[0], live.result.result.left.as_ref()),

@@ -201,7 +201,6 @@ pub fn app(state: AppState) -> Router {
     let (router, _) = routes(config.token.clone().map(Arc::from)).split_for_parts();
     let timeout = config.request_timeout;
     let max_body = config.max_body_bytes;
-    let budget_state = state.clone();
     router
         .merge(live::ui_router())
         .fallback(route_not_found)
@@ -210,11 +209,9 @@ pub fn app(state: AppState) -> Router {
             request_timeout(timeout, req, next)
         }))
         .layer(DefaultBodyLimit::max(max_body))
-        .layer(middleware::from_fn(move |req: Request, next: Next| {
-            reserve_body(budget_state.clone(), max_body, req, next)
-        }))
-        .layer(middleware::from_fn(move |req: Request, next: Next| {
-            declared_length_limit(max_body, req, next)
+        .layer(middleware::from_fn({
+            let state = state.clone();
+            move |req: Request, next: Next| body_limits(state.clone(), req, next)
         }))
         .layer(middleware::from_fn(error::log_client_errors))
         .layer(PropagateRequestIdLayer::new(REQUEST_ID))
@@ -342,16 +339,21 @@ async fn require_token(token: Option<Arc<str>>, req: Request, next: Next) -> Res
 }
 
 /// Refuses a body whose declared length is over the limit before reading
-/// any of it (the streaming limit alone would wait for the bytes). Error
-/// answers to requests with a body say `Connection: close`: the body may be
-/// unread, so the connection ends, and a pooled client must not reuse it.
-async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Response {
+/// any of it (the streaming limit alone would wait for the bytes), then
+/// holds its bytes of the memory budget (the declared length, or the limit
+/// when it comes chunked) until the answer, and answers 503 `busy` with
+/// `Retry-After` before reading it when they are not free. Error answers to
+/// requests with a body say `Connection: close`: the body may be unread, so
+/// the connection ends, and a pooled client must not reuse it.
+async fn body_limits(state: AppState, req: Request, next: Next) -> Response {
+    let limit = state.config.max_body_bytes;
     let declared = req
         .headers()
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
         .and_then(|v| v.parse::<u64>().ok());
-    let has_body = declared.is_some_and(|n| n > 0) || req.headers().contains_key(header::TRANSFER_ENCODING);
+    let chunked = req.headers().contains_key(header::TRANSFER_ENCODING);
+    let has_body = declared.is_some_and(|n| n > 0) || chunked;
     let mut response = match declared {
         Some(n) if n > limit as u64 => ApiError::new(
             StatusCode::PAYLOAD_TOO_LARGE,
@@ -359,7 +361,26 @@ async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Respon
             format!("request body of {n} bytes exceeds the limit of {limit} bytes (raise --max-body-mib to allow more)"),
         )
         .into_response(),
-        _ => next.run(req).await,
+        _ => {
+            let bytes = match declared {
+                Some(n) => n as usize,
+                None if chunked => limit,
+                None => 0,
+            };
+            match state.budget.try_reserve(bytes, "this request's body") {
+                Ok(held) => {
+                    let response = next.run(req).await;
+                    drop(held);
+                    response
+                }
+                Err(e) => {
+                    if e.code == "busy" {
+                        state.metrics.refused_busy.inc();
+                    }
+                    e.into_response()
+                }
+            }
+        }
     };
     let status = response.status();
     if has_body && (status.is_client_error() || status.is_server_error()) {
@@ -368,35 +389,6 @@ async fn declared_length_limit(limit: usize, req: Request, next: Next) -> Respon
             .insert(header::CONNECTION, header::HeaderValue::from_static("close"));
     }
     response
-}
-
-/// Holds a request body's bytes of the memory budget (its declared length,
-/// or the body limit when it comes chunked) until the answer, and answers
-/// 503 `busy` with `Retry-After` before reading it when they are not free.
-async fn reserve_body(state: AppState, max_body: usize, req: Request, next: Next) -> Response {
-    let declared = req
-        .headers()
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<usize>().ok());
-    let bytes = match declared {
-        Some(n) => n,
-        None if req.headers().contains_key(header::TRANSFER_ENCODING) => max_body,
-        None => 0,
-    };
-    match state.budget.try_reserve(bytes, "this request's body") {
-        Ok(held) => {
-            let response = next.run(req).await;
-            drop(held);
-            response
-        }
-        Err(e) => {
-            if e.code == "busy" {
-                state.metrics.refused_busy.inc();
-            }
-            e.into_response()
-        }
-    }
 }
 
 async fn request_timeout(limit: Duration, req: Request, next: Next) -> Response {

@@ -480,13 +480,12 @@ async fn reserve_decoding(state: &AppState, input: &PairInput) -> Result<Reserva
 
 /// One of the `workers` slots for a pair.
 async fn worker_permit(state: &AppState) -> Result<OwnedSemaphorePermit, ApiError> {
-    state.workers.clone().acquire_owned().await.map_err(|_| {
-        ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "shutting_down",
-            "the server is shutting down",
-        )
-    })
+    state
+        .workers
+        .clone()
+        .acquire_owned()
+        .await
+        .map_err(|_| ApiError::shutting_down())
 }
 
 /// Decodes and tracks; returns the result, the decode and track times (ms)
