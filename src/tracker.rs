@@ -62,6 +62,8 @@ pub struct TrackerParams {
     pub occlusion: OcclusionParams,
     /// Direction of the beam's tilt axis in the image, degrees from +x
     /// towards +y. Default 90 (the image y axis): disparity is then along x.
+    /// A service session with a calibration measures across the
+    /// calibration's axis instead, the one its `z_um` uses.
     #[schema(minimum = -360.0, maximum = 360.0)]
     pub tilt_axis_deg: f64,
     /// On the first pair, how far (pixels, along the disparity axis) the
@@ -382,6 +384,11 @@ pub struct TrackerState {
     pub reference_contrast: f64,
     /// Disparity-axis component on the session's first pair.
     pub first_disparity_axis_px: f64,
+    /// The whole disparity on the session's first pair, so that the
+    /// reference follows a change of tilt axis (absent in states stored
+    /// before it was kept).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_disparity_px: Option<Point>,
     /// Frame size the state belongs to.
     pub width: u32,
     /// See `width`.
@@ -520,6 +527,22 @@ impl StereoTracker {
         self.params = params;
     }
 
+    /// Measures disparities across a tilt axis at `deg` (degrees from +x
+    /// towards +y) from the next pair on; the first pair's reference for
+    /// `relative_disparity_axis_px` follows when the state knows its whole
+    /// disparity. A session with a calibration uses the calibration's axis.
+    pub fn set_tilt_axis_deg(&mut self, deg: f64) {
+        if self.params.tilt_axis_deg == deg {
+            return;
+        }
+        self.params.tilt_axis_deg = deg;
+        if let Some(state) = &mut self.state {
+            if let Some(d) = state.first_disparity_px {
+                state.first_disparity_axis_px = axis_component(deg, d);
+            }
+        }
+    }
+
     /// The durable state (None before the first successful initialisation).
     pub fn state(&self) -> Option<&TrackerState> {
         self.state.as_ref()
@@ -648,7 +671,10 @@ impl StereoTracker {
 
     /// First pair (or after a loss): find, fit, search the right view.
     fn initialise(&mut self, frame: u64, left: &GrayFrame, right: &GrayFrame) -> PairResult {
-        let previous_reference = self.state.as_ref().map(|s| s.first_disparity_axis_px);
+        let previous_reference = self
+            .state
+            .as_ref()
+            .map(|s| (s.first_disparity_axis_px, s.first_disparity_px));
         let found = match initialise(left, &self.params.init) {
             Ok(found) => found,
             Err(e) => return lost_result(frame, format!("initialisation failed: {e}")),
@@ -700,7 +726,7 @@ impl StereoTracker {
         found: &InitResult,
         (left, right): (&GrayFrame, &GrayFrame),
         prefilter_sigma_px: f64,
-        previous_reference: Option<f64>,
+        previous_reference: Option<(f64, Option<Point>)>,
     ) -> PairResult {
         let energy = &self.params.energy;
         let fitted = found.core.as_ref().unwrap_or(&found.contour);
@@ -782,7 +808,8 @@ impl StereoTracker {
             left: left_pose,
             right: right_pose,
             reference_contrast: left_terms.contrast(),
-            first_disparity_axis_px: previous_reference.unwrap_or(axis),
+            first_disparity_axis_px: previous_reference.map_or(axis, |r| r.0),
+            first_disparity_px: previous_reference.map_or(Some(disparity), |r| r.1),
             width: left.width,
             height: left.height,
             lost: false,

@@ -171,6 +171,8 @@ pub async fn delete_calibration(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
+    // No session attaches it meanwhile (see `Inner::calibration_links`).
+    let _links = state.calibration_links.lock().await;
     state.calibration(&id)?;
     let users = sessions_using(&state, &id).await;
     if !users.is_empty() {

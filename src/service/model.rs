@@ -269,12 +269,18 @@ pub struct SessionPatch {
     #[serde(default, deserialize_with = "present")]
     #[schema(value_type = Option<String>)]
     pub calibration_id: Option<Option<String>>,
-    /// New initialisation parameters, used at the next initialisation.
+    /// Initialisation parameters to change, used at the next
+    /// initialisation: a JSON merge patch (RFC 7396) of the session's, so
+    /// fields left out keep their values and `null` sets a field back to
+    /// its default (`"roi": null` clears the box).
     #[serde(default)]
-    pub init: Option<InitParams>,
-    /// New tracker parameters, used from the next pair on.
+    #[schema(value_type = Option<InitParams>)]
+    pub init: Option<serde_json::Value>,
+    /// Tracker parameters to change, used from the next pair on: a JSON
+    /// merge patch of the session's, like `init`.
     #[serde(default)]
-    pub tracker: Option<TrackerParams>,
+    #[schema(value_type = Option<TrackerParams>)]
+    pub tracker: Option<serde_json::Value>,
     /// New result retention.
     #[serde(default)]
     #[schema(minimum = 1)]

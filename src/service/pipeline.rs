@@ -325,6 +325,11 @@ fn track_locked(
     let (calibration, calibration_version) = state.calibration_model(calibration_id.as_deref()).unzip();
     let session_id = session.id.as_str();
     let queue = ms(received.elapsed());
+    // One tilt axis per session: the calibration's when it has one, so
+    // that disparity_axis_px and z_um are measured across the same axis.
+    if let Some(c) = &calibration {
+        core.tracker.set_tilt_axis_deg(c.tilt_axis_deg());
+    }
     let (mut result, decode_ms, track_ms, [left, right]) =
         decode_and_track(input, &state.config.decode_limits, &mut core.tracker)?;
     result.apply_calibration(calibration.as_ref(), &mut core.meta_watch);
@@ -408,12 +413,16 @@ pub async fn process_one_shot(
         None => (None, None),
     };
     let limits = state.config.decode_limits;
+    let axis_of = calibration.as_ref().map(|c| c.tilt_axis_deg());
     let held = reserve_decoding(state, &input).await?;
     let permit = worker_permit(state).await?;
     let queue = ms(received.elapsed());
     let outcome = tokio::task::spawn_blocking(move || {
         let _held = held;
         let mut tracker = StereoTracker::new(params);
+        if let Some(c) = &axis_of {
+            tracker.set_tilt_axis_deg(*c);
+        }
         decode_and_track(&input, &limits, &mut tracker).map(|(r, d, t, _)| (r, d, t))
     })
     .await

@@ -69,11 +69,19 @@ pub async fn create_session(
     ApiJson(body): ApiJson<SessionCreate>,
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
     check_name(body.name.as_deref())?;
-    if let Some(id) = &body.calibration_id {
-        state.calibration(id)?;
-    }
     check_retention(body.retention)?;
     let params = merge_params(TrackerParams::default(), body.init, body.tracker)?;
+    // Held until the session is in the table: a concurrent deletion of
+    // the calibration then sees it (see `Inner::calibration_links`).
+    let _links = match &body.calibration_id {
+        Some(id) => {
+            let guard = state.calibration_links.lock().await;
+            state.calibration(id)?;
+            Some(guard)
+        }
+        None => None,
+    };
+    let slot = state.reserve_session()?;
     let id = new_id("s");
     let core = SessionCore::new(
         body.name,
@@ -84,29 +92,8 @@ pub async fn create_session(
         now_rfc3339(),
     );
     let view = core.view(&id, state.config.default_retention);
-    {
-        let table = state
-            .sessions
-            .read()
-            .map_err(|_| ApiError::internal("session table lock poisoned"))?;
-        if table.len() >= state.config.max_sessions {
-            return Err(ApiError::conflict(
-                "session_limit_reached",
-                format!(
-                    "the server holds its maximum of {} sessions (delete one first)",
-                    state.config.max_sessions
-                ),
-            ));
-        }
-    }
     state.storage.upsert_session(core.record(&id)).await?;
-    let session = Arc::new(Session::new(id.clone(), core));
-    state
-        .sessions
-        .write()
-        .map_err(|_| ApiError::internal("session table lock poisoned"))?
-        .insert(id, session);
-    state.metrics.active_sessions.inc();
+    slot.fill(Arc::new(Session::new(id, core)))?;
     Ok((StatusCode::CREATED, ApiJson(view)))
 }
 
@@ -196,16 +183,23 @@ pub async fn patch_session(
     if let Some(Some(name)) = &body.name {
         check_name(Some(name))?;
     }
-    if let Some(Some(cal)) = &body.calibration_id {
-        state.calibration(cal)?;
-    }
     check_retention(body.retention)?;
+    // Attaching a calibration is serialised with deleting one (taken
+    // before the session's core, as the deletion does).
+    let _links = match &body.calibration_id {
+        Some(Some(cal)) => {
+            let guard = state.calibration_links.lock().await;
+            state.calibration(cal)?;
+            Some(guard)
+        }
+        _ => None,
+    };
     let mut core = session.lock_core(&state.storage).await?;
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
     if body.init.is_some() || body.tracker.is_some() {
-        let params = merge_params(core.tracker.params().clone(), body.init, body.tracker)?;
+        let params = patched_params(core.tracker.params(), body.init, body.tracker)?;
         core.tracker.set_params(params);
     }
     if let Some(name) = body.name {
@@ -716,6 +710,70 @@ fn merge_params(
         params.init = init;
     }
     checked(params)
+}
+
+/// `current` with the merge patches (RFC 7396) `tracker` (on the whole
+/// parameters) and `init` (on `init`) applied, then validated. Fields the
+/// patches leave out keep their values; unknown fields are refused, as in
+/// a full body.
+fn patched_params(
+    current: &TrackerParams,
+    init: Option<serde_json::Value>,
+    tracker: Option<serde_json::Value>,
+) -> Result<TrackerParams, ApiError> {
+    let invalid = |field: &str, e: serde_json::Error| {
+        ApiError::bad_request("invalid_parameter", format!("{field}: {e}"))
+    };
+    let mut params = serde_json::to_value(current)
+        .map_err(|e| ApiError::internal(format!("serialising parameters: {e}")))?;
+    if let Some(patch) = tracker {
+        if init.is_some() && patch.get("init").is_some() {
+            return Err(ApiError::bad_request(
+                "conflicting_parameters",
+                "both \"init\" and \"tracker.init\" are given (expected the initialisation parameters once, as \"init\")",
+            ));
+        }
+        if !patch.is_object() {
+            return Err(ApiError::bad_request(
+                "invalid_parameter",
+                format!("tracker: expected an object of the fields to change, got {patch}"),
+            ));
+        }
+        merge_patch(&mut params, patch);
+    }
+    if let Some(patch) = init {
+        if !patch.is_object() {
+            return Err(ApiError::bad_request(
+                "invalid_parameter",
+                format!("init: expected an object of the fields to change, got {patch}"),
+            ));
+        }
+        merge_patch(&mut params["init"], patch);
+    }
+    checked(serde_json::from_value(params).map_err(|e| invalid("tracker", e))?)
+}
+
+/// Applies a JSON merge patch (RFC 7396) to `target`: members of an object
+/// patch replace the target's recursively, `null` members remove them.
+fn merge_patch(target: &mut serde_json::Value, patch: serde_json::Value) {
+    use serde_json::Value;
+    match patch {
+        Value::Object(members) => {
+            if !target.is_object() {
+                *target = Value::Object(Default::default());
+            }
+            if let Value::Object(t) = target {
+                for (key, value) in members {
+                    if value.is_null() {
+                        t.remove(&key);
+                    } else {
+                        merge_patch(t.entry(key).or_insert(Value::Null), value);
+                    }
+                }
+            }
+        }
+        other => *target = other,
+    }
 }
 
 /// Validated parameters: 422 `invalid_hint` for a hint out of range (the

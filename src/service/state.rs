@@ -234,6 +234,13 @@ pub struct Inner {
     pub sessions: RwLock<HashMap<String, Arc<Session>>>,
     /// Serialises read-modify-write of calibrations (appending samples).
     pub calibration_writes: Mutex<()>,
+    /// Serialises attaching a calibration to a session (creation, PATCH)
+    /// with deleting a calibration, so that no session is left pointing
+    /// at a deleted one. Taken before any session's core.
+    pub calibration_links: Mutex<()>,
+    /// Session slots reserved by creations still writing to storage; with
+    /// the table's size, held under the session limit.
+    pub pending_sessions: std::sync::Mutex<usize>,
     /// Bounds the pairs processed at once (`config.workers` permits).
     pub workers: Arc<Semaphore>,
     /// Prometheus metrics.
@@ -405,7 +412,73 @@ impl SessionCore {
     }
 }
 
+/// A slot under the session limit, reserved by [`Inner::reserve_session`]
+/// until the session is inserted ([`SessionSlot::fill`]) or the slot is
+/// dropped (the creation failed).
+pub struct SessionSlot<'a> {
+    inner: &'a Inner,
+    filled: bool,
+}
+
+impl SessionSlot<'_> {
+    /// Inserts the session into the table in place of the reservation.
+    pub fn fill(mut self, session: Arc<Session>) -> Result<(), ApiError> {
+        let mut pending = self.inner.pending()?;
+        self.inner
+            .sessions
+            .write()
+            .map_err(|_| ApiError::internal("session table lock poisoned"))?
+            .insert(session.id.clone(), session);
+        *pending -= 1;
+        self.filled = true;
+        self.inner.metrics.active_sessions.inc();
+        Ok(())
+    }
+}
+
+impl Drop for SessionSlot<'_> {
+    fn drop(&mut self) {
+        if !self.filled {
+            if let Ok(mut pending) = self.inner.pending() {
+                *pending -= 1;
+            }
+        }
+    }
+}
+
 impl Inner {
+    fn pending(&self) -> Result<std::sync::MutexGuard<'_, usize>, ApiError> {
+        self.pending_sessions
+            .lock()
+            .map_err(|_| ApiError::internal("session slot lock poisoned"))
+    }
+
+    /// A slot for a new session, or 409 `session_limit_reached` when the
+    /// sessions held and those being created fill `max_sessions`: checked
+    /// and reserved in one step, so concurrent creations never exceed it.
+    pub fn reserve_session(&self) -> Result<SessionSlot<'_>, ApiError> {
+        let mut pending = self.pending()?;
+        let held = self
+            .sessions
+            .read()
+            .map_err(|_| ApiError::internal("session table lock poisoned"))?
+            .len();
+        if held + *pending >= self.config.max_sessions {
+            return Err(ApiError::conflict(
+                "session_limit_reached",
+                format!(
+                    "the server holds its maximum of {} sessions (delete one first)",
+                    self.config.max_sessions
+                ),
+            ));
+        }
+        *pending += 1;
+        Ok(SessionSlot {
+            inner: self,
+            filled: false,
+        })
+    }
+
     /// The session with this id, or 404.
     pub fn session(&self, id: &str) -> Result<Arc<Session>, ApiError> {
         self.sessions

@@ -1371,6 +1371,7 @@ mod tests {
             },
             reference_contrast: 0.4,
             first_disparity_axis_px: 26.25,
+            first_disparity_px: Some([26.25, 0.5]),
             width: 64,
             height: 48,
             lost: i % 7 == 6,
