@@ -734,40 +734,91 @@ impl Calibration {
         std_px: f64,
         meta: Option<&PairMeta>,
     ) -> Option<f64> {
-        // One pixel along the disparity direction, both ways: the central
-        // difference is exact for the polynomials used.
-        let (sin_t, cos_t) = sin_cos_deg(self.tilt_axis_deg());
-        let moved = |k: f64| [disparity_px[0] + k * sin_t, disparity_px[1] - k * cos_t];
-        let slope =
-            (self.z_for_pair(moved(1.0), meta).ok()? - self.z_for_pair(moved(-1.0), meta).ok()?) / 2.0;
+        let slope = self.slope_for_pair(disparity_px, meta)?;
         let mut variance = (slope * std_px).powi(2);
-        if let (CalibrationSpec::Fit(f), Some(poly), Some(stats)) = (&self.spec, &self.poly, self.stats) {
-            let (n, p) = (f.samples.len(), f.degree as usize + 1);
-            if n <= p {
-                return None;
-            }
-            let s2 = stats.residual_rms_um.powi(2) * n as f64 / (n - p) as f64;
-            let u = |d: f64| (d - poly.center_px) / poly.scale_px;
-            let row = |d: f64| -> Vec<f64> { (0..p).map(|k| u(d).powi(k as i32)).collect() };
-            let mut xtx = vec![vec![0.0; p]; p];
-            for sample in &f.samples {
-                let x = row(sample.disparity_px);
-                for i in 0..p {
-                    for j in 0..p {
-                        xtx[i][j] += x[i] * x[j];
-                    }
-                }
-            }
-            let x0 = row(axis_component(f.tilt_axis_deg, disparity_px));
-            let leverage = solve(xtx, x0.clone())?
-                .iter()
-                .zip(&x0)
-                .map(|(a, b)| a * b)
-                .sum::<f64>();
-            variance += s2 * (1.0 + leverage);
+        if let Some(fit) = self.fit_variance()? {
+            // A new observation: the fit's scatter plus its coefficients'.
+            let x0 = fit.row(axis_component(self.tilt_axis_deg(), disparity_px));
+            variance += fit.s2 * (1.0 + fit.leverage(&x0)?);
         }
         let std = variance.sqrt();
         std.is_finite().then_some(std)
+    }
+
+    /// The height of the object at disparity `from` above the one at `to`
+    /// in the same pair, micrometres, and its standard error from the two
+    /// disparities' standard errors `std_px` (independent: disjoint parts
+    /// of the images) and, for a fitted calibration, its coefficients'
+    /// uncertainty at the two disparities together (`s^2 g' (X'X)^-1 g`,
+    /// `g` the difference of the two design rows: the intercept and the
+    /// fit's scatter are shared and cancel). The error says why there is no
+    /// height (see [`Calibration::z_for_pair`]).
+    pub fn dz_for_pair(
+        &self,
+        from: [f64; 2],
+        to: [f64; 2],
+        std_px: [f64; 2],
+        meta: Option<&PairMeta>,
+    ) -> Result<(f64, Option<f64>), String> {
+        let dz = self.z_for_pair(from, meta)? - self.z_for_pair(to, meta)?;
+        let std = (|| {
+            let mut variance = 0.0;
+            for (d, s) in [(from, std_px[0]), (to, std_px[1])] {
+                variance += (self.slope_for_pair(d, meta)? * s).powi(2);
+            }
+            if let Some(fit) = self.fit_variance()? {
+                let axis = self.tilt_axis_deg();
+                let (a, b) = (
+                    fit.row(axis_component(axis, from)),
+                    fit.row(axis_component(axis, to)),
+                );
+                let g: Vec<f64> = a.iter().zip(&b).map(|(a, b)| a - b).collect();
+                variance += fit.s2 * fit.leverage(&g)?;
+            }
+            let std = variance.sqrt();
+            std.is_finite().then_some(std)
+        })();
+        Ok((dz, std))
+    }
+
+    /// dz/dd along the disparity direction at `disparity_px`, micrometres
+    /// per pixel: one pixel both ways, a central difference that is exact
+    /// for the polynomials used.
+    fn slope_for_pair(&self, disparity_px: [f64; 2], meta: Option<&PairMeta>) -> Option<f64> {
+        let (sin_t, cos_t) = sin_cos_deg(self.tilt_axis_deg());
+        let moved = |k: f64| [disparity_px[0] + k * sin_t, disparity_px[1] - k * cos_t];
+        Some((self.z_for_pair(moved(1.0), meta).ok()? - self.z_for_pair(moved(-1.0), meta).ok()?) / 2.0)
+    }
+
+    /// What the prediction error of a fitted calibration needs: its design
+    /// (centred and scaled powers of the disparity), `X'X` and the residual
+    /// variance `s^2`. `Some(None)` for a geometric calibration (or a fit without heights
+    /// yet), `None` for a fit with no more samples than coefficients, whose
+    /// error is unknown.
+    fn fit_variance(&self) -> Option<Option<FitVariance>> {
+        let (CalibrationSpec::Fit(f), Some(poly), Some(stats)) = (&self.spec, &self.poly, self.stats) else {
+            return Some(None);
+        };
+        let (n, p) = (f.samples.len(), f.degree as usize + 1);
+        if n <= p {
+            return None;
+        }
+        let mut fit = FitVariance {
+            s2: stats.residual_rms_um.powi(2) * n as f64 / (n - p) as f64,
+            center_px: poly.center_px,
+            scale_px: poly.scale_px,
+            terms: p,
+            xtx: vec![vec![0.0; p]; p],
+        };
+        for sample in &f.samples {
+            let x = fit.row(sample.disparity_px);
+            for i in 0..p {
+                for j in 0..p {
+                    fit.xtx[i][j] += x[i] * x[j];
+                }
+            }
+        }
+        Some(Some(fit))
     }
 
     /// Appends a sample to a fitted calibration and refits. On error (invalid
@@ -1011,6 +1062,30 @@ fn build_fit(f: FitSpec) -> Result<Calibration, CalibError> {
 
 /// Solves the small symmetric system `a x = b` by Gaussian elimination with
 /// partial pivoting; `None` when it is singular.
+/// A fitted calibration's design and residual variance (see
+/// [`Calibration::fit_variance`]).
+struct FitVariance {
+    s2: f64,
+    center_px: f64,
+    scale_px: f64,
+    terms: usize,
+    xtx: Vec<Vec<f64>>,
+}
+
+impl FitVariance {
+    /// The design row at a disparity across the axis.
+    fn row(&self, d: f64) -> Vec<f64> {
+        let u = (d - self.center_px) / self.scale_px;
+        (0..self.terms).map(|k| u.powi(k as i32)).collect()
+    }
+
+    /// `x' (X'X)^-1 x`.
+    fn leverage(&self, x: &[f64]) -> Option<f64> {
+        let solved = solve(self.xtx.clone(), x.to_vec())?;
+        Some(solved.iter().zip(x).map(|(a, b)| a * b).sum())
+    }
+}
+
 fn solve(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
     let n = b.len();
     for k in 0..n {
@@ -1939,5 +2014,21 @@ mod tests {
         }))
         .unwrap();
         assert_eq!(exact.z_std_for_pair([0.5, 0.0], 0.05, None), None);
+        // A height difference in one pair: the intercept and the fit's
+        // scatter cancel, the slope's uncertainty stays, s^2 (a - b)^2 / Sxx.
+        for (a, b) in [(1.0, 3.0), (-1.0, 6.0), (2.0, 2.0)] {
+            let (dz, std) = fit.dz_for_pair([a, 0.0], [b, 0.0], [0.05, 0.08], None).unwrap();
+            assert!((dz - c1 * (a - b)).abs() < 1e-9, "{dz}");
+            let expected =
+                (c1.powi(2) * (0.05f64.powi(2) + 0.08f64.powi(2)) + s2 * (a - b).powi(2) / sxx).sqrt();
+            assert!(
+                (std.unwrap() - expected).abs() < 1e-9,
+                "{a} - {b}: {std:?} against {expected}"
+            );
+        }
+        let (_, std) = geometric
+            .dz_for_pair([3.0, 1.0], [1.0, 1.0], [0.1, 0.1], None)
+            .unwrap();
+        assert!((std.unwrap() - 0.1 * slope * 2f64.sqrt()).abs() < 1e-12);
     }
 }

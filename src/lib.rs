@@ -18,6 +18,7 @@
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
 //! - [`uncertainty`]: standard error of a fitted position along the disparity axis (sandwich estimate from the energy's curvature and the pixel noise).
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
+//! - [`session`]: a session's named objects measured on every pair, their heights through one calibration and the heights between them.
 //! - [`display`]: 8-bit PNG renderings of frames with contours drawn over them (the live view's images).
 //! - [`report`]: CSV rows of pair results (shared by the CLI and the service).
 //! - [`cli`]: the command-line front end used by `main.rs`.
@@ -39,6 +40,7 @@ pub mod prefilter;
 pub mod region;
 pub mod report;
 pub mod service;
+pub mod session;
 pub mod synth;
 pub mod tracker;
 pub mod uncertainty;

@@ -1,0 +1,383 @@
+//! A measurement session: one to [`MAX_OBJECTS`] named objects, each with
+//! its own hints and [`StereoTracker`], measured on every stereo pair; their
+//! heights through one calibration, across one tilt axis; and the height of
+//! every object relative to every other (a tool above the part it handles).
+//!
+//! The rule for the tilt axis: with a calibration, every object measures
+//! its disparity across the calibration's axis, the one its `z_um` uses;
+//! without one, across its tracker's `tilt_axis_deg`.
+//!
+//! Relative heights. For objects `a` and `b` tracked on the same pair,
+//! `disparity_axis_px = d_a - d_b` with standard error
+//! `sqrt(s_a^2 + s_b^2)`: the two disparities are fitted on disjoint parts
+//! of the images, so their pixel noise is independent, while what the two
+//! share (the frames' drift and line jitter, the calibration's intercept)
+//! cancels in the difference. `dz_um` and `dz_std_um` come from
+//! [`Calibration::dz_for_pair`], which adds a fitted calibration's
+//! coefficient uncertainty at the two disparities together.
+
+use serde::{Deserialize, Serialize};
+
+use crate::calib::{Calibration, MetaWatch};
+use crate::imageio::GrayFrame;
+use crate::meta::ImageMeta;
+use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
+
+/// Most objects a session holds.
+pub const MAX_OBJECTS: usize = 16;
+
+/// Name of a session's object when none is named.
+pub const DEFAULT_OBJECT_NAME: &str = "object";
+
+/// Longest object name, characters.
+pub const MAX_NAME_LEN: usize = 64;
+
+/// Checks an object name: 1 to [`MAX_NAME_LEN`] ASCII letters, digits,
+/// `_`, `-` or `.` (names appear in URLs and CSV cells as they are).
+pub fn check_object_name(name: &str) -> Result<(), SessionError> {
+    let ok = (1..=MAX_NAME_LEN).contains(&name.len())
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'));
+    if ok {
+        Ok(())
+    } else {
+        Err(SessionError::InvalidName(name.chars().take(80).collect()))
+    }
+}
+
+/// Why a session cannot be built or changed as asked.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SessionError {
+    /// A name outside the allowed characters or length.
+    #[error("invalid object name {0:?} (expected 1..={MAX_NAME_LEN} of A-Z a-z 0-9 _ - .)")]
+    InvalidName(String),
+    /// Two objects with one name.
+    #[error("object name {0:?} given twice (expected each name once)")]
+    DuplicateName(String),
+    /// More than [`MAX_OBJECTS`] objects.
+    #[error("{0} objects (expected 1..={MAX_OBJECTS})")]
+    ObjectCount(usize),
+    /// No object with that name.
+    #[error("no object named {0:?}")]
+    UnknownObject(String),
+}
+
+impl SessionError {
+    /// A snake_case code for error bodies and CLI messages.
+    pub fn code(&self) -> &'static str {
+        match self {
+            Self::InvalidName(_) => "invalid_object_name",
+            Self::DuplicateName(_) => "duplicate_object",
+            Self::ObjectCount(_) => "object_count",
+            Self::UnknownObject(_) => "object_not_found",
+        }
+    }
+}
+
+/// One tracked object of a session.
+pub struct SessionObject {
+    /// Its name, unique in the session.
+    pub name: String,
+    /// Its tracker (parameters with its hints, contour, pose).
+    pub tracker: StereoTracker,
+}
+
+impl SessionObject {
+    /// A new object that initialises on the next pair with `params`.
+    pub fn new(name: impl Into<String>, params: TrackerParams) -> Self {
+        Self {
+            name: name.into(),
+            tracker: StereoTracker::new(params),
+        }
+    }
+}
+
+/// One object's measurement of a pair.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct ObjectResult {
+    /// The object's name.
+    pub name: String,
+    /// Its measurement (status, contours, disparity, z and their errors).
+    #[serde(flatten)]
+    pub result: PairResult,
+}
+
+/// The height of one object relative to another on the same pair; null
+/// numbers when either is not measured (lost), or without a calibration
+/// for `dz_um`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+pub struct Relative {
+    /// The object measured.
+    pub from: String,
+    /// The object it is measured against.
+    pub to: String,
+    /// `from`'s disparity across the tilt axis minus `to`'s, pixels.
+    pub disparity_axis_px: Option<f64>,
+    /// Standard error of `disparity_axis_px`, pixels.
+    pub disparity_std_px: Option<f64>,
+    /// `from`'s height minus `to`'s, micrometres.
+    pub dz_um: Option<f64>,
+    /// Standard error of `dz_um`, micrometres.
+    pub dz_std_um: Option<f64>,
+}
+
+/// A session's measurement of one pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Measurement {
+    /// Index of the pair in the session, from 0.
+    pub frame: u64,
+    /// Every object's measurement, in the session's order.
+    pub objects: Vec<ObjectResult>,
+    /// Every ordered pair of objects (none for a one-object session).
+    pub relative: Vec<Relative>,
+}
+
+/// The objects of a session and what they share: the frame count and the
+/// last pixel size the pairs' metadata gave.
+pub struct Session {
+    objects: Vec<SessionObject>,
+    frames: u64,
+    meta_watch: MetaWatch,
+}
+
+impl Session {
+    /// A session of `objects` (1..=[`MAX_OBJECTS`], unique valid names)
+    /// that has seen `frames` pairs.
+    pub fn new(objects: Vec<SessionObject>, frames: u64) -> Result<Self, SessionError> {
+        if !(1..=MAX_OBJECTS).contains(&objects.len()) {
+            return Err(SessionError::ObjectCount(objects.len()));
+        }
+        for (i, o) in objects.iter().enumerate() {
+            check_object_name(&o.name)?;
+            if objects[..i].iter().any(|p| p.name == o.name) {
+                return Err(SessionError::DuplicateName(o.name.clone()));
+            }
+        }
+        Ok(Self {
+            objects,
+            frames,
+            meta_watch: MetaWatch::default(),
+        })
+    }
+
+    /// A session with one object, [`DEFAULT_OBJECT_NAME`].
+    pub fn single(params: TrackerParams) -> Self {
+        Self {
+            objects: vec![SessionObject::new(DEFAULT_OBJECT_NAME, params)],
+            frames: 0,
+            meta_watch: MetaWatch::default(),
+        }
+    }
+
+    /// The objects, in order.
+    pub fn objects(&self) -> &[SessionObject] {
+        &self.objects
+    }
+
+    /// The object named `name`.
+    pub fn object_mut(&mut self, name: &str) -> Result<&mut SessionObject, SessionError> {
+        self.objects
+            .iter_mut()
+            .find(|o| o.name == name)
+            .ok_or_else(|| SessionError::UnknownObject(name.into()))
+    }
+
+    /// Adds an object; it initialises on the next pair.
+    pub fn add(&mut self, object: SessionObject) -> Result<(), SessionError> {
+        check_object_name(&object.name)?;
+        if self.objects.iter().any(|o| o.name == object.name) {
+            return Err(SessionError::DuplicateName(object.name));
+        }
+        if self.objects.len() >= MAX_OBJECTS {
+            return Err(SessionError::ObjectCount(self.objects.len() + 1));
+        }
+        self.objects.push(object);
+        Ok(())
+    }
+
+    /// Removes the object named `name` (a session keeps at least one).
+    pub fn remove(&mut self, name: &str) -> Result<SessionObject, SessionError> {
+        let i = self
+            .objects
+            .iter()
+            .position(|o| o.name == name)
+            .ok_or_else(|| SessionError::UnknownObject(name.into()))?;
+        if self.objects.len() == 1 {
+            return Err(SessionError::ObjectCount(0));
+        }
+        Ok(self.objects.remove(i))
+    }
+
+    /// Pairs measured so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+
+    /// Measures every object on one pair: its tracker's result with the
+    /// images' metadata and the calibration's height applied, then every
+    /// relative height. On an error (images of another size, a hint that
+    /// does not fit them) no object has moved on: the pair does not count.
+    pub fn measure(
+        &mut self,
+        left: &GrayFrame,
+        right: &GrayFrame,
+        meta: Option<(&ImageMeta, &ImageMeta)>,
+        calibration: Option<&Calibration>,
+    ) -> Result<Measurement, TrackError> {
+        let before: Vec<_> = self
+            .objects
+            .iter()
+            .map(|o| (o.tracker.state().cloned(), o.tracker.frames()))
+            .collect();
+        let mut objects = Vec::with_capacity(self.objects.len());
+        for object in &mut self.objects {
+            if let Some(c) = calibration {
+                object.tracker.set_tilt_axis_deg(c.tilt_axis_deg());
+            }
+            match object.tracker.process(left, right) {
+                Ok(mut result) => {
+                    result.frame = self.frames;
+                    if let Some((l, r)) = meta {
+                        result.apply_metadata(l, r);
+                    }
+                    result.apply_calibration(calibration, &mut self.meta_watch);
+                    objects.push(ObjectResult {
+                        name: object.name.clone(),
+                        result,
+                    });
+                }
+                Err(e) => {
+                    for (o, (state, frames)) in self.objects.iter_mut().zip(before) {
+                        let params = o.tracker.params().clone();
+                        o.tracker = StereoTracker::from_state(params, state, frames);
+                    }
+                    return Err(e);
+                }
+            }
+        }
+        let relative = relative_heights(&objects, calibration);
+        let frame = self.frames;
+        self.frames += 1;
+        Ok(Measurement {
+            frame,
+            objects,
+            relative,
+        })
+    }
+}
+
+/// Every ordered pair of distinct objects (see the module docs).
+pub fn relative_heights(objects: &[ObjectResult], calibration: Option<&Calibration>) -> Vec<Relative> {
+    let measured = |r: &PairResult| {
+        matches!(r.status, Status::Initialised | Status::Tracked)
+            .then_some(())
+            .and(r.disparity_px.zip(r.disparity_axis_px))
+    };
+    let mut out = Vec::new();
+    for a in objects {
+        for b in objects {
+            if a.name == b.name {
+                continue;
+            }
+            let mut rel = Relative {
+                from: a.name.clone(),
+                to: b.name.clone(),
+                disparity_axis_px: None,
+                disparity_std_px: None,
+                dz_um: None,
+                dz_std_um: None,
+            };
+            if let (Some((da, aa)), Some((db, ab))) = (measured(&a.result), measured(&b.result)) {
+                rel.disparity_axis_px = Some(aa - ab);
+                let stds = a.result.disparity_std_px.zip(b.result.disparity_std_px);
+                rel.disparity_std_px = stds.map(|(sa, sb)| sa.hypot(sb));
+                if let Some(c) = calibration {
+                    let meta = a.result.metadata.as_ref();
+                    let std = stds.map_or([f64::NAN; 2], |(sa, sb)| [sa, sb]);
+                    if let Ok((dz, dz_std)) = c.dz_for_pair(da, db, std, meta) {
+                        rel.dz_um = dz.is_finite().then_some(dz);
+                        rel.dz_std_um = dz_std.filter(|_| stds.is_some());
+                    }
+                }
+            }
+            out.push(rel);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_checked() {
+        for bad in ["", "a b", "n/1", "é", &"x".repeat(65)] {
+            assert!(check_object_name(bad).is_err(), "{bad:?}");
+        }
+        for good in ["needle", "lamella-2", "tip_1.a", &"x".repeat(64)] {
+            assert!(check_object_name(good).is_ok(), "{good:?}");
+        }
+        let two = |a: &str, b: &str| {
+            Session::new(
+                vec![
+                    SessionObject::new(a, TrackerParams::default()),
+                    SessionObject::new(b, TrackerParams::default()),
+                ],
+                0,
+            )
+        };
+        assert_eq!(two("a", "a").err(), Some(SessionError::DuplicateName("a".into())));
+        assert!(two("a", "b").is_ok());
+        assert_eq!(
+            Session::new(Vec::new(), 0).err(),
+            Some(SessionError::ObjectCount(0))
+        );
+        let mut one = Session::single(TrackerParams::default());
+        assert_eq!(one.remove("object").err(), Some(SessionError::ObjectCount(0)));
+        for i in 1..MAX_OBJECTS {
+            one.add(SessionObject::new(format!("o{i}"), TrackerParams::default()))
+                .unwrap();
+        }
+        assert_eq!(
+            one.add(SessionObject::new("extra", TrackerParams::default()))
+                .err(),
+            Some(SessionError::ObjectCount(MAX_OBJECTS + 1))
+        );
+    }
+
+    #[test]
+    fn a_pair_that_fails_for_one_object_moves_none_on() {
+        let cfg = crate::synth::SynthConfig {
+            frames: 2,
+            ..crate::synth::SynthConfig::preset(crate::synth::Preset::Clean, crate::synth::Shape::Sphere, 7)
+        };
+        let scene = crate::synth::Scene::new(&cfg).unwrap();
+        let first = scene.render(0);
+        let mut session = Session::new(
+            vec![
+                SessionObject::new("a", TrackerParams::default()),
+                SessionObject::new(
+                    "b",
+                    TrackerParams {
+                        init: crate::init::InitParams {
+                            roi: Some([5000, 5000, 40, 40]),
+                            ..Default::default()
+                        },
+                        ..TrackerParams::default()
+                    },
+                ),
+            ],
+            0,
+        )
+        .unwrap();
+        assert!(matches!(
+            session.measure(&first.left, &first.right, None, None),
+            Err(TrackError::Hint(_))
+        ));
+        assert_eq!(session.frames(), 0);
+        assert!(session.objects()[0].tracker.state().is_none());
+        assert_eq!(session.objects()[0].tracker.frames(), 0);
+    }
+}
