@@ -1,6 +1,7 @@
 //! Tabular output of pair results (CSV), shared by `semdepth process` and
 //! the service's `GET /v1/sessions/{id}/results?format=csv`.
 
+use crate::session::Measurement;
 use crate::tracker::PairResult;
 
 /// The CSV header of [`csv_record`].
@@ -9,15 +10,66 @@ right_x,right_y,right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,dis
 relative_disparity_axis_px,angle_diff_rad,z_um,disparity_std_px,z_std_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,\
 right_pixel_width_m,right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
 
+/// The CSV header of [`objects_csv_records`]: [`CSV_HEADER`] with the
+/// columns `object` and `relative_to` after `name`.
+pub static OBJECTS_CSV_HEADER: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    let rest = CSV_HEADER.strip_prefix("frame,name,").unwrap_or(CSV_HEADER);
+    format!("frame,name,object,relative_to,{rest}")
+});
+
+/// The rows of a pair measured for named objects: one per object (its
+/// name in `object`, `relative_to` empty), then one per ordered pair of
+/// objects (`object` minus `relative_to`: the relative disparity in
+/// `disparity_axis_px`, its error in `disparity_std_px`, the height
+/// difference in `z_um` and its error in `z_std_um`; status `lost` and
+/// empty numbers when either object is not measured).
+pub fn objects_csv_records(m: &Measurement, name: &str) -> Vec<String> {
+    let mut rows = Vec::with_capacity(m.objects.len() + m.relative.len());
+    for o in &m.objects {
+        let mut cells = csv_cells(&o.result, name);
+        cells.insert(2, csv_text(&o.name));
+        cells.insert(3, String::new());
+        rows.push(cells.join(","));
+    }
+    let columns = OBJECTS_CSV_HEADER.split(',').count();
+    let column = |c: &str| OBJECTS_CSV_HEADER.split(',').position(|h| h == c);
+    for r in &m.relative {
+        let mut cells = vec![String::new(); columns];
+        cells[0] = m.frame.to_string();
+        cells[1] = csv_text(name);
+        cells[2] = csv_text(&r.from);
+        cells[3] = csv_text(&r.to);
+        let measured = r.disparity_axis_px.is_some();
+        cells[4] = if measured { "tracked" } else { "lost" }.into();
+        for (c, v) in [
+            ("disparity_axis_px", r.disparity_axis_px),
+            ("disparity_std_px", r.disparity_std_px),
+            ("z_um", r.dz_um),
+            ("z_std_um", r.dz_std_um),
+        ] {
+            if let Some(i) = column(c) {
+                cells[i] = num(v);
+            }
+        }
+        rows.push(cells.join(","));
+    }
+    rows
+}
+
+/// Same number format as the JSON output (shortest round-trip form; a
+/// non-finite value, which JSON cannot hold either, is an empty cell).
+fn num(v: Option<f64>) -> String {
+    v.filter(|v| v.is_finite())
+        .and_then(|v| serde_json::to_string(&v).ok())
+        .unwrap_or_default()
+}
+
 /// One CSV row: `name` is the pair's name (file stem, or session id).
 pub fn csv_record(r: &PairResult, name: &str) -> String {
-    // Same number format as the JSON output (shortest round-trip form; a
-    // non-finite value, which JSON cannot hold either, is an empty cell).
-    let num = |v: Option<f64>| {
-        v.filter(|v| v.is_finite())
-            .and_then(|v| serde_json::to_string(&v).ok())
-            .unwrap_or_default()
-    };
+    csv_cells(r, name).join(",")
+}
+
+fn csv_cells(r: &PairResult, name: &str) -> Vec<String> {
     let mut cells = vec![
         r.frame.to_string(),
         csv_text(name),
@@ -50,7 +102,7 @@ pub fn csv_record(r: &PairResult, name: &str) -> String {
     } else {
         quote(&r.warnings.join("; "))
     });
-    cells.join(",")
+    cells
 }
 
 /// A text cell, quoted when it needs to be.

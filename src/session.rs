@@ -75,6 +75,18 @@ impl SessionError {
     }
 }
 
+/// A pair that could not be measured for one of the objects (none has
+/// moved on).
+#[derive(Debug, thiserror::Error)]
+#[error("object {object:?}: {error}")]
+pub struct MeasureError {
+    /// The object's name.
+    pub object: String,
+    /// What went wrong.
+    #[source]
+    pub error: TrackError,
+}
+
 /// One tracked object of a session.
 pub struct SessionObject {
     /// Its name, unique in the session.
@@ -224,7 +236,7 @@ impl Session {
         right: &GrayFrame,
         meta: Option<(&ImageMeta, &ImageMeta)>,
         calibration: Option<&Calibration>,
-    ) -> Result<Measurement, TrackError> {
+    ) -> Result<Measurement, MeasureError> {
         let before: Vec<_> = self
             .objects
             .iter()
@@ -247,12 +259,13 @@ impl Session {
                         result,
                     });
                 }
-                Err(e) => {
+                Err(error) => {
+                    let object = object.name.clone();
                     for (o, (state, frames)) in self.objects.iter_mut().zip(before) {
                         let params = o.tracker.params().clone();
                         o.tracker = StereoTracker::from_state(params, state, frames);
                     }
-                    return Err(e);
+                    return Err(MeasureError { object, error });
                 }
             }
         }
@@ -372,10 +385,11 @@ mod tests {
             0,
         )
         .unwrap();
-        assert!(matches!(
-            session.measure(&first.left, &first.right, None, None),
-            Err(TrackError::Hint(_))
-        ));
+        let err = session
+            .measure(&first.left, &first.right, None, None)
+            .unwrap_err();
+        assert!(matches!(err.error, TrackError::Hint(_)), "{err}");
+        assert_eq!(err.object, "b");
         assert_eq!(session.frames(), 0);
         assert!(session.objects()[0].tracker.state().is_none());
         assert_eq!(session.objects()[0].tracker.frames(), 0);

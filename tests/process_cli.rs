@@ -674,3 +674,133 @@ fn process_refuses_bad_hints_naming_them() {
     let out = with_params(serde_json::json!({"init": {"point": [10]}}));
     assert_input_error(&out, &["invalid_params", "init.point"]);
 }
+
+/// Three pairs of the two-disc scene in which disc A stands higher than
+/// disc B: A's disparity is 6 px, B's 2.5 px; both move by 1.5 px in x per
+/// pair. Returns the folder.
+fn two_height_folder(dir: &Path) -> PathBuf {
+    let folder = dir.join("heights");
+    std::fs::create_dir(&folder).unwrap();
+    for k in 0..3 {
+        let m = 1.5 * k as f64;
+        let at = |d: [f64; 3], shift: f64| [d[0] + m + shift, d[1], d[2]];
+        let (w, h) = (discs::WIDTH, discs::HEIGHT);
+        let left = discs::discs_frame(w, h, &[at(discs::DISC_A, 0.0), at(discs::DISC_B, 0.0)]);
+        let right = discs::discs_frame(w, h, &[at(discs::DISC_A, 6.0), at(discs::DISC_B, 2.5)]);
+        for (side, frame) in [("left", left), ("right", right)] {
+            frame
+                .to_gray8()
+                .save(folder.join(format!("{k:04}_{side}.png")))
+                .unwrap();
+        }
+    }
+    folder
+}
+
+#[test]
+fn process_measures_named_objects_and_their_relative_height() {
+    let dir = tempfile::tempdir().unwrap();
+    let folder = two_height_folder(dir.path());
+    let cal = dir.path().join("cal.json");
+    std::fs::write(
+        &cal,
+        r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0}"#,
+    )
+    .unwrap();
+    let um_per_px = 0.5 / (2.0 * 3f64.to_radians().sin());
+    let args = [
+        "process",
+        path_str(&folder),
+        "--calibration",
+        path_str(&cal),
+        "--object",
+        "high:roi=40,80,100,100",
+        "--object",
+        "low:point=235,110:polarity=brighter",
+    ];
+    let out = semdepth(&args);
+    assert_success(&out);
+    let records = jsonl(&out);
+    assert_eq!(records.len(), 3);
+    for (k, r) in records.iter().enumerate() {
+        let objects = r["objects"].as_array().unwrap();
+        let names: Vec<&str> = objects.iter().map(|o| o["name"].as_str().unwrap()).collect();
+        assert_eq!(names, ["high", "low"], "{r}");
+        let m = 1.5 * k as f64;
+        for (o, disc, disparity) in [
+            (&objects[0], discs::DISC_A, 6.0),
+            (&objects[1], discs::DISC_B, 2.5),
+        ] {
+            assert_eq!(o["status"], if k == 0 { "initialised" } else { "tracked" }, "{o}");
+            let d = discs::distance(&o["left"]["centroid"], disc[0] + m, disc[1]);
+            assert!(d < 1.0, "pair {k} {}: centroid {d:.2} px off", o["name"]);
+            assert!((f(&o["disparity_axis_px"]) - disparity).abs() < 0.3, "{o}");
+        }
+        let relative = r["relative"].as_array().unwrap();
+        assert_eq!(relative.len(), 2, "{r}");
+        assert_eq!(
+            (relative[0]["from"].as_str(), relative[0]["to"].as_str()),
+            (Some("high"), Some("low"))
+        );
+        let rel = f(&relative[0]["disparity_axis_px"]);
+        assert!((rel - 3.5).abs() < 0.3, "pair {k}: relative disparity {rel}");
+        assert!((f(&relative[0]["dz_um"]) - rel * um_per_px).abs() < 1e-6);
+        assert!(f(&relative[0]["dz_std_um"]) > 0.0);
+        assert_eq!(f(&relative[1]["disparity_axis_px"]), -rel);
+        // Two objects: no single object's fields at the top level.
+        assert!(r.get("status").is_none(), "{r}");
+    }
+
+    // CSV: one row per pair and object, then the relative rows.
+    let mut csv_args = args.to_vec();
+    csv_args.extend(["--format", "csv"]);
+    let out = semdepth(&csv_args);
+    assert_success(&out);
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<Vec<String>> = text.lines().map(csv_cells).collect();
+    let header = &lines[0];
+    assert_eq!(&header[..5], ["frame", "name", "object", "relative_to", "status"]);
+    assert_eq!(lines.len(), 1 + 3 * 4, "{text}");
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    for row in &lines[1..] {
+        assert_eq!(row.len(), header.len(), "{row:?}");
+    }
+    let rel_row = &lines[3];
+    assert_eq!(
+        (
+            rel_row[col("object")].as_str(),
+            rel_row[col("relative_to")].as_str()
+        ),
+        ("high", "low")
+    );
+    let rel: f64 = rel_row[col("disparity_axis_px")].parse().unwrap();
+    assert!((rel - 3.5).abs() < 0.3, "{rel_row:?}");
+    assert_eq!(lines[1][col("object")], "high");
+    assert_eq!(lines[1][col("relative_to")], "");
+
+    // Bad object specifications name what is wrong.
+    for (spec, needles) in [
+        ("bad name:roi=1,2,30,40", vec!["invalid object name"]),
+        ("a:roi=1,2,30", vec!["roi", "4 comma-separated numbers"]),
+        ("a:size=3", vec!["unknown key \"size\""]),
+        ("a:polarity=sideways", vec!["polarity", "brighter, darker or any"]),
+        ("a:roi=1,2,3,4", vec!["roi of --object a"]),
+        ("a:roi=5000,5000,40,40", vec!["roi of --object a"]),
+    ] {
+        let out = semdepth(&["process", path_str(&folder), "--object", spec]);
+        let mut needles = needles;
+        needles.push("--object");
+        assert_input_error(&out, &needles);
+    }
+    let out = semdepth(&["process", path_str(&folder), "--object", "a", "--object", "a"]);
+    assert_input_error(&out, &["duplicate_object", "\"a\""]);
+    let out = semdepth(&[
+        "process",
+        path_str(&folder),
+        "--object",
+        "a",
+        "--roi",
+        "1,2,30,40",
+    ]);
+    assert_input_error(&out, &["conflicting_hints"]);
+}

@@ -10,12 +10,13 @@ use std::time::{Duration, Instant};
 use clap::{Args, ValueEnum};
 
 use super::{exactly, hint_error, CliError};
-use crate::calib::{from_json, Calibration, MetaWatch};
+use crate::calib::{from_json, Calibration};
 use crate::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
 use crate::init::{InitError, Polarity};
 use crate::meta::{read_meta, ImageMeta};
-use crate::report::{csv_record, CSV_HEADER};
-use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
+use crate::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
+use crate::session::{check_object_name, Measurement, Session, SessionObject};
+use crate::tracker::{PairResult, Status, TrackError, TrackerParams};
 
 /// Image extensions recognised in the folder (compared case-insensitively).
 pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "jpg", "jpeg", "bmp"];
@@ -75,6 +76,16 @@ pub struct ProcessArgs {
     /// [default: the params file's init.polarity, else any].
     #[arg(long, value_enum)]
     pub polarity: Option<Polarity>,
+    /// An object to track, with its hints: NAME, then `:KEY=VALUE` for
+    /// each hint, KEY one of roi (X,Y,W,H), point (X,Y), polarity
+    /// (brighter, darker, any), min_area, max_area; e.g.
+    /// `--object needle:roi=0,100,300,80 --object lamella:point=520,300:polarity=darker`.
+    /// Repeat for up to 16 objects; each pair then gives every object's
+    /// measurement and the height of each relative to each other. The
+    /// other flags and the params file apply to all objects; --roi,
+    /// --point and --polarity do not go with --object.
+    #[arg(long = "object", value_name = "NAME[:KEY=VALUE...]")]
+    pub objects: Vec<String>,
     /// Leave out the contour points.
     #[arg(long)]
     pub no_contour: bool,
@@ -255,6 +266,64 @@ impl ProcessArgs {
     }
 }
 
+/// `--object NAME[:KEY=VALUE...]`: the name and the hints replacing
+/// `base`'s (exit 2 naming the object and the key otherwise).
+pub fn parse_object(spec: &str, base: &TrackerParams) -> Result<SessionObject, CliError> {
+    let bad = |what: String| CliError::input(format!("error[invalid_object]: --object {spec:?}: {what}"));
+    let mut parts = spec.split(':');
+    let name = parts.next().unwrap_or_default();
+    check_object_name(name).map_err(|e| bad(e.to_string()))?;
+    let mut params = base.clone();
+    params.init.roi = None;
+    params.init.point = None;
+    params.init.polarity = Polarity::Any;
+    for part in parts {
+        let (key, value) = part
+            .split_once('=')
+            .ok_or_else(|| bad(format!("{part:?} is not KEY=VALUE")))?;
+        let numbers = |n: usize| -> Result<Vec<f64>, CliError> {
+            let v: Result<Vec<f64>, _> = value.split(',').map(|x| x.trim().parse::<f64>()).collect();
+            match v {
+                Ok(v) if v.len() == n && v.iter().all(|x| x.is_finite()) => Ok(v),
+                _ => Err(bad(format!(
+                    "{key}={value:?} (expected {n} comma-separated numbers)"
+                ))),
+            }
+        };
+        match key {
+            "roi" => {
+                let v = numbers(4)?;
+                if v.iter().any(|x| x.fract() != 0.0) {
+                    return Err(bad(format!("roi={value:?} (expected whole pixels X,Y,W,H)")));
+                }
+                params.init.roi = Some([v[0] as i64, v[1] as i64, v[2] as i64, v[3] as i64]);
+            }
+            "point" => {
+                let v = numbers(2)?;
+                params.init.point = Some([v[0], v[1]]);
+            }
+            "polarity" => {
+                params.init.polarity = Polarity::from_str(value, true)
+                    .map_err(|_| bad(format!("polarity={value:?} (expected brighter, darker or any)")))?;
+            }
+            "min_area" => params.init.min_area_px = Some(numbers(1)?[0]),
+            "max_area" => params.init.max_area_px = Some(numbers(1)?[0]),
+            other => {
+                return Err(bad(format!(
+                    "unknown key {other:?} (expected roi, point, polarity, min_area or max_area)"
+                )))
+            }
+        }
+    }
+    if let Err(e @ InitError::InvalidHint { .. }) = params.init.validate() {
+        return Err(hint_error(&e, |field| format!("{field} of --object {name}")));
+    }
+    params
+        .validate()
+        .map_err(|e| bad(format!("invalid parameters: {e}")))?;
+    Ok(SessionObject::new(name, params))
+}
+
 /// Runs `semdepth process`: exit code 2 for bad arguments or input (including
 /// an image that cannot be read, after the records already printed).
 pub fn run(args: ProcessArgs) -> Result<(), CliError> {
@@ -270,54 +339,101 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
         None => None,
     };
     let params = args.tracker_params(calibration.as_ref())?;
+    let named = !args.objects.is_empty();
+    let mut session = if named {
+        if args.roi.is_some() || args.point.is_some() || args.polarity.is_some() {
+            return Err(CliError::input(
+                "error[conflicting_hints]: --roi, --point and --polarity name one object; with --object, give the hints inside it (--object NAME:roi=X,Y,W,H)",
+            ));
+        }
+        let objects = args
+            .objects
+            .iter()
+            .map(|spec| parse_object(spec, &params))
+            .collect::<Result<Vec<_>, _>>()?;
+        Session::new(objects, 0)
+            .map_err(|e| CliError::input(format!("error[{}]: --object: {e}", e.code())))?
+    } else {
+        Session::single(params)
+    };
     let pairs = find_pairs(&args.dir)?;
     let limits = DecodeLimits::default();
-    let mut tracker = StereoTracker::new(params);
     let mut progress = Progress::new(pairs.len(), args.progress || std::io::stderr().is_terminal());
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
     // The CSV header goes out with the first record, so that an error on
     // the first pair (e.g. hints that do not fit the images) prints nothing.
     let mut header_due = args.format == Format::Csv;
-    let mut watch = MetaWatch::default();
     for pair in &pairs {
         let started = Instant::now();
         let (left, left_meta) = read_image(&pair.left, &limits)?;
         let (right, right_meta) = read_image(&pair.right, &limits)?;
         let decoded = Instant::now();
-        let mut result = tracker.process(&left, &right).map_err(|e| match &e {
-            // The hints do not fit the images: name the flag or field.
-            TrackError::Hint(hint) => {
-                let mut err = hint_error(hint, |field| args.hint_source(field));
-                err.message = format!("{} (pair {:?}, {})", err.message, pair.name, pair.left.display());
-                err
-            }
-            _ => CliError::input(format!(
-                "error[{}]: pair {:?} ({}, {}): {e}",
-                track_error_code(&e),
-                pair.name,
-                pair.left.display(),
-                pair.right.display()
-            )),
-        })?;
-        let tracked = Instant::now();
-        result.apply_metadata(&left_meta, &right_meta);
-        result.apply_calibration(calibration.as_ref(), &mut watch);
+        let measured = session
+            .measure(
+                &left,
+                &right,
+                Some((&left_meta, &right_meta)),
+                calibration.as_ref(),
+            )
+            .map_err(|e| match &e.error {
+                // The hints do not fit the images: name the flag or field.
+                TrackError::Hint(hint) => {
+                    let mut err = match named {
+                        true => hint_error(hint, |field| format!("{field} of --object {}", e.object)),
+                        false => hint_error(hint, |field| args.hint_source(field)),
+                    };
+                    err.message = format!("{} (pair {:?}, {})", err.message, pair.name, pair.left.display());
+                    err
+                }
+                other => CliError::input(format!(
+                    "error[{}]: pair {:?} ({}, {}): {other}",
+                    track_error_code(other),
+                    pair.name,
+                    pair.left.display(),
+                    pair.right.display()
+                )),
+            })?;
         let timing = Timing {
             decode: ms(decoded - started),
-            track: ms(tracked - decoded),
+            track: ms(decoded.elapsed()),
         };
-        let line = match args.format {
-            Format::Jsonl => json_record(&result, &pair.name, timing, !args.no_contour)?,
-            Format::Csv => csv_record(&result, &pair.name),
+        let lines = match (args.format, named) {
+            (Format::Jsonl, false) => vec![json_record(
+                &measured.objects[0].result,
+                &pair.name,
+                timing,
+                !args.no_contour,
+            )?],
+            (Format::Jsonl, true) => vec![json_measurement(&measured, &pair.name, timing, !args.no_contour)?],
+            (Format::Csv, false) => vec![csv_record(&measured.objects[0].result, &pair.name)],
+            (Format::Csv, true) => objects_csv_records(&measured, &pair.name),
         };
-        if std::mem::take(&mut header_due) && !emit(&mut out, CSV_HEADER)? {
+        let header = if named {
+            OBJECTS_CSV_HEADER.as_str()
+        } else {
+            CSV_HEADER
+        };
+        if std::mem::take(&mut header_due) && !emit(&mut out, header)? {
             return Ok(());
         }
-        if !emit(&mut out, &line)? {
-            return Ok(()); // stdout closed (e.g. `| head`): stop quietly
+        for line in lines {
+            if !emit(&mut out, &line)? {
+                return Ok(()); // stdout closed (e.g. `| head`): stop quietly
+            }
         }
-        progress.record(result.status);
+        // A pair counts as tracked when every object is.
+        let status = measured
+            .objects
+            .iter()
+            .map(|o| o.result.status)
+            .max_by_key(|s| match s {
+                Status::Tracked => 0,
+                Status::Initialised => 1,
+                Status::Lost => 2,
+            })
+            .unwrap_or(Status::Lost);
+        progress.record(status);
     }
     progress.finish();
     Ok(())
@@ -425,6 +541,74 @@ fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -
     }
     line.push('}');
     Ok(line)
+}
+
+/// A pair's measurement with named objects as one JSON object: `frame`,
+/// `name`, `objects` (each object's fields as in [`json_record`], with its
+/// `name` first), `relative` and `timing_ms`; with one object, its fields
+/// also at the top level, as without `--object`.
+fn json_measurement(m: &Measurement, name: &str, timing: Timing, contour: bool) -> Result<String, CliError> {
+    let internal = |e: serde_json::Error| CliError::with_code(1, format!("error[internal]: {e}"));
+    let mut objects = Vec::with_capacity(m.objects.len());
+    for o in &m.objects {
+        let line = json_record(&o.result, &o.name, timing, contour)?;
+        let mut value: serde_json::Map<String, serde_json::Value> =
+            serde_json::from_str(&line).map_err(internal)?;
+        value.remove("timing_ms");
+        value.remove("frame");
+        objects.push(value);
+    }
+    let mut line = String::from("{");
+    let mut field = |key: &str, value: String, first: bool| {
+        if !first {
+            line.push(',');
+        }
+        line.push_str(&format!("{key:?}:{value}"));
+    };
+    field("frame", m.frame.to_string(), true);
+    field("name", serde_json::to_string(name).map_err(internal)?, false);
+    field("objects", object_array(&objects).map_err(internal)?, false);
+    field(
+        "relative",
+        serde_json::to_string(&m.relative).map_err(internal)?,
+        false,
+    );
+    field(
+        "timing_ms",
+        serde_json::to_string(&timing).map_err(internal)?,
+        false,
+    );
+    line.push('}');
+    Ok(line)
+}
+
+/// The objects as a JSON array, each with `name` first.
+fn object_array(objects: &[serde_json::Map<String, serde_json::Value>]) -> Result<String, serde_json::Error> {
+    let mut out = String::from("[");
+    for (i, o) in objects.iter().enumerate() {
+        if i > 0 {
+            out.push(',');
+        }
+        out.push('{');
+        let mut keys: Vec<&String> = o.keys().collect();
+        keys.sort_by_key(|k| {
+            (
+                k.as_str() != "name",
+                JSON_KEY_ORDER.iter().position(|x| x == k).unwrap_or(usize::MAX),
+            )
+        });
+        for (j, k) in keys.iter().enumerate() {
+            if j > 0 {
+                out.push(',');
+            }
+            out.push_str(&serde_json::to_string(k)?);
+            out.push(':');
+            out.push_str(&serde_json::to_string(&o[k.as_str()])?);
+        }
+        out.push('}');
+    }
+    out.push(']');
+    Ok(out)
 }
 
 /// Progress and summary lines on stderr.
