@@ -187,6 +187,16 @@ impl Session {
         &self.objects
     }
 
+    /// The objects, to change their trackers.
+    pub fn objects_mut(&mut self) -> &mut [SessionObject] {
+        &mut self.objects
+    }
+
+    /// Sets the count of pairs measured (a session restored from storage).
+    pub fn set_frames(&mut self, frames: u64) {
+        self.frames = frames;
+    }
+
     /// The object named `name`.
     pub fn object_mut(&mut self, name: &str) -> Result<&mut SessionObject, SessionError> {
         self.objects

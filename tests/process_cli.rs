@@ -747,8 +747,9 @@ fn process_measures_named_objects_and_their_relative_height() {
         assert!((f(&relative[0]["dz_um"]) - rel * um_per_px).abs() < 1e-6);
         assert!(f(&relative[0]["dz_std_um"]) > 0.0);
         assert_eq!(f(&relative[1]["disparity_axis_px"]), -rel);
-        // Two objects: no single object's fields at the top level.
-        assert!(r.get("status").is_none(), "{r}");
+        // The first object's fields stay at the top level.
+        assert_eq!(r["status"], objects[0]["status"]);
+        assert_eq!(r["disparity_axis_px"], objects[0]["disparity_axis_px"]);
     }
 
     // CSV: one row per pair and object, then the relative rows.

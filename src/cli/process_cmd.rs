@@ -543,10 +543,10 @@ fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -
     Ok(line)
 }
 
-/// A pair's measurement with named objects as one JSON object: `frame`,
-/// `name`, `objects` (each object's fields as in [`json_record`], with its
-/// `name` first), `relative` and `timing_ms`; with one object, its fields
-/// also at the top level, as without `--object`.
+/// A pair's measurement with named objects as one JSON object: the first
+/// object's fields at the top level as in [`json_record`] (as the service's
+/// results have them), then `objects` (each object's fields, its `name`
+/// first) and `relative`.
 fn json_measurement(m: &Measurement, name: &str, timing: Timing, contour: bool) -> Result<String, CliError> {
     let internal = |e: serde_json::Error| CliError::with_code(1, format!("error[internal]: {e}"));
     let mut objects = Vec::with_capacity(m.objects.len());
@@ -558,26 +558,12 @@ fn json_measurement(m: &Measurement, name: &str, timing: Timing, contour: bool) 
         value.remove("frame");
         objects.push(value);
     }
-    let mut line = String::from("{");
-    let mut field = |key: &str, value: String, first: bool| {
-        if !first {
-            line.push(',');
-        }
-        line.push_str(&format!("{key:?}:{value}"));
-    };
-    field("frame", m.frame.to_string(), true);
-    field("name", serde_json::to_string(name).map_err(internal)?, false);
-    field("objects", object_array(&objects).map_err(internal)?, false);
-    field(
-        "relative",
-        serde_json::to_string(&m.relative).map_err(internal)?,
-        false,
-    );
-    field(
-        "timing_ms",
-        serde_json::to_string(&timing).map_err(internal)?,
-        false,
-    );
+    let mut line = json_record(&m.objects[0].result, name, timing, contour)?;
+    line.pop(); // the closing brace
+    line.push_str(",\"objects\":");
+    line.push_str(&object_array(&objects).map_err(internal)?);
+    line.push_str(",\"relative\":");
+    line.push_str(&serde_json::to_string(&m.relative).map_err(internal)?);
     line.push('}');
     Ok(line)
 }

@@ -230,6 +230,18 @@ impl From<TrackError> for ApiError {
     }
 }
 
+impl From<crate::session::SessionError> for ApiError {
+    fn from(e: crate::session::SessionError) -> Self {
+        use crate::session::SessionError as E;
+        let status = match &e {
+            E::InvalidName(_) => StatusCode::BAD_REQUEST,
+            E::UnknownObject(_) => StatusCode::NOT_FOUND,
+            E::DuplicateName(_) | E::ObjectCount(_) => StatusCode::CONFLICT,
+        };
+        Self::new(status, e.code(), e.to_string())
+    }
+}
+
 impl From<CalibError> for ApiError {
     fn from(e: CalibError) -> Self {
         // Every calibration error is about the submitted values or samples,

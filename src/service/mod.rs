@@ -12,6 +12,7 @@
 //! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
 //! - [`live`]: the browser page at `/`, latest frames as PNG, result events.
 //! - [`storage`]: the SQLite writer thread (group commit) and migrations.
+//! - [`snapshot`]: the stored, versioned form of a session's objects, read tolerantly.
 //! - [`model`], [`error`]: JSON shapes and the one error type.
 //! - [`metrics`]: Prometheus counters and histograms.
 
@@ -43,6 +44,7 @@ pub mod model;
 pub mod ops;
 pub mod pipeline;
 pub mod sessions;
+pub mod snapshot;
 pub mod state;
 pub mod storage;
 pub mod ws;

@@ -9,10 +9,11 @@ use crate::calib::{
     DEFAULT_TILT_AXIS_DEG,
 };
 use crate::init::InitParams;
+use crate::session::{ObjectResult, Relative};
 use crate::tracker::{PairResult, TrackerParams};
 
 use super::error::ApiError;
-use super::storage::{CalibrationRecord, SessionRecord};
+use super::storage::{CalibrationRecord, ObjectRecord, SessionRecord};
 
 /// Body of `POST /v1/calibrations`: a geometric model or a least-squares
 /// fit through (disparity, z) samples.
@@ -254,6 +255,90 @@ pub struct SessionCreate {
     /// bulk deletes unless they include kept sessions. Default false.
     #[serde(default)]
     pub keep: bool,
+    /// The objects to track (1 to 16), each named with its own hints;
+    /// every pair then measures each of them and the height of each
+    /// relative to each other. Without it, one object named `object` with
+    /// the hints of `init`.
+    #[serde(default)]
+    pub objects: Option<Vec<ObjectCreate>>,
+}
+
+/// An object of a session, named, with its hints (`POST /v1/sessions`
+/// `objects`, `POST /v1/sessions/{id}/objects`). Its other parameters are
+/// the session's `init` and `tracker`.
+#[derive(Clone, Debug, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+#[schema(example = json!({"name": "needle", "roi": [0, 120, 300, 90], "polarity": "brighter"}))]
+pub struct ObjectCreate {
+    /// 1 to 64 of A-Z a-z 0-9 _ - . (unique in the session).
+    pub name: String,
+    /// The box `[x, y, width, height]` the object lies in (clipped to the image).
+    #[serde(default)]
+    pub roi: Option<[i64; 4]>,
+    /// A point `[x, y]` on the object.
+    #[serde(default)]
+    pub point: Option<[f64; 2]>,
+    /// The object against its surroundings; default `any`.
+    #[serde(default)]
+    pub polarity: Option<crate::init::Polarity>,
+    /// Smallest expected area, pixels.
+    #[serde(default)]
+    pub min_area_px: Option<f64>,
+    /// Largest expected area, pixels.
+    #[serde(default)]
+    pub max_area_px: Option<f64>,
+}
+
+impl ObjectCreate {
+    /// `base` with this object's hints in place of its own (as a set).
+    pub fn params(&self, base: &TrackerParams) -> TrackerParams {
+        let mut params = base.clone();
+        params.init.roi = self.roi;
+        params.init.point = self.point;
+        params.init.polarity = self.polarity.unwrap_or_default();
+        params.init.min_area_px = self.min_area_px;
+        params.init.max_area_px = self.max_area_px;
+        params
+    }
+}
+
+/// An object of a session as the API shows it.
+#[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+pub struct ObjectView {
+    /// Its name.
+    pub name: String,
+    /// `awaiting_first_pair` (its next pair initialises it), `tracking` or `lost`.
+    pub state: String,
+    /// Its hints.
+    pub roi: Option<[i64; 4]>,
+    /// See `roi`.
+    pub point: Option<[f64; 2]>,
+    /// See `roi`.
+    pub polarity: crate::init::Polarity,
+    /// See `roi`.
+    pub min_area_px: Option<f64>,
+    /// See `roi`.
+    pub max_area_px: Option<f64>,
+}
+
+impl ObjectView {
+    fn of(o: &ObjectRecord) -> Self {
+        let init = &o.params.init;
+        let state = match &o.tracker_state {
+            None => "awaiting_first_pair",
+            Some(s) if s.lost => "lost",
+            Some(_) => "tracking",
+        };
+        Self {
+            name: o.name.clone(),
+            state: state.into(),
+            roi: init.roi,
+            point: init.point,
+            polarity: init.polarity,
+            min_area_px: init.min_area_px,
+            max_area_px: init.max_area_px,
+        }
+    }
 }
 
 /// Body of `PATCH /v1/sessions/{id}`: the fields to change.
@@ -362,10 +447,13 @@ pub struct SessionView {
     pub retention: u64,
     /// Exempt from the idle-session expiry.
     pub keep: bool,
-    /// Initialisation parameters.
+    /// Initialisation parameters (of the first object when there are several).
     pub init: InitParams,
-    /// Tracker parameters (its `init` equals the top-level one).
+    /// Tracker parameters (its `init` equals the top-level one); of the
+    /// first object when there are several.
     pub tracker: TrackerParams,
+    /// The objects, in the order of the results' `objects`.
+    pub objects: Vec<ObjectView>,
     /// Disparity of the latest pair that was not lost, pixels.
     #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub latest_disparity_px: Option<[f64; 2]>,
@@ -386,8 +474,9 @@ impl SessionView {
             frames: r.frames,
             retention: r.retention.unwrap_or(default_retention),
             keep: r.keep,
-            init: r.params.init.clone(),
-            tracker: r.params.clone(),
+            init: r.objects[0].params.init.clone(),
+            tracker: r.objects[0].params.clone(),
+            objects: r.objects.iter().map(ObjectView::of).collect(),
             latest_disparity_px,
             created_at: r.created_at.clone(),
             updated_at: r.updated_at.clone(),
@@ -522,9 +611,17 @@ impl Provenance {
 pub struct FrameResult {
     /// The session (null for the one-shot `/v1/depth`).
     pub session_id: Option<String>,
-    /// The tracker's measurement.
+    /// The measurement of the session's first object (a one-object
+    /// session's only one), as before sessions had objects.
     #[serde(flatten)]
     pub result: PairResult,
+    /// Every object's measurement, in the session's order.
+    #[serde(default)]
+    pub objects: Vec<ObjectResult>,
+    /// The height of every object relative to every other (empty with one
+    /// object); null numbers where either is not measured.
+    #[serde(default)]
+    pub relative: Vec<Relative>,
     /// The calibration that gave `z_um` (null: none).
     pub calibration_id: Option<String>,
     /// Its version then: the result keeps meaning that version after the
@@ -542,14 +639,32 @@ pub struct FrameResult {
 }
 
 impl FrameResult {
+    /// The objects' measurements as the library gives them (a result
+    /// stored before objects existed: its one object, named `object`).
+    pub fn measurement(&self) -> crate::session::Measurement {
+        let objects = if self.objects.is_empty() {
+            vec![ObjectResult {
+                name: crate::session::DEFAULT_OBJECT_NAME.into(),
+                result: self.result.clone(),
+            }]
+        } else {
+            self.objects.clone()
+        };
+        crate::session::Measurement {
+            frame: self.result.frame,
+            objects,
+            relative: self.relative.clone(),
+        }
+    }
+
     /// The result with empty contour arrays (`contours=false`: a light
     /// reply; a quartz result is 41.6 KB with its contours).
     pub fn without_contours(mut self) -> Self {
-        for image in [&mut self.result.left, &mut self.result.right]
-            .into_iter()
-            .flatten()
-        {
-            image.contour = Vec::new();
+        let results = std::iter::once(&mut self.result).chain(self.objects.iter_mut().map(|o| &mut o.result));
+        for result in results {
+            for image in [&mut result.left, &mut result.right].into_iter().flatten() {
+                image.contour = Vec::new();
+            }
         }
         self
     }

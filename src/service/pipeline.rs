@@ -14,10 +14,11 @@ use axum::extract::{FromRequest, Request};
 use axum::http::StatusCode;
 use tokio::sync::{OwnedMutexGuard, OwnedSemaphorePermit};
 
-use crate::calib::MetaWatch;
+use crate::calib::Calibration;
 use crate::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
 use crate::meta::{read_meta, ImageMeta};
-use crate::tracker::{PairResult, StereoTracker, TrackerParams};
+use crate::session::{Measurement, Session as Objects};
+use crate::tracker::TrackerParams;
 
 use super::budget::{Reservation, DECODED_BYTES_PER_PIXEL};
 use super::error::ApiError;
@@ -325,16 +326,21 @@ fn track_locked(
     let (calibration, calibration_version) = state.calibration_model(calibration_id.as_deref()).unzip();
     let session_id = session.id.as_str();
     let queue = ms(received.elapsed());
-    // One tilt axis per session: the calibration's when it has one, so
-    // that disparity_axis_px and z_um are measured across the same axis.
-    if let Some(c) = &calibration {
-        core.tracker.set_tilt_axis_deg(c.tilt_axis_deg());
-    }
-    let (mut result, decode_ms, track_ms, [left, right]) =
-        decode_and_track(input, &state.config.decode_limits, &mut core.tracker)?;
-    result.apply_calibration(calibration.as_ref(), &mut core.meta_watch);
+    // The session measures every object across its calibration's tilt
+    // axis (see `crate::session`).
+    let (measured, decode_ms, track_ms, [left, right]) = decode_and_measure(
+        input,
+        &state.config.decode_limits,
+        &mut core.session,
+        calibration.as_ref(),
+    )?;
+    let result = measured.objects[0].result.clone();
     let now = now_rfc3339();
-    core.state = if result.status == crate::tracker::Status::Lost {
+    let any_lost = measured
+        .objects
+        .iter()
+        .any(|o| o.result.status == crate::tracker::Status::Lost);
+    core.state = if any_lost {
         tracing::info!(
             session = session_id,
             frame = result.frame,
@@ -354,6 +360,8 @@ fn track_locked(
         calibration_id: calibration.as_ref().and(calibration_id),
         calibration_version,
         result,
+        objects: measured.objects,
+        relative: measured.relative,
         timing_ms: TimingMs {
             queue,
             decode: decode_ms,
@@ -372,9 +380,9 @@ fn track_locked(
         session_id: session_id.to_owned(),
         frame: frame.result.frame,
         result_json,
-        frames: core.tracker.frames(),
+        frames: core.session.frames(),
         state: core.state.clone(),
-        tracker_state: core.tracker.state().cloned(),
+        objects: core.object_records(),
         updated_at: now,
     });
     let shown = LiveFrame {
@@ -413,40 +421,35 @@ pub async fn process_one_shot(
         None => (None, None),
     };
     let limits = state.config.decode_limits;
-    let axis_of = calibration.as_ref().map(|c| c.tilt_axis_deg());
     let held = reserve_decoding(state, &input).await?;
     let permit = worker_permit(state).await?;
     let queue = ms(received.elapsed());
     let outcome = tokio::task::spawn_blocking(move || {
         let _held = held;
-        let mut tracker = StereoTracker::new(params);
-        if let Some(c) = &axis_of {
-            tracker.set_tilt_axis_deg(*c);
-        }
-        decode_and_track(&input, &limits, &mut tracker).map(|(r, d, t, _)| (r, d, t))
+        let mut session = Objects::single(params);
+        decode_and_measure(&input, &limits, &mut session, calibration.as_ref()).map(|(m, d, t, _)| (m, d, t))
     })
     .await
     .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
     drop(permit);
-    let outcome = outcome.map(|(mut result, decode_ms, track_ms)| {
-        result.apply_calibration(calibration.as_ref(), &mut MetaWatch::default());
-        FrameResult {
-            session_id: None,
-            calibration_id,
-            calibration_version,
-            result,
-            timing_ms: TimingMs {
-                queue,
-                decode: decode_ms,
-                track: track_ms,
-                total: ms(received.elapsed()),
-            },
-            provenance: Provenance {
-                processed_at: Some(now_rfc3339()),
-                ..provenance
-            },
-            seq: None,
-        }
+    let outcome = outcome.map(|(measured, decode_ms, track_ms)| FrameResult {
+        session_id: None,
+        calibration_id,
+        calibration_version,
+        result: measured.objects[0].result.clone(),
+        objects: measured.objects,
+        relative: measured.relative,
+        timing_ms: TimingMs {
+            queue,
+            decode: decode_ms,
+            track: track_ms,
+            total: ms(received.elapsed()),
+        },
+        provenance: Provenance {
+            processed_at: Some(now_rfc3339()),
+            ..provenance
+        },
+        seq: None,
     });
     match &outcome {
         Ok(r) => state
@@ -497,22 +500,31 @@ async fn worker_permit(state: &AppState) -> Result<OwnedSemaphorePermit, ApiErro
         .map_err(|_| ApiError::shutting_down())
 }
 
-/// Decodes and tracks; returns the result, the decode and track times (ms)
-/// and the decoded images.
-fn decode_and_track(
+/// Decodes and measures every object of `session`; returns the
+/// measurement, the decode and measure times (ms) and the decoded images.
+fn decode_and_measure(
     input: &PairInput,
     limits: &DecodeLimits,
-    tracker: &mut StereoTracker,
-) -> Result<(PairResult, f64, f64, [GrayFrame; 2]), ApiError> {
+    session: &mut Objects,
+    calibration: Option<&Calibration>,
+) -> Result<(Measurement, f64, f64, [GrayFrame; 2]), ApiError> {
     let started = Instant::now();
     let (left, right, meta) = input.decode(limits)?;
     let decoded = Instant::now();
-    let mut result = tracker.process(&left, &right)?;
-    if let Some((l, r)) = meta {
-        result.apply_metadata(&l, &r);
-    }
+    let meta = meta.as_ref().map(|(l, r)| (l, r));
+    let measured =
+        session
+            .measure(&left, &right, meta, calibration)
+            .map_err(|e| match session.objects().len() {
+                1 => ApiError::from(e.error),
+                _ => {
+                    let mut err = ApiError::from(e.error);
+                    err.message = format!("object {:?}: {}", e.object, err.message);
+                    err
+                }
+            })?;
     Ok((
-        result,
+        measured,
         ms(decoded - started),
         ms(decoded.elapsed()),
         [left, right],

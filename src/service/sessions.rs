@@ -16,14 +16,15 @@ use utoipa_axum::routes;
 
 use crate::calib::{axis_component, Sample};
 use crate::init::{InitError, InitParams, Polarity};
-use crate::report::{csv_record, CSV_HEADER};
+use crate::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
+use crate::session::{Session as Objects, SessionObject};
 use crate::tracker::TrackerParams;
 
 use super::calibrations::{add_sample, check_name};
 use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
 use super::model::{
-    CalibrationView, ContoursQuery, FrameResult, PairUpload, ResultsPage, SessionCreate, SessionList,
-    SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted,
+    CalibrationView, ContoursQuery, FrameResult, ObjectCreate, PairUpload, ResultsPage, SessionCreate,
+    SessionList, SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted, HINT_FIELDS,
 };
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
 use super::state::{new_id, now_rfc3339, AppState, Session, SessionCore};
@@ -39,6 +40,9 @@ pub fn router() -> OpenApiRouter<AppState> {
         .routes(routes!(upload_pair))
         .routes(routes!(reset_session))
         .routes(routes!(reinit_session))
+        .routes(routes!(add_object))
+        .routes(routes!(delete_object))
+        .routes(routes!(reinit_object))
         .routes(routes!(session_results))
         .routes(routes!(add_session_calibration_sample))
         .routes(routes!(one_shot_depth))
@@ -81,6 +85,16 @@ pub async fn create_session(
         }
         None => None,
     };
+    let objects = match &body.objects {
+        None => Objects::single(params),
+        Some(list) => {
+            let objects = list
+                .iter()
+                .map(|o| Ok(SessionObject::new(o.name.clone(), checked(o.params(&params))?)))
+                .collect::<Result<Vec<_>, ApiError>>()?;
+            Objects::new(objects, 0)?
+        }
+    };
     let slot = state.reserve_session()?;
     let id = new_id("s");
     let core = SessionCore::new(
@@ -88,7 +102,7 @@ pub async fn create_session(
         body.calibration_id,
         body.retention,
         body.keep,
-        params,
+        objects,
         now_rfc3339(),
     );
     let view = core.view(&id, state.config.default_retention);
@@ -198,9 +212,30 @@ pub async fn patch_session(
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
+    let names_hints = |v: &Option<serde_json::Value>| {
+        v.as_ref()
+            .and_then(|v| v.as_object())
+            .is_some_and(|m| HINT_FIELDS.iter().any(|h| m.contains_key(*h)))
+    };
+    let tracker_init = body.tracker.as_ref().and_then(|t| t.get("init")).cloned();
+    if core.session.objects().len() > 1 && (names_hints(&body.init) || names_hints(&tracker_init)) {
+        return Err(ApiError::conflict(
+            "several_objects",
+            "the session tracks several objects; their hints are their own (expected POST /v1/sessions/{id}/objects/{name}/reinit)",
+        ));
+    }
     if body.init.is_some() || body.tracker.is_some() {
-        let params = patched_params(core.tracker.params(), body.init, body.tracker)?;
-        core.tracker.set_params(params);
+        let mut changed = Vec::new();
+        for object in core.session.objects() {
+            changed.push(patched_params(
+                object.tracker.params(),
+                body.init.clone(),
+                body.tracker.clone(),
+            )?);
+        }
+        for (object, params) in core.session.objects_mut().iter_mut().zip(changed) {
+            object.tracker.set_params(params);
+        }
     }
     if let Some(name) = body.name {
         core.name = name;
@@ -407,7 +442,16 @@ pub async fn reinit_session(
     if core.deleted {
         return Err(ApiError::not_found("session", &id));
     }
-    let mut params = core.tracker.params().clone();
+    if core.session.objects().len() > 1 {
+        return Err(ApiError::conflict(
+            "several_objects",
+            format!(
+                "session {id:?} tracks {} objects (expected POST /v1/sessions/{{id}}/objects/{{name}}/reinit to name one)",
+                core.session.objects().len()
+            ),
+        ));
+    }
+    let mut params = core.primary().params().clone();
     params.init = body
         .apply(&params.init, &fields)
         .map_err(|e| ApiError::internal(format!("merging initialisation parameters: {e}")))?;
@@ -509,11 +553,24 @@ pub async fn session_results(
         })
         .into_response()),
         ResultsFormat::Csv => {
-            let mut text = String::from(CSV_HEADER);
+            // With several objects: a row per object and per ordered pair
+            // of objects (see `report::objects_csv_records`).
+            let named = results.iter().any(|r| r.objects.len() > 1);
+            let mut text = if named {
+                OBJECTS_CSV_HEADER.clone()
+            } else {
+                String::from(CSV_HEADER)
+            };
             text.push('\n');
             for r in &results {
-                text.push_str(&csv_record(&r.result, r.provenance.name()));
-                text.push('\n');
+                let rows = match named {
+                    false => vec![csv_record(&r.result, r.provenance.name())],
+                    true => objects_csv_records(&r.measurement(), r.provenance.name()),
+                };
+                for row in rows {
+                    text.push_str(&row);
+                    text.push('\n');
+                }
             }
             Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], text).into_response())
         }
@@ -556,7 +613,7 @@ pub async fn add_session_calibration_sample(
         }
         // Only the latest pair's own disparity: after a lost pair (or a
         // reset) the height would be paired with an older pair's.
-        let frames = core.tracker.frames();
+        let frames = core.session.frames();
         match (core.state.as_str(), core.latest_disparity_px, frames.checked_sub(1)) {
             ("tracking", Some(d), Some(last)) => (d, last),
             ("lost", _, _) => {
@@ -689,6 +746,152 @@ pub async fn one_shot_depth(
 }
 
 /// Parameters from a base, a top-level `init` and a `tracker` object.
+/// The session with its core locked, or 404 when it is unknown or deleted.
+async fn locked(
+    state: &AppState,
+    id: &str,
+) -> Result<tokio::sync::OwnedMutexGuard<super::state::SessionCore>, ApiError> {
+    let session = state.session(id)?;
+    let core = session.lock_core(&state.storage).await?;
+    if core.deleted {
+        return Err(ApiError::not_found("session", id));
+    }
+    Ok(core)
+}
+
+/// Add an object to a session; it initialises on the next pair.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/objects",
+    operation_id = "add_object",
+    tag = "sessions",
+    params(("id" = String, Path, description = "Session id")),
+    request_body = ObjectCreate,
+    responses(
+        (status = 201, description = "The session with the new object", body = SessionView),
+        (status = 400, description = "Malformed JSON, unknown field, invalid object name or parameter", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
+        (status = 409, description = "An object of that name exists (`duplicate_object`), or the session has 16 (`object_count`)", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`)", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn add_object(
+    State(state): State<AppState>,
+    ApiPath(id): ApiPath<String>,
+    ApiJson(body): ApiJson<ObjectCreate>,
+) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
+    let mut core = locked(&state, &id).await?;
+    let params = checked(body.params(core.primary().params()))?;
+    core.session.add(SessionObject::new(body.name, params))?;
+    core.updated_at = now_rfc3339();
+    if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
+        let name = core
+            .session
+            .objects()
+            .last()
+            .map(|o| o.name.clone())
+            .unwrap_or_default();
+        let _ = core.session.remove(&name);
+        return Err(e.into());
+    }
+    Ok((
+        StatusCode::CREATED,
+        ApiJson(core.view(&id, state.config.default_retention)),
+    ))
+}
+
+/// Remove an object from a session (a session keeps at least one); the
+/// results already stored keep it.
+#[utoipa::path(
+    delete,
+    path = "/v1/sessions/{id}/objects/{name}",
+    operation_id = "delete_object",
+    tag = "sessions",
+    params(
+        ("id" = String, Path, description = "Session id"),
+        ("name" = String, Path, description = "Object name"),
+    ),
+    responses(
+        (status = 200, description = "The session without the object", body = SessionView),
+        (status = 400, description = "Invalid path", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session or object", body = ErrorBody),
+        (status = 409, description = "It is the session's last object (`object_count`)", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn delete_object(
+    State(state): State<AppState>,
+    ApiPath((id, name)): ApiPath<(String, String)>,
+) -> Result<ApiJson<SessionView>, ApiError> {
+    let mut core = locked(&state, &id).await?;
+    let removed = core.session.remove(&name)?;
+    core.updated_at = now_rfc3339();
+    if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
+        // Put it back where it was: the session is as stored.
+        let _ = core.session.add(removed);
+        return Err(e.into());
+    }
+    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
+/// Name one object anew: its next pair initialises with these hints (the
+/// hints replace its own as a set; other `init` parameters given override
+/// its own). The other objects go on.
+#[utoipa::path(
+    post,
+    path = "/v1/sessions/{id}/objects/{name}/reinit",
+    operation_id = "reinit_object",
+    tag = "sessions",
+    params(
+        ("id" = String, Path, description = "Session id"),
+        ("name" = String, Path, description = "Object name"),
+    ),
+    request_body = SessionReinit,
+    responses(
+        (status = 200, description = "The session, the object awaiting its next first pair", body = SessionView),
+        (status = 400, description = "Malformed JSON, unknown field, invalid parameter", body = ErrorBody),
+        (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
+        (status = 404, description = "No such session or object", body = ErrorBody),
+        (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
+        (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
+        (status = 415, description = "Not JSON", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`)", body = ErrorBody),
+        (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
+    )
+)]
+pub async fn reinit_object(
+    State(state): State<AppState>,
+    ApiPath((id, name)): ApiPath<(String, String)>,
+    ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
+) -> Result<ApiJson<SessionView>, ApiError> {
+    let mut core = locked(&state, &id).await?;
+    let object = core.session.object_mut(&name)?;
+    let before = object.tracker.params().clone();
+    let mut params = before.clone();
+    params.init = body
+        .apply(&params.init, &fields)
+        .map_err(|e| ApiError::internal(format!("merging initialisation parameters: {e}")))?;
+    let params = checked(params)?;
+    let previous_state = object.tracker.state().cloned();
+    let frames = object.tracker.frames();
+    object.tracker.set_params(params);
+    object.tracker.reset();
+    core.updated_at = now_rfc3339();
+    if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
+        if let Ok(object) = core.session.object_mut(&name) {
+            object.tracker = crate::tracker::StereoTracker::from_state(before, previous_state, frames);
+        }
+        return Err(e.into());
+    }
+    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
 fn merge_params(
     base: TrackerParams,
     init: Option<crate::init::InitParams>,

@@ -17,7 +17,7 @@ use crate::tracker::{StereoTracker, TrackerParams};
 use super::error::ApiError;
 use super::metrics::Metrics;
 use super::model::SessionView;
-use super::storage::{CalibrationRecord, SessionRecord, Storage};
+use super::storage::{CalibrationRecord, ObjectRecord, SessionRecord, Storage};
 
 /// Address `semdepth serve` listens on by default.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:8080";
@@ -296,7 +296,7 @@ impl Session {
                     let meta_watch = std::mem::take(&mut core.meta_watch);
                     *core = SessionCore::restore(record, latest);
                     core.meta_watch = meta_watch;
-                    tracing::warn!(session = %self.id, frames = core.tracker.frames(), "session reloaded from storage after a failed write");
+                    tracing::warn!(session = %self.id, frames = core.session.frames(), "session reloaded from storage after a failed write");
                 }
                 Ok(None) => {}
                 Err(e) => {
@@ -325,8 +325,9 @@ pub struct SessionCore {
     pub created_at: String,
     /// RFC 3339 UTC.
     pub updated_at: String,
-    /// The tracker (parameters, contour and pose, frame count).
-    pub tracker: StereoTracker,
+    /// The objects and their trackers (parameters, contour and pose,
+    /// frame counts).
+    pub session: crate::session::Session,
     /// Disparity of the latest pair that was not lost.
     pub latest_disparity_px: Option<[f64; 2]>,
     /// Set when the session is deleted, so that streams still holding it stop.
@@ -337,13 +338,13 @@ pub struct SessionCore {
 }
 
 impl SessionCore {
-    /// A new session.
+    /// A new session of `objects`.
     pub fn new(
         name: Option<String>,
         calibration_id: Option<String>,
         retention: Option<u64>,
         keep: bool,
-        params: TrackerParams,
+        objects: crate::session::Session,
         now: String,
     ) -> Self {
         Self {
@@ -354,7 +355,7 @@ impl SessionCore {
             state: "awaiting_first_pair".into(),
             created_at: now.clone(),
             updated_at: now,
-            tracker: StereoTracker::new(params),
+            session: objects,
             latest_disparity_px: None,
             deleted: false,
             meta_watch: MetaWatch::default(),
@@ -371,7 +372,7 @@ impl SessionCore {
             state: r.state,
             created_at: r.created_at,
             updated_at: r.updated_at,
-            tracker: StereoTracker::from_state(r.params, r.tracker_state, r.frames),
+            session: session_of(r.objects, r.frames),
             latest_disparity_px,
             deleted: false,
             meta_watch: MetaWatch::default(),
@@ -381,12 +382,33 @@ impl SessionCore {
     /// Forgets the object so that the next pair initialises again, with
     /// `params` when given (new hints); the frame count and the results stay.
     pub fn restart(&mut self, params: Option<TrackerParams>, now: String) {
-        if let Some(params) = params {
-            self.tracker.set_params(params);
+        for object in self.session.objects_mut() {
+            if let Some(params) = &params {
+                object.tracker.set_params(params.clone());
+            }
+            object.tracker.reset();
         }
-        self.tracker.reset();
         self.state = "awaiting_first_pair".into();
         self.updated_at = now;
+    }
+
+    /// The first object's tracker (a one-object session's only one).
+    pub fn primary(&self) -> &StereoTracker {
+        &self.session.objects()[0].tracker
+    }
+
+    /// The objects as stored.
+    pub fn object_records(&self) -> Vec<ObjectRecord> {
+        self.session
+            .objects()
+            .iter()
+            .map(|o| ObjectRecord {
+                name: o.name.clone(),
+                params: o.tracker.params().clone(),
+                frames: o.tracker.frames(),
+                tracker_state: o.tracker.state().cloned(),
+            })
+            .collect()
     }
 
     /// The durable form.
@@ -395,11 +417,10 @@ impl SessionCore {
             id: id.to_string(),
             name: self.name.clone(),
             calibration_id: self.calibration_id.clone(),
-            params: self.tracker.params().clone(),
+            objects: self.object_records(),
             retention: self.retention,
-            frames: self.tracker.frames(),
+            frames: self.session.frames(),
             state: self.state.clone(),
-            tracker_state: self.tracker.state().cloned(),
             created_at: self.created_at.clone(),
             updated_at: self.updated_at.clone(),
             keep: self.keep,
@@ -571,6 +592,29 @@ impl Inner {
         let table = self.calibrations.read().ok()?;
         table.get(id).map(|r| (r.calibration.clone(), r.version))
     }
+}
+
+/// The library session of stored objects (names checked when they were
+/// stored; a set that no longer forms a session, which storage refuses to
+/// read, would fall back to its first object).
+fn session_of(objects: Vec<ObjectRecord>, frames: u64) -> crate::session::Session {
+    let build = |objects: Vec<ObjectRecord>| {
+        objects
+            .into_iter()
+            .map(|o| crate::session::SessionObject {
+                name: o.name,
+                tracker: StereoTracker::from_state(o.params, o.tracker_state, o.frames),
+            })
+            .collect::<Vec<_>>()
+    };
+    let first = objects.first().cloned();
+    crate::session::Session::new(build(objects), frames).unwrap_or_else(|e| {
+        tracing::error!("stored objects do not form a session ({e}); keeping the first");
+        let params = first.map(|o| o.params).unwrap_or_default();
+        let mut session = crate::session::Session::single(params);
+        session.set_frames(frames);
+        session
+    })
 }
 
 /// Current time, RFC 3339 UTC with microsecond precision.

@@ -70,7 +70,9 @@ use rusqlite::{params, Connection, OpenFlags, OptionalExtension, TransactionBeha
 use tokio::sync::oneshot;
 
 use crate::calib::Calibration;
-use crate::tracker::{TrackerParams, TrackerState};
+
+pub use super::snapshot::ObjectRecord;
+use super::snapshot::{encode_definitions, encode_states};
 
 /// Schema version this build creates and understands (`PRAGMA user_version`).
 pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
@@ -231,16 +233,15 @@ pub struct SessionRecord {
     /// Calibration applied to its results, if any. Not a foreign key: the
     /// calibration may have been deleted since.
     pub calibration_id: Option<String>,
-    /// Tracking parameters (JSON column).
-    pub params: TrackerParams,
+    /// Its objects: names, tracker parameters and states (the `params` and
+    /// `tracker_state` columns, see [`super::snapshot`]).
+    pub objects: Vec<ObjectRecord>,
     /// Most results kept for this session (None: keep all).
     pub retention: Option<u64>,
     /// Pairs processed so far.
     pub frames: u64,
     /// `"awaiting_first_pair"`, `"tracking"` or `"lost"`.
     pub state: String,
-    /// Tracker state to continue from (JSON column); None before the first pair.
-    pub tracker_state: Option<TrackerState>,
     /// Creation time (RFC 3339 text, chosen by the caller); kept by upserts of
     /// an existing session.
     pub created_at: String,
@@ -263,8 +264,8 @@ pub struct PairRecord {
     pub frames: u64,
     /// The session's state after this pair.
     pub state: String,
-    /// The tracker state after this pair.
-    pub tracker_state: Option<TrackerState>,
+    /// The objects' trackers after this pair (their states are stored).
+    pub objects: Vec<ObjectRecord>,
     /// Time of this pair (RFC 3339 text), stored as the session's `updated_at`.
     pub updated_at: String,
 }
@@ -497,11 +498,7 @@ impl Storage {
     /// Creates a session or replaces every field of an existing one except
     /// `created_at` (durably). Its results are kept.
     pub async fn upsert_session(&self, rec: SessionRecord) -> Result<(), StorageError> {
-        let params_json = json_checked(&rec.params, "session", &rec.id, "params")?;
-        let tracker_json = match &rec.tracker_state {
-            Some(s) => Some(json_checked(s, "session", &rec.id, "tracker_state")?),
-            None => None,
-        };
+        let (params_json, tracker_json) = snapshot_checked(&rec.objects, "session", &rec.id)?;
         let retention = match rec.retention {
             Some(r) => Some(to_i64(r, "session", &rec.id, "retention")?),
             None => None,
@@ -853,10 +850,7 @@ fn prepare_pair(rec: PairRecord) -> Result<PreparedPair, StorageError> {
     Ok(PreparedPair {
         frame: to_i64(rec.frame, "pair of session", id, "frame")?,
         frames: to_i64(rec.frames, "pair of session", id, "frames")?,
-        tracker_json: match &rec.tracker_state {
-            Some(s) => Some(json_checked(s, "pair of session", id, "tracker_state")?),
-            None => None,
-        },
+        tracker_json: Some(snapshot_checked(&rec.objects, "pair of session", id)?.1),
         session_id: rec.session_id,
         result_json: rec.result_json,
         state: rec.state,
@@ -1197,25 +1191,25 @@ fn load_sessions(c: &Connection, only: Option<&str>) -> Result<Vec<SessionRecord
             (id, name, calibration_id, params, retention),
             (frames, state, tracker_state, created_at, updated_at, keep),
         ) = row?;
-        let params = parse_json(&params, "session", &id, "params")?;
-        let tracker_state = match tracker_state {
-            Some(text) => Some(parse_json(&text, "session", &id, "tracker_state")?),
-            None => None,
-        };
         let retention = match retention {
             Some(v) => Some(from_i64(v, "session", &id, "retention")?),
             None => None,
         };
         let frames = from_i64(frames, "session", &id, "frames")?;
+        let decoded = super::snapshot::decode(&params, tracker_state.as_deref(), frames)
+            .map_err(|e| StorageError::Corrupt(format!("session {id:?}: {e}")))?;
+        for note in &decoded.notes {
+            tracing::warn!(session = %id, "{note}");
+        }
+        let objects = decoded.objects;
         out.push(SessionRecord {
             id,
             name,
             calibration_id,
-            params,
+            objects,
             retention,
             frames,
             state,
-            tracker_state,
             created_at,
             updated_at,
             keep,
@@ -1287,18 +1281,35 @@ fn calibration_json(rec: &CalibrationRecord) -> Result<String, StorageError> {
 
 /// Serialises `value` and checks it parses back (JSON has no NaN or infinity:
 /// serde_json writes them as `null`, which would not read back).
-fn json_checked<T>(value: &T, kind: &str, id: &str, column: &str) -> Result<String, StorageError>
-where
-    T: serde::Serialize + serde::de::DeserializeOwned,
-{
-    let text = serde_json::to_string(value)
-        .map_err(|e| StorageError::Unstorable(format!("{kind} {id:?}: {column}: {e}")))?;
-    serde_json::from_str::<T>(&text).map_err(|e| {
-        StorageError::Unstorable(format!(
-            "{kind} {id:?}: {column} would not read back (non-finite number?): {e}"
-        ))
-    })?;
-    Ok(text)
+/// The `params` and `tracker_state` columns of a session's objects,
+/// checked to read back as they are (a non-finite number would not).
+fn snapshot_checked(
+    objects: &[ObjectRecord],
+    kind: &str,
+    id: &str,
+) -> Result<(String, String), StorageError> {
+    let params = encode_definitions(objects)
+        .map_err(|e| StorageError::Unstorable(format!("{kind} {id:?}: params: {e}")))?;
+    let states = encode_states(objects)
+        .map_err(|e| StorageError::Unstorable(format!("{kind} {id:?}: tracker_state: {e}")))?;
+    match super::snapshot::decode(&params, Some(&states), 0) {
+        Ok(d) if d.notes.is_empty() && states_match(&d.objects, objects) => Ok((params, states)),
+        Ok(d) => Err(StorageError::Unstorable(format!(
+            "{kind} {id:?}: params or tracker_state would not read back (non-finite number?){}{}",
+            if d.notes.is_empty() { "" } else { ": " },
+            d.notes.join("; ")
+        ))),
+        Err(e) => Err(StorageError::Unstorable(format!("{kind} {id:?}: {e}"))),
+    }
+}
+
+/// Every object's state read back as present or absent as it was.
+fn states_match(read: &[ObjectRecord], written: &[ObjectRecord]) -> bool {
+    read.len() == written.len()
+        && read
+            .iter()
+            .zip(written)
+            .all(|(r, w)| r.tracker_state.is_some() == w.tracker_state.is_some())
 }
 
 fn parse_json<T: serde::de::DeserializeOwned>(
@@ -1330,6 +1341,7 @@ mod tests {
     use crate::calib::{build, CalibrationSpec, GeometricSpec};
     use crate::fit::Pose;
     use crate::geometry::HalfPlane;
+    use crate::tracker::{TrackerParams, TrackerState};
 
     fn calibration(pixel_size_um: f64) -> Calibration {
         build(CalibrationSpec::Geometric(GeometricSpec {
@@ -1390,14 +1402,18 @@ mod tests {
             id: id.into(),
             name: Some(format!("session {id}")),
             calibration_id: Some("cal-a".into()),
-            params: TrackerParams {
-                max_disparity_px: 48.0,
-                ..TrackerParams::default()
-            },
+            objects: vec![ObjectRecord {
+                name: "object".into(),
+                params: TrackerParams {
+                    max_disparity_px: 48.0,
+                    ..TrackerParams::default()
+                },
+                frames: 0,
+                tracker_state: None,
+            }],
             retention,
             frames: 0,
             state: "awaiting_first_pair".into(),
-            tracker_state: None,
             created_at: created_at.into(),
             updated_at: created_at.into(),
             keep: false,
@@ -1418,7 +1434,15 @@ mod tests {
             result_json: result_json(session_id, frame),
             frames: frame + 1,
             state: if frame % 7 == 6 { "lost" } else { "tracking" }.into(),
-            tracker_state: Some(tracker_state(frame)),
+            objects: vec![ObjectRecord {
+                name: "object".into(),
+                params: TrackerParams {
+                    max_disparity_px: 48.0,
+                    ..TrackerParams::default()
+                },
+                frames: frame + 1,
+                tracker_state: Some(tracker_state(frame)),
+            }],
             updated_at: format!("2024-05-01T00:{:02}:{:02}Z", frame / 60 % 60, frame % 60),
         }
     }
@@ -1428,7 +1452,7 @@ mod tests {
         let last = pair(&s.id, n - 1);
         s.frames = last.frames;
         s.state = last.state;
-        s.tracker_state = last.tracker_state;
+        s.objects = last.objects;
         s.updated_at = last.updated_at;
         s
     }
@@ -1893,7 +1917,7 @@ mod tests {
         let mut changed = after_pairs(base.clone(), 3);
         changed.name = None;
         changed.calibration_id = None;
-        changed.params.min_contrast_ratio = 0.5;
+        changed.objects[0].params.min_contrast_ratio = 0.5;
         changed.retention = Some(2);
         changed.created_at = "2099-01-01T00:00:00Z".into();
         changed.updated_at = "2024-06-01T00:00:00Z".into();
@@ -1984,8 +2008,8 @@ mod tests {
     async fn non_finite_values_are_refused_before_storing() {
         let s = open(":memory:");
         let mut bad = session("nan", "2024-05-01T00:00:00Z", None);
-        bad.tracker_state = Some(tracker_state(1));
-        bad.tracker_state.as_mut().unwrap().left.x = f64::NAN;
+        bad.objects[0].tracker_state = Some(tracker_state(1));
+        bad.objects[0].tracker_state.as_mut().unwrap().left.x = f64::NAN;
         let err = s.upsert_session(bad).await.unwrap_err();
         assert_eq!(err.code(), "unstorable_record", "{err}");
         assert!(s.sessions().await.unwrap().is_empty());
@@ -1993,7 +2017,11 @@ mod tests {
         let base = session("ok", "2024-05-01T00:00:00Z", None);
         s.upsert_session(base.clone()).await.unwrap();
         let mut p = pair("ok", 0);
-        p.tracker_state.as_mut().unwrap().right_sector_contrasts[0] = f64::INFINITY;
+        p.objects[0]
+            .tracker_state
+            .as_mut()
+            .unwrap()
+            .right_sector_contrasts[0] = f64::INFINITY;
         let err = s.record_pair(p).await.unwrap_err();
         assert!(
             matches!(err, StorageError::Unstorable(ref m) if m.contains("ok")),

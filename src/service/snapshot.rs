@@ -1,0 +1,342 @@
+//! The stored form of a session's objects: the service's own versioned
+//! JSON, read tolerantly, so that a renamed or removed tuning field never
+//! makes a stored database unreadable.
+//!
+//! Two columns of the `sessions` table hold it:
+//! - `params`: `{"version": 2, "objects": [{"name", "params"}]}`, the
+//!   objects and their tracker parameters (changed by create, PATCH and
+//!   the object routes);
+//! - `tracker_state`: `{"version": 2, "objects": [{"name", "frames",
+//!   "state"}]}`, where each object's tracker stands (changed by every pair).
+//!
+//! Version 1 (every release before objects) stored one bare
+//! `TrackerParams` and one bare `TrackerState`: such a session reads as one
+//! object named [`DEFAULT_OBJECT_NAME`].
+//!
+//! Tolerance. Stored parameters are read field by field over the current
+//! defaults: a field the build no longer knows is dropped, one it cannot
+//! read takes its default, and the names of both are returned so the
+//! caller can say so. A tracker state that no longer reads is dropped:
+//! the object initialises again on its next pair (its results stay).
+
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+use crate::session::DEFAULT_OBJECT_NAME;
+use crate::tracker::{TrackerParams, TrackerState};
+
+/// Version written by this build.
+pub const SNAPSHOT_VERSION: u64 = 2;
+
+/// One object of a stored session, as the service keeps it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectRecord {
+    /// Unique in the session.
+    pub name: String,
+    /// Its tracker's parameters (hints included).
+    pub params: TrackerParams,
+    /// Pairs its tracker has processed.
+    pub frames: u64,
+    /// Where its tracker stands; None before its first pair or after a reset.
+    pub tracker_state: Option<TrackerState>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Definitions {
+    version: u64,
+    objects: Vec<Definition>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Definition {
+    name: String,
+    params: Value,
+}
+
+#[derive(Serialize, Deserialize)]
+struct States {
+    version: u64,
+    objects: Vec<StateOf>,
+}
+
+#[derive(Serialize, Deserialize)]
+struct StateOf {
+    name: String,
+    frames: u64,
+    state: Option<Value>,
+}
+
+/// The `params` column for `objects`.
+pub fn encode_definitions(objects: &[ObjectRecord]) -> Result<String, serde_json::Error> {
+    let objects = objects
+        .iter()
+        .map(|o| {
+            Ok(Definition {
+                name: o.name.clone(),
+                params: serde_json::to_value(&o.params)?,
+            })
+        })
+        .collect::<Result<_, serde_json::Error>>()?;
+    serde_json::to_string(&Definitions {
+        version: SNAPSHOT_VERSION,
+        objects,
+    })
+}
+
+/// The `tracker_state` column for `objects`.
+pub fn encode_states(objects: &[ObjectRecord]) -> Result<String, serde_json::Error> {
+    let objects = objects
+        .iter()
+        .map(|o| {
+            Ok(StateOf {
+                name: o.name.clone(),
+                frames: o.frames,
+                state: o.tracker_state.as_ref().map(serde_json::to_value).transpose()?,
+            })
+        })
+        .collect::<Result<_, serde_json::Error>>()?;
+    serde_json::to_string(&States {
+        version: SNAPSHOT_VERSION,
+        objects,
+    })
+}
+
+/// What reading a stored session's objects found.
+#[derive(Debug, Default)]
+pub struct Decoded {
+    /// The objects.
+    pub objects: Vec<ObjectRecord>,
+    /// What could not be kept (fields dropped or reset, states dropped),
+    /// for a warning; empty when everything read as it was written.
+    pub notes: Vec<String>,
+}
+
+/// Reads the two columns of a session that has seen `frames` pairs. An
+/// error (text that is not JSON, a version this build does not know, no
+/// objects) says what is wrong with which column.
+pub fn decode(params: &str, states: Option<&str>, frames: u64) -> Result<Decoded, String> {
+    let params: Value = serde_json::from_str(params).map_err(|e| format!("column params: {e}"))?;
+    let states: Option<Value> = states
+        .map(serde_json::from_str)
+        .transpose()
+        .map_err(|e| format!("column tracker_state: {e}"))?;
+    let mut out = Decoded::default();
+    match version_of(&params) {
+        None => {
+            // Version 1: one bare TrackerParams, one bare TrackerState.
+            let params = lenient_params(params, DEFAULT_OBJECT_NAME, &mut out.notes);
+            let tracker_state = states.and_then(|s| lenient_state(s, DEFAULT_OBJECT_NAME, &mut out.notes));
+            out.objects.push(ObjectRecord {
+                name: DEFAULT_OBJECT_NAME.into(),
+                params,
+                frames,
+                tracker_state,
+            });
+        }
+        Some(SNAPSHOT_VERSION) => {
+            let defs: Definitions =
+                serde_json::from_value(params).map_err(|e| format!("column params: {e}"))?;
+            let states: Vec<StateOf> = match states {
+                Some(s) => {
+                    let s: States = serde_json::from_value(s).map_err(|e| format!("column tracker_state: {e}"))?;
+                    s.objects
+                }
+                None => Vec::new(),
+            };
+            if defs.objects.is_empty() {
+                return Err("column params: no objects".into());
+            }
+            for def in defs.objects {
+                let params = lenient_params(def.params, &def.name, &mut out.notes);
+                let stored = states.iter().find(|s| s.name == def.name);
+                let tracker_state = stored
+                    .and_then(|s| s.state.clone())
+                    .and_then(|s| lenient_state(s, &def.name, &mut out.notes));
+                out.objects.push(ObjectRecord {
+                    frames: stored.map_or(0, |s| s.frames),
+                    name: def.name,
+                    params,
+                    tracker_state,
+                });
+            }
+        }
+        Some(v) => {
+            return Err(format!(
+                "column params: snapshot version {v} (this build reads 1..={SNAPSHOT_VERSION}; it was written by a newer semdepth)"
+            ))
+        }
+    }
+    Ok(out)
+}
+
+/// The `version` of a stored snapshot; None for version 1 (no envelope).
+fn version_of(v: &Value) -> Option<u64> {
+    match v.get("version") {
+        Some(version) if v.get("objects").is_some() => Some(version.as_u64().unwrap_or(u64::MAX)),
+        _ => None,
+    }
+}
+
+/// Stored parameters over the current defaults, field by field (see the
+/// module docs); what could not be kept is noted.
+fn lenient_params(stored: Value, object: &str, notes: &mut Vec<String>) -> TrackerParams {
+    if let Ok(p) = serde_json::from_value::<TrackerParams>(stored.clone()) {
+        if p.validate().is_ok() {
+            return p;
+        }
+    }
+    let mut current = serde_json::to_value(TrackerParams::default()).unwrap_or(Value::Null);
+    overlay(&mut current, &stored, "", object, notes);
+    match serde_json::from_value::<TrackerParams>(current) {
+        Ok(p) if p.validate().is_ok() => p,
+        _ => {
+            notes.push(format!(
+                "object {object:?}: stored parameters unreadable, defaults used"
+            ));
+            TrackerParams::default()
+        }
+    }
+}
+
+/// Copies `stored`'s members onto `target` where `target` has them and the
+/// result still reads as [`TrackerParams`]; objects recursively.
+fn overlay(target: &mut Value, stored: &Value, path: &str, object: &str, notes: &mut Vec<String>) {
+    let Value::Object(members) = stored else {
+        return;
+    };
+    for (key, value) in members {
+        let field = if path.is_empty() {
+            key.clone()
+        } else {
+            format!("{path}.{key}")
+        };
+        let Some(slot) = target.get(key).cloned() else {
+            notes.push(format!(
+                "object {object:?}: stored field {field} is no longer known (dropped)"
+            ));
+            continue;
+        };
+        if slot.is_object() && value.is_object() {
+            let mut sub = slot;
+            overlay(&mut sub, value, &field, object, notes);
+            target[key.as_str()] = sub;
+            continue;
+        }
+        let before = std::mem::replace(&mut target[key.as_str()], value.clone());
+        let reads = serde_json::from_value::<TrackerParams>(root_of(target, path))
+            .map(|p| p.validate().is_ok())
+            .unwrap_or(false);
+        if !reads {
+            target[key.as_str()] = before;
+            notes.push(format!(
+                "object {object:?}: stored field {field} no longer reads (default used)"
+            ));
+        }
+    }
+}
+
+/// While overlaying a nested object only the nested part is at hand: it is
+/// checked inside default parameters at its path.
+fn root_of(part: &Value, path: &str) -> Value {
+    let mut root = serde_json::to_value(TrackerParams::default()).unwrap_or(Value::Null);
+    if path.is_empty() {
+        return part.clone();
+    }
+    let mut slot = &mut root;
+    for key in path.split('.') {
+        slot = &mut slot[key];
+    }
+    *slot = part.clone();
+    root
+}
+
+/// A stored tracker state, or None (noted) when it no longer reads.
+fn lenient_state(stored: Value, object: &str, notes: &mut Vec<String>) -> Option<TrackerState> {
+    if stored.is_null() {
+        return None;
+    }
+    match serde_json::from_value(stored) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            notes.push(format!(
+                "object {object:?}: stored tracker state no longer reads ({e}); it initialises again on its next pair"
+            ));
+            None
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn object(name: &str) -> ObjectRecord {
+        ObjectRecord {
+            name: name.into(),
+            params: TrackerParams {
+                max_disparity_px: 40.0,
+                ..TrackerParams::default()
+            },
+            frames: 3,
+            tracker_state: None,
+        }
+    }
+
+    #[test]
+    fn snapshots_round_trip() {
+        let objects = vec![object("needle"), object("lamella")];
+        let params = encode_definitions(&objects).unwrap();
+        let states = encode_states(&objects).unwrap();
+        let decoded = decode(&params, Some(&states), 3).unwrap();
+        assert_eq!(decoded.objects, objects);
+        assert!(decoded.notes.is_empty(), "{:?}", decoded.notes);
+    }
+
+    #[test]
+    fn version_1_reads_as_one_object() {
+        let params = serde_json::to_string(&object("x").params).unwrap();
+        let decoded = decode(&params, None, 7).unwrap();
+        assert_eq!(decoded.objects.len(), 1);
+        assert_eq!(decoded.objects[0].name, DEFAULT_OBJECT_NAME);
+        assert_eq!(decoded.objects[0].frames, 7);
+        assert_eq!(decoded.objects[0].params.max_disparity_px, 40.0);
+    }
+
+    #[test]
+    fn renamed_and_broken_fields_are_dropped_and_named() {
+        // A field renamed since (rigid.search_radius), one of a wrong type,
+        // one out of range; the rest is kept.
+        let stored = r#"{"max_disparity_px": 40, "rigid": {"search_radius": 9, "coarse_step_px": "big",
+            "max_evaluations": 900}, "min_contrast_ratio": -3, "no_such_field": true}"#;
+        let decoded = decode(stored, None, 0).unwrap();
+        let p = &decoded.objects[0].params;
+        assert_eq!(p.max_disparity_px, 40.0);
+        assert_eq!(p.rigid.max_evaluations, 900);
+        let d = TrackerParams::default();
+        assert_eq!(p.rigid.coarse_step_px, d.rigid.coarse_step_px);
+        assert_eq!(p.min_contrast_ratio, d.min_contrast_ratio);
+        let notes = decoded.notes.join("\n");
+        for field in [
+            "rigid.search_radius",
+            "rigid.coarse_step_px",
+            "min_contrast_ratio",
+            "no_such_field",
+        ] {
+            assert!(notes.contains(field), "{field} not noted: {notes}");
+        }
+        // A state that no longer reads is dropped, not an error.
+        let decoded = decode(stored, Some(r#"{"templ": []}"#), 4).unwrap();
+        assert_eq!(decoded.objects[0].tracker_state, None);
+        assert!(decoded.notes.iter().any(|n| n.contains("tracker state")));
+    }
+
+    #[test]
+    fn what_cannot_be_read_is_an_error_naming_the_column() {
+        assert!(decode("nope", None, 0).unwrap_err().contains("params"));
+        assert!(decode("{}", Some("[garbage"), 0)
+            .unwrap_err()
+            .contains("tracker_state"));
+        let future = r#"{"version": 9, "objects": []}"#;
+        assert!(decode(future, None, 0).unwrap_err().contains("version 9"));
+    }
+}
