@@ -160,11 +160,7 @@ pub async fn get_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let session = state.session(&id)?;
-    let core = session.lock_core(&state.storage).await?;
-    if core.deleted {
-        return Err(ApiError::not_found("session", &id));
-    }
+    let core = state.session_core(&id).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
 }
 
@@ -193,7 +189,7 @@ pub async fn patch_session(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<SessionPatch>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let session = state.session(&id)?;
+    state.session(&id)?; // 404 before the body's own errors
     if let Some(Some(name)) = &body.name {
         check_name(Some(name))?;
     }
@@ -208,10 +204,7 @@ pub async fn patch_session(
         }
         _ => None,
     };
-    let mut core = session.lock_core(&state.storage).await?;
-    if core.deleted {
-        return Err(ApiError::not_found("session", &id));
-    }
+    let mut core = state.session_core(&id).await?;
     let names_hints = |v: &Option<serde_json::Value>| {
         v.as_ref()
             .and_then(|v| v.as_object())
@@ -398,11 +391,7 @@ pub async fn reset_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let session = state.session(&id)?;
-    let mut core = session.lock_core(&state.storage).await?;
-    if core.deleted {
-        return Err(ApiError::not_found("session", &id));
-    }
+    let mut core = state.session_core(&id).await?;
     core.restart(None, now_rfc3339());
     state.storage.upsert_session(core.record(&id)).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
@@ -437,11 +426,7 @@ pub async fn reinit_session(
     ApiPath(id): ApiPath<String>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let session = state.session(&id)?;
-    let mut core = session.lock_core(&state.storage).await?;
-    if core.deleted {
-        return Err(ApiError::not_found("session", &id));
-    }
+    let mut core = state.session_core(&id).await?;
     if core.session.objects().len() > 1 {
         return Err(ApiError::conflict(
             "several_objects",
@@ -604,13 +589,10 @@ pub async fn add_session_calibration_sample(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<SessionSampleCreate>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
-    let session = state.session(&id)?;
+    state.session(&id)?; // 404 for the session before the calibration
     let calibration = state.calibration(&body.calibration_id)?;
     let (disparity, frame) = {
-        let core = session.lock_core(&state.storage).await?;
-        if core.deleted {
-            return Err(ApiError::not_found("session", &id));
-        }
+        let core = state.session_core(&id).await?;
         // Only the latest pair's own disparity: after a lost pair (or a
         // reset) the height would be paired with an older pair's.
         let frames = core.session.frames();
@@ -746,19 +728,6 @@ pub async fn one_shot_depth(
 }
 
 /// Parameters from a base, a top-level `init` and a `tracker` object.
-/// The session with its core locked, or 404 when it is unknown or deleted.
-async fn locked(
-    state: &AppState,
-    id: &str,
-) -> Result<tokio::sync::OwnedMutexGuard<super::state::SessionCore>, ApiError> {
-    let session = state.session(id)?;
-    let core = session.lock_core(&state.storage).await?;
-    if core.deleted {
-        return Err(ApiError::not_found("session", id));
-    }
-    Ok(core)
-}
-
 /// Add an object to a session; it initialises on the next pair.
 #[utoipa::path(
     post,
@@ -785,7 +754,7 @@ pub async fn add_object(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<ObjectCreate>,
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
-    let mut core = locked(&state, &id).await?;
+    let mut core = state.session_core(&id).await?;
     let params = checked(body.params(core.primary().params()))?;
     core.session.add(SessionObject::new(body.name, params))?;
     core.updated_at = now_rfc3339();
@@ -829,7 +798,7 @@ pub async fn delete_object(
     State(state): State<AppState>,
     ApiPath((id, name)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let mut core = locked(&state, &id).await?;
+    let mut core = state.session_core(&id).await?;
     let removed = core.session.remove(&name)?;
     core.updated_at = now_rfc3339();
     if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
@@ -870,7 +839,7 @@ pub async fn reinit_object(
     ApiPath((id, name)): ApiPath<(String, String)>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let mut core = locked(&state, &id).await?;
+    let mut core = state.session_core(&id).await?;
     let object = core.session.object_mut(&name)?;
     let before = object.tracker.params().clone();
     let mut params = before.clone();

@@ -510,6 +510,17 @@ impl Inner {
             .ok_or_else(|| ApiError::not_found("session", id))
     }
 
+    /// The session with this id with its core locked (caught up with
+    /// storage first), or 404 when it is unknown or deleted.
+    pub async fn session_core(&self, id: &str) -> Result<OwnedMutexGuard<SessionCore>, ApiError> {
+        let session = self.session(id)?;
+        let core = session.lock_core(&self.storage).await?;
+        if core.deleted {
+            return Err(ApiError::not_found("session", id));
+        }
+        Ok(core)
+    }
+
     /// Deletes the session with this id and its results: waits for a pair
     /// in flight, and streams still holding it stop. 404 when unknown.
     pub async fn remove_session(&self, id: &str) -> Result<(), ApiError> {
