@@ -26,7 +26,8 @@
 //! under 20 ms at 100 pairs/s, under 5 MB of server memory per idle session.
 //!
 //! `cargo bench --bench service_load [-- --quick] [-- SCENARIO...]`
-//! (scenario names: ws_one, ws_viewed, ws_paced, ws_eight, rest_one, rest_four,
+//! (scenario names: ws_one, ws_objects_2, ws_objects_4, ws_viewed, ws_paced,
+//! ws_eight, rest_one, rest_four,
 //! idle_memory; a name filters by substring; unknown flags are ignored).
 //!
 //! `cargo bench --bench service_load -- soak` runs only the soak test
@@ -327,9 +328,20 @@ struct Run {
 }
 
 async fn create_session(http: &reqwest::Client, server: &Server) -> String {
+    create_session_with(http, server, json!({})).await
+}
+
+/// A session with `objects` objects, every one named after the sequence's
+/// one blob (each its own tracker: the cost of several objects per pair).
+async fn create_objects_session(http: &reqwest::Client, server: &Server, objects: usize) -> String {
+    let objects: Vec<Value> = (0..objects).map(|k| json!({"name": format!("o{k}")})).collect();
+    create_session_with(http, server, json!({"objects": objects})).await
+}
+
+async fn create_session_with(http: &reqwest::Client, server: &Server, body: Value) -> String {
     let response = http
         .post(server.url("/v1/sessions"))
-        .json(&json!({}))
+        .json(&body)
         .send()
         .await
         .expect("POST /v1/sessions");
@@ -632,13 +644,17 @@ async fn ws_scenario(
     warmup: usize,
     pace: Option<Duration>,
     viewed: bool,
+    objects: usize,
 ) -> (Vec<Run>, Usage, [u64; 2]) {
     let barrier = Arc::new(Barrier::new(clients + 1));
     let mut tasks = Vec::new();
     let counts = Arc::new([AtomicU64::new(0), AtomicU64::new(0)]);
     let mut viewers = Vec::new();
     for _ in 0..clients {
-        let session = create_session(http, server).await;
+        let session = match objects {
+            1 => create_session(http, server).await,
+            n => create_objects_session(http, server, n).await,
+        };
         if viewed {
             let url = format!("http://{}/v1/sessions/{session}", server.addr);
             viewers.push(tokio::spawn(viewer(http.clone(), url, counts.clone())));
@@ -1036,7 +1052,8 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
 
     let mut summaries = Vec::new();
     let largest = sizes.ws_warmup + sizes.ws_pairs.max(sizes.paced_pairs);
-    let ws_messages = if wanted("ws_one") || wanted("ws_viewed") || wanted("ws_paced") {
+    let ws_messages = if wanted("ws_one") || wanted("ws_viewed") || wanted("ws_paced") || wanted("ws_objects")
+    {
         messages(&data, largest)
     } else {
         Arc::new(Vec::new())
@@ -1044,10 +1061,38 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
     if wanted("ws_one") {
         eprintln!("service_load: ws_one");
         let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
-        let (runs, cpu, _) = ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None, false).await;
+        let (runs, cpu, _) =
+            ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None, false, 1).await;
         summaries.push(Summary::new(
             "ws_one",
             "1 WebSocket, raw 8-bit, pipelined, policy=all".into(),
+            &runs,
+            cpu,
+        ));
+    }
+    for (objects, name) in [(2usize, "ws_objects_2"), (4, "ws_objects_4")] {
+        if !wanted(name) {
+            continue;
+        }
+        eprintln!("service_load: {name}");
+        let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
+        let (runs, cpu, _) = ws_scenario(
+            &server,
+            &http,
+            ticks,
+            &msgs,
+            1,
+            sizes.ws_warmup,
+            None,
+            false,
+            objects,
+        )
+        .await;
+        summaries.push(Summary::new(
+            name,
+            format!(
+                "as ws_one, the session tracking {objects} objects (each its own tracker on the one blob)"
+            ),
             &runs,
             cpu,
         ));
@@ -1056,7 +1101,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
         eprintln!("service_load: ws_viewed");
         let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
         let (runs, cpu, [events, images]) =
-            ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None, true).await;
+            ws_scenario(&server, &http, ticks, &msgs, 1, sizes.ws_warmup, None, true, 1).await;
         summaries.push(Summary::new(
             "ws_viewed",
             format!("as ws_one, watched by a live view ({events} events, {images} images of 900 px)"),
@@ -1077,6 +1122,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
             sizes.ws_warmup,
             Some(pace),
             false,
+            1,
         )
         .await;
         summaries.push(Summary::new(
@@ -1099,6 +1145,7 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
             sizes.multi_warmup,
             None,
             false,
+            1,
         )
         .await;
         summaries.push(Summary::new(

@@ -16,8 +16,10 @@ What it checks, each with an assertion on what the page shows:
      box names the one the automatic initialisation did not take;
   4. the calibration page shows the samples and R^2, and adds a sample from
      the session's latest disparity;
-  5. a session deleted while its page is open is reported deleted;
-  6. with a token, the page without it shows a prompt, not a broken page;
+  5. a session of two named objects lists both with their heights and the
+     height of one relative to the other, and draws both contours;
+  6. a session deleted while its page is open is reported deleted;
+  7. with a token, the page without it shows a prompt, not a broken page;
      a wrong token is refused, the right one opens the sessions, and the
      token never appears in a URL.
 Screenshots go to SCREENSHOT_DIR; look at them.
@@ -259,7 +261,33 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
 
     check(not problems, f"no console errors or page errors: {problems}")
 
-    # 5. A session deleted while it is watched: the page says so.
+    # 5. A session of two named objects: both listed with their heights, the
+    # height of one relative to the other, both contours drawn.
+    def box(poly, margin=12):
+        xs, ys = [x for x, _ in poly], [y for _, y in poly]
+        return [int(min(xs)) - margin, int(min(ys)) - margin,
+                int(max(xs) - min(xs)) + 2 * margin, int(max(ys) - min(ys)) + 2 * margin]
+    pair_session = api.create_session(name="needle and lamella", calibration_id=cal["id"], objects=[
+        {"name": "a", "roi": box(objects["a"][0]["polygon"])},
+        {"name": "b", "roi": box(objects["b"][0]["polygon"])}])["id"]
+    page.goto(f"{server.base}/#/sessions/{pair_session}")
+    page.wait_for_selector("#view-left")
+    replies = stream(server.base, pair_session, messages)
+    last = replies[-1]
+    check([o["status"] for o in last["objects"]] == ["tracked", "tracked"], "both objects are tracked")
+    page.wait_for_selector(f"#view-left[data-frame='{STREAMED - 1}']")
+    page.wait_for_selector("table#objects tr[data-object='b']")
+    check(page.locator("table#objects tr").count() == 2, "the page lists both objects")
+    rel = next(x for x in last["relative"] if x["from"] == "a" and x["to"] == "b")
+    shown = page.inner_text("table#relative tr[data-from='a'][data-to='b']")
+    expected = f"{rel['dz_um']:.3f} ± {rel['dz_std_um']:.3f}"
+    check(expected in shown, f"the relative height a - b ({shown!r}) is the last result's ({expected})")
+    drawn = page.get_attribute("#overlay-left polygon[data-object='b']", "points").split()
+    check(len(drawn) == len(last["objects"][1]["left"]["contour"]),
+          f"the second object's contour is drawn ({len(drawn)} points)")
+    page.screenshot(path=str(shots / "06-two-objects.png"), full_page=True)
+
+    # 6. A session deleted while it is watched: the page says so.
     doomed = api.create_session(name="to delete")["id"]
     page.goto(f"{server.base}/#/sessions/{doomed}")
     page.wait_for_selector("#view-left")

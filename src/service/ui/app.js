@@ -5,6 +5,7 @@
 // server wants one, asked for once and kept in sessionStorage (never in a
 // URL).
 
+// The objects' colours, in order (the swatches' classes c0..c5 in style.css match).
 const PALETTE = ["#00dcff", "#ffaa00", "#78ff50", "#ff50c8", "#ffff5a", "#a082ff"];
 const LOST = "#ff3c28";
 const TOKEN_KEY = "semdepth-token";
@@ -231,6 +232,26 @@ async function sessionPage(id, signal) {
     const colour = r.status === "tracked" || r.status === "initialised" ? PALETTE[0] : LOST;
     left.contour(r.left?.contour, colour);
     right.contour(r.right?.contour, colour);
+    // The other objects of a session of several, each in its own colour.
+    const measured = (o) => o.status === "tracked" || o.status === "initialised";
+    const others = (r.objects ?? []).slice(1).map((o, k) => ({ o, colour: measured(o) ? PALETTE[(k + 1) % PALETTE.length] : LOST }));
+    left.others(others.map(({ o, colour }) => ({ name: o.name, points: o.left?.contour, colour })));
+    right.others(others.map(({ o, colour }) => ({ name: o.name, points: o.right?.contour, colour })));
+    const several = (r.objects ?? []).length > 1;
+    const objectCells = several ? [
+      cell("objects", el("table", { class: "objects", id: "objects" }, ...r.objects.map((o, k) =>
+        el("tr", { "data-object": o.name },
+          el("td", {}, el("span", { class: `swatch ${measured(o) ? `c${k % PALETTE.length}` : "lost"}` }), " ", o.name),
+          el("td", {}, badge(o.status)),
+          el("td", { class: "num" }, pm(o.disparity_axis_px, o.disparity_std_px, 2), " px"),
+          el("td", { class: "num" }, pm(o.z_um, o.z_std_um, 2), " µm"))))),
+      cell("relative height", el("table", { class: "objects", id: "relative" }, ...(r.relative ?? [])
+        .filter((x) => r.objects.findIndex((o) => o.name === x.from) < r.objects.findIndex((o) => o.name === x.to))
+        .map((x) => el("tr", { "data-from": x.from, "data-to": x.to },
+          el("td", {}, `${x.from} − ${x.to}`),
+          el("td", { class: "num" }, pm(x.disparity_axis_px, x.disparity_std_px, 3), " px"),
+          el("td", { class: "num" }, pm(x.dz_um, x.dz_std_um, 3), " µm"))))),
+    ] : [];
     numbers.replaceChildren(
       cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason" }, r.reason) : null),
       cell("frame", r.frame),
@@ -238,7 +259,8 @@ async function sessionPage(id, signal) {
       cell("disparity across the axis px", pm(r.disparity_axis_px, r.disparity_std_px, 3)),
       cell("z µm", el("span", { id: "z-value" }, pm(r.z_um, r.z_std_um, 3))),
       cell("occluded (left)", r.left ? `${Math.round(100 * r.left.occluded_fraction)} %` : "–"),
-      cell("time ms (track / total)", `${fmt(r.timing_ms?.track, 1)} / ${fmt(r.timing_ms?.total, 1)}`));
+      cell("time ms (track / total)", `${fmt(r.timing_ms?.track, 1)} / ${fmt(r.timing_ms?.total, 1)}`),
+      ...objectCells);
     zPlot.draw(series, "z", "zs");
     zPlot.node.hidden = !series.some((p) => p.z !== null && p.z !== undefined);
     dPlot.draw(series, "d", "ds");
@@ -371,7 +393,8 @@ function imageView(side, pointable) {
   const overlay = svg("svg", { id: `overlay-${side}`, preserveAspectRatio: "none" });
   const polygon = svg("polygon", { class: "contour", "data-side": side });
   const hintRect = svg("rect", { class: "hint", visibility: "hidden" });
-  overlay.append(polygon, hintRect);
+  const othersGroup = svg("g", { class: "others" });
+  overlay.append(othersGroup, polygon, hintRect);
   const empty = el("div", { class: "empty" }, "No image yet");
   const node = el("div", { class: `view${pointable ? " pointable" : ""}`, id: `view-${side}` }, img, overlay, empty, el("span", { class: "label" }, side));
   const view = { node, onHint: null, frame: null };
@@ -406,6 +429,13 @@ function imageView(side, pointable) {
   view.contour = (points, colour) => {
     polygon.setAttribute("points", (points ?? []).map((p) => `${p[0]},${p[1]}`).join(" "));
     polygon.setAttribute("stroke", colour);
+  };
+  view.others = (list) => {
+    othersGroup.replaceChildren(...list.map(({ name, points, colour }) => {
+      const p = svg("polygon", { class: "contour", "data-object": name, stroke: colour });
+      p.setAttribute("points", (points ?? []).map((q) => `${q[0]},${q[1]}`).join(" "));
+      return p;
+    }));
   };
   view.showHint = (hint) => {
     if (!hint) { hintRect.setAttribute("visibility", "hidden"); return; }
