@@ -510,9 +510,34 @@ pub fn mask_iou(a: &[bool], b: &[bool]) -> f64 {
     }
 }
 
+/// Intersection over union of the regions of two polygons, on the pixel
+/// grid of their common bounding box (pixel centres inside).
+pub fn polygon_iou(a: &Polygon, b: &Polygon) -> f64 {
+    let ([ax0, ay0, ax1, ay1], [bx0, by0, bx1, by1]) = (a.bounds(), b.bounds());
+    let (x0, y0) = (ax0.min(bx0).floor() - 1.0, ay0.min(by0).floor() - 1.0);
+    let (w, h) = (
+        (ax1.max(bx1) - x0).ceil() as u32 + 2,
+        (ay1.max(by1) - y0).ceil() as u32 + 2,
+    );
+    let shift = [-x0, -y0];
+    mask_iou(
+        &a.translated(shift).rasterize(w, h),
+        &b.translated(shift).rasterize(w, h),
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn polygon_iou_of_overlapping_squares() {
+        let a = rect(0.0, 0.0, 10.0, 10.0);
+        let b = rect(5.0, 0.0, 15.0, 10.0);
+        let iou = polygon_iou(&a, &b);
+        assert!((iou - 1.0 / 3.0).abs() < 0.02, "{iou}");
+        assert_eq!(polygon_iou(&a, &a), 1.0);
+    }
 
     fn rect(x0: f64, y0: f64, x1: f64, y1: f64) -> Polygon {
         Polygon::new(vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]])

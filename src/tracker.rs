@@ -14,10 +14,10 @@ use serde::{Deserialize, Serialize};
 use crate::calib::{axis_component, Calibration, MetaWatch, PairMeta};
 use crate::energy::{michelson, window_of, EnergyParams, EnergyTerms};
 use crate::fit::{
-    fit_free, fit_rigid, fit_rigid_on_line, free_fit_tables, line_polish, newton_polish, place, place_into,
-    CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate,
+    fit_free_within, fit_rigid, fit_rigid_on_line, free_fit_tables, line_polish, newton_polish, place,
+    place_into, CompassSearch, FreeFitParams, Pose, RigidParams, RigidTemplate, MIN_FREE_VERTICES,
 };
-use crate::geometry::{dist, HalfPlane, Point, Polygon};
+use crate::geometry::{dist, polygon_iou, HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
@@ -445,6 +445,10 @@ impl TrackerState {
     }
 }
 
+/// Least IoU of a hinted object's freely fitted region with its
+/// initialisation for the fit to be kept (see `StereoTracker::template_from`).
+pub const FREE_FIT_MIN_IOU: f64 = 0.8;
+
 /// Buffers for a pair smoothed by the object's pre-filter, reused from
 /// pair to pair.
 #[derive(Clone, Debug, Default)]
@@ -865,13 +869,37 @@ impl StereoTracker {
         // edge of the last pixels' boxes, so that the region takes them in.
         let image = PixelRect::full(frame).extent();
         let on_border = RigidTemplate::ON_BORDER_PX;
-        let fitted = fit_free(
+        // A roi says where the object lies: the fit stays there.
+        let within = self
+            .params
+            .init
+            .roi
+            .and_then(|roi| crate::init::roi_domain(roi, frame.width, frame.height));
+        let fitted = fit_free_within(
             &sums,
             &contour.snapped_to_box(image, on_border),
             energy,
             &self.params.free,
+            within,
         );
-        let fitted = fitted.polygon;
+        // With a hint the initialisation chose the object by its edges
+        // within it; a free fit that keeps less than FREE_FIT_MIN_IOU of that
+        // region has left for what the two-region model prefers (the real
+        // lamella's bright front face without its top face, whose grey is
+        // the background's: IoU 0.61), and the initial outline stays.
+        let hinted = self.params.init.roi.is_some() || self.params.init.point.is_some();
+        let fitted = match fitted.polygon {
+            f if hinted && polygon_iou(&f, contour) < FREE_FIT_MIN_IOU => {
+                let start = match within {
+                    Some(b) => contour.clipped_to_box(b),
+                    None => contour.clone(),
+                };
+                let n =
+                    ((start.length() / self.params.free.spacing_px).round() as usize).max(MIN_FREE_VERTICES);
+                start.resampled(n)
+            }
+            f => f,
+        };
         let outline = match self.params.template_spacing_px {
             Some(spacing) => {
                 let n = ((fitted.length() / spacing).round() as usize).max(16);

@@ -2,9 +2,8 @@
 //! around the needle and a box around the lamella initialise each on its
 //! own object. The references are the ones `tests/init_real.rs` derives and
 //! checks independently of semdepth (the needle: the Otsu mask of its box;
-//! the lamella: an outline traced by hand). The right view is the image
-//! moved 3 px in x (the border column repeated: the needle goes on past
-//! the border), so both objects' disparity is 3 px.
+//! the lamella: an outline traced by hand). The two views are the image
+//! cut 3 px apart, so both objects' disparity is 3 px.
 
 mod common;
 
@@ -37,31 +36,37 @@ const MIN_IOU: f64 = 0.8;
 /// Each object's disparity error, pixels.
 const MAX_DISPARITY_ERROR_PX: f64 = 0.3;
 
-fn shifted(frame: &GrayFrame, dx: usize) -> GrayFrame {
-    let w = frame.width as usize;
-    let mut data = Vec::with_capacity(frame.data.len());
+/// Columns `x0..x0 + width` of `frame`.
+fn columns(frame: &GrayFrame, x0: usize, width: usize) -> GrayFrame {
+    let mut data = Vec::with_capacity(width * frame.height as usize);
     for y in 0..frame.height {
-        let row = frame.row(y);
-        data.extend(std::iter::repeat_n(row[0], dx));
-        data.extend_from_slice(&row[..w - dx]);
+        data.extend_from_slice(&frame.row(y)[x0..x0 + width]);
     }
-    GrayFrame::new(frame.width, frame.height, frame.bit_depth, data).unwrap()
+    GrayFrame::new(width as u32, frame.height, frame.bit_depth, data).unwrap()
 }
 
-/// Not met yet (issue #18's acceptance on the real image): the
-/// initialisation finds both (`tests/init_real.rs`), but the tracker's free
-/// fit then moves the lamella's outline off it (IoU 0.37, its box
-/// 167..461 x 448..720 against the lamella's 264..459 x 449..624) and the
-/// needle's disparity reads 2.45 px for 3 (measured 2026-11-26).
+/// Not met yet (issue #18's acceptance on the real image): both objects
+/// are found (needle IoU 0.96, lamella 0.90 with their references), the
+/// lamella's disparity is 3.000 px, but the needle's reads 1.85 px for 3
+/// (measured 2026-11-26): its tip is welded to the lamella and its base
+/// lies past the border, so nothing holds the first pair's right fit along
+/// the needle, and it slides (issue #17's rods that slide when their end
+/// is hidden).
 #[test]
-#[ignore = "open gap of issue #18: the free fit leaves the real lamella; run with --ignored"]
+#[ignore = "open gap of issues #17/#18: the needle slides along its axis on the first pair; run with --ignored"]
 fn needle_and_lamella_are_found_from_their_boxes() {
-    let left = read_file(&common::fibsem_path(), &DecodeLimits::default()).unwrap();
-    let right = shifted(&left, SHIFT);
+    // The views are the image's columns SHIFT.. and ..width - SHIFT: what
+    // the left view shows at x the right one shows at x + SHIFT, and both
+    // show the needle going on past their left border.
+    let image = read_file(&common::fibsem_path(), &DecodeLimits::default()).unwrap();
+    let narrower = image.width as usize - SHIFT;
+    let (left, right) = (columns(&image, SHIFT, narrower), columns(&image, 0, narrower));
     let (w, h) = (left.width as usize, left.height as usize);
     let needle_ref =
         common::otsu_reference_mask_in_box(&left.data, w, left.max_value(), [0, 520, 300, h - 520]);
-    let lamella_ref = Polygon::new(LAMELLA_OUTLINE.to_vec()).rasterize(left.width, left.height);
+    let lamella_ref = Polygon::new(LAMELLA_OUTLINE.to_vec())
+        .translated([-(SHIFT as f64), 0.0])
+        .rasterize(left.width, left.height);
     let object = |name: &str, roi: [i64; 4]| {
         SessionObject::new(
             name,
@@ -80,7 +85,7 @@ fn needle_and_lamella_are_found_from_their_boxes() {
     )
     .unwrap();
     let m = session.measure(&left, &right, None, None).unwrap();
-    let mut disparities = Vec::new();
+    let (mut disparities, mut failures) = (Vec::new(), Vec::new());
     for (o, reference) in m.objects.iter().zip([&needle_ref, &lamella_ref]) {
         assert_eq!(
             o.result.status,
@@ -95,17 +100,17 @@ fn needle_and_lamella_are_found_from_their_boxes() {
         let d = o.result.disparity_axis_px.unwrap();
         eprintln!("{}: IoU {iou:.3}, disparity {d:.3} px", o.name);
         disparities.push(d);
-        assert!(
-            iou >= MIN_IOU,
-            "{}: IoU {iou:.3} with its reference (limit {MIN_IOU})",
-            o.name
-        );
-        assert!(
-            (d - SHIFT as f64).abs() < MAX_DISPARITY_ERROR_PX,
-            "{}: disparity {d:.3} px for {SHIFT}",
-            o.name
-        );
+        if iou < MIN_IOU {
+            failures.push(format!(
+                "{}: IoU {iou:.3} with its reference (limit {MIN_IOU})",
+                o.name
+            ));
+        }
+        if (d - SHIFT as f64).abs() >= MAX_DISPARITY_ERROR_PX {
+            failures.push(format!("{}: disparity {d:.3} px for {SHIFT}", o.name));
+        }
     }
+    assert!(failures.is_empty(), "{failures:#?}");
     // Neither took the other: the two outlines hardly overlap.
     let masks: Vec<Vec<bool>> = m
         .objects

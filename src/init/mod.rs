@@ -516,6 +516,19 @@ impl InitParams {
     }
 }
 
+/// Where an object named by a `roi` `[x, y, w, h]` may lie in a
+/// `width` x `height` image: the box grown by the slack the initialisation
+/// gives a tight box, clipped to the image, as `[x0, y0, x1, y1]` in pixel
+/// coordinates (pixel centres are integers). `None` without an overlap.
+pub fn roi_domain([x, y, w, h]: [i64; 4], width: u32, height: u32) -> Option<[f64; 4]> {
+    let slack = prompted::roi_slack(w as f64, h as f64);
+    let x0 = (x as f64 - 0.5 - slack).max(-0.5);
+    let y0 = (y as f64 - 0.5 - slack).max(-0.5);
+    let x1 = ((x + w) as f64 - 0.5 + slack).min(width as f64 - 0.5);
+    let y1 = ((y + h) as f64 - 0.5 + slack).min(height as f64 - 0.5);
+    (x1 > x0 && y1 > y0).then_some([x0, y0, x1, y1])
+}
+
 /// Finds the object in `frame`. The paper's rule (steps 1-7 of the module
 /// docs: the largest closed region in the size range) proposes it; the
 /// scored candidates ([`prompted`]) replace it when one scores at least

@@ -357,6 +357,12 @@ fn no_candidate(
     }
 }
 
+/// Room an object is given beyond the sides of a `roi` box `rw` x `rh`
+/// pixels (a box drawn tight around it), pixels.
+pub(super) fn roi_slack(rw: f64, rh: f64) -> f64 {
+    (0.04 * rw.max(rh)).max(2.0)
+}
+
 /// The working pixels `[x0, y0, x1, y1)` an object may cover: those meeting
 /// the roi grown by a little slack (a box drawn tight around the object
 /// leaves it room), or all.
@@ -366,7 +372,7 @@ fn working_domain(hints: &Hints, area: [u32; 4], scale: u32, [w, h]: [u32; 2]) -
     }
     let s = scale as f64;
     let [rx, ry, rw, rh] = hints.roi.map(f64::from);
-    let slack = (0.04 * rw.max(rh)).max(2.0 * s);
+    let slack = roi_slack(rw, rh).max(2.0 * s);
     let to_work = |v: f64, origin: u32| (v - origin as f64) / s;
     let x0 = to_work(rx - slack, area[0]).floor().max(0.0) as u32;
     let y0 = to_work(ry - slack, area[1]).floor().max(0.0) as u32;
