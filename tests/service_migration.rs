@@ -132,9 +132,8 @@ async fn a_database_of_the_previous_release_continues() {
         (z - (coefficients[0] + coefficients[1] * d)).abs() < 1e-6,
         "z {z}"
     );
-    assert_eq!(r["objects"][0]["name"], "object");
-    assert_eq!(r["objects"][0]["disparity_axis_px"], r["disparity_axis_px"]);
-    assert_eq!(r["relative"], json!([]));
+    // A session of one unnamed object answers as before objects.
+    assert!(r.get("objects").is_none() && r.get("relative").is_none(), "{r}");
 
     // Stored in today's form, it opens again.
     server.stop().await.unwrap();

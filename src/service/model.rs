@@ -615,12 +615,14 @@ pub struct FrameResult {
     /// session's only one), as before sessions had objects.
     #[serde(flatten)]
     pub result: PairResult,
-    /// Every object's measurement, in the session's order.
-    #[serde(default)]
+    /// Every object's measurement, in the session's order; absent for a
+    /// session of one object the client did not name (the top-level fields
+    /// are its measurement).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub objects: Vec<ObjectResult>,
-    /// The height of every object relative to every other (empty with one
-    /// object); null numbers where either is not measured.
-    #[serde(default)]
+    /// The height of every object relative to every other; absent with one
+    /// object. Null numbers where either is not measured.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub relative: Vec<Relative>,
     /// The calibration that gave `z_um` (null: none).
     pub calibration_id: Option<String>,
