@@ -139,26 +139,11 @@ fn fibsem_needle_is_found_from_a_box_around_it() {
     assert!(iou >= 0.85, "IoU {iou:.3} with the reference needle (limit 0.85)");
 }
 
-/// The lamella in the real lift-out image, traced by hand on the image
-/// (corners of its top face, its right side and the wavy lower edge of its
-/// bright front face), full-resolution pixels. It is checked below against
-/// the image's gradients, not against semdepth.
-const LAMELLA_OUTLINE: [[f64; 2]; 8] = [
-    [274.0, 449.0],
-    [457.0, 458.0],
-    [459.0, 622.0],
-    [420.0, 624.0],
-    [330.0, 618.0],
-    [265.0, 612.0],
-    [264.0, 545.0],
-    [268.0, 470.0],
-];
-
 /// Issue #16: a box drawn around the lamella on the real lift-out image
 /// gives the whole lamella: its bright front face and its top face, whose
 /// grey level is the background's (the two-region energy alone prefers the
 /// front face), bounded by its edges. The reference (hand-traced,
-/// [`LAMELLA_OUTLINE`]) is checked first: its outline lies on strong
+/// [`common::LAMELLA_OUTLINE`]) is checked first: its outline lies on strong
 /// gradients, and the box's Otsu mask (one bright region) covers well
 /// under all of it. Boxes of three sizes, each must reach IoU >= 0.85 with
 /// it (the needle's tip, welded to the lamella inside the box, stays).
@@ -166,8 +151,8 @@ const LAMELLA_OUTLINE: [[f64; 2]; 8] = [
 fn fibsem_lamella_is_found_from_a_box_around_it() {
     let frame = read_file(&common::fibsem_path(), &DecodeLimits::default()).unwrap();
     let (w, h) = (frame.width as usize, frame.height as usize);
-    let reference =
-        semdepth::geometry::Polygon::new(LAMELLA_OUTLINE.to_vec()).rasterize(frame.width, frame.height);
+    let reference = semdepth::geometry::Polygon::new(common::LAMELLA_OUTLINE.to_vec())
+        .rasterize(frame.width, frame.height);
     let area = reference.iter().filter(|&&m| m).count() as f64;
     let (boundary_grad, median_grad) = boundary_gradient_ratio(&frame.data, &reference, w, h);
     eprintln!(

@@ -12,8 +12,8 @@ use semdepth::service::state::ServiceConfig;
 use semdepth::synth::{Preset, Shape};
 use serde_json::{json, Value};
 use server::{
-    frames_form, get_json, get_text, offset_free_rms, pair_form, post_json, synth_pairs, test_config,
-    TestServer,
+    frames_form, get_json, get_text, json_of, offset_free_rms, pair_form, post_json, synth_pairs,
+    test_config, TestServer,
 };
 
 /// Disparity RMS limit (px, offset removed) for a clean sequence uploaded
@@ -21,13 +21,6 @@ use server::{
 /// PNG round trip of 8-bit data costs nothing, so the same budget as the
 /// noisy conditions (0.15 px) is generous.
 const MAX_DISPARITY_RMS_PX: f64 = 0.15;
-
-async fn json_of(r: reqwest::Response) -> (u16, Value) {
-    let status = r.status().as_u16();
-    let text = r.text().await.unwrap();
-    let value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"));
-    (status, value)
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibration_session_upload_results_end_to_end() {

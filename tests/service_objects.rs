@@ -11,14 +11,7 @@ mod server;
 
 use semdepth::imageio::GrayFrame;
 use serde_json::{json, Value};
-use server::{frames_form, test_config, TestServer};
-
-async fn json_of(r: reqwest::Response) -> (u16, Value) {
-    let status = r.status().as_u16();
-    let text = r.text().await.unwrap();
-    let value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"));
-    (status, value)
-}
+use server::{frames_form, json_of, test_config, TestServer};
 
 /// Pair `k`: both discs moved by 1.5 px in x per pair.
 fn pair(k: usize) -> (GrayFrame, GrayFrame) {

@@ -11,18 +11,7 @@ mod server;
 
 use semdepth::service::state::ServiceConfig;
 use serde_json::{json, Value};
-use server::{frames_form, test_config, TestServer};
-
-async fn json_of(r: reqwest::Response) -> (u16, Value) {
-    let status = r.status().as_u16();
-    let text = r.text().await.unwrap();
-    let value = if text.is_empty() {
-        Value::Null
-    } else {
-        serde_json::from_str(&text).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"))
-    };
-    (status, value)
-}
+use server::{frames_form, json_of, test_config, TestServer};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn concurrent_creations_never_pass_the_session_limit() {

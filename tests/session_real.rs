@@ -17,17 +17,6 @@ use semdepth::tracker::{Status, TrackerParams};
 const NEEDLE_BOX: [i64; 4] = [-20, 520, 320, 520];
 /// The lamella's box.
 const LAMELLA_BOX: [i64; 4] = [250, 430, 230, 210];
-/// The hand-traced lamella of `tests/init_real.rs`.
-const LAMELLA_OUTLINE: [[f64; 2]; 8] = [
-    [274.0, 449.0],
-    [457.0, 458.0],
-    [459.0, 622.0],
-    [420.0, 624.0],
-    [330.0, 618.0],
-    [265.0, 612.0],
-    [264.0, 545.0],
-    [268.0, 470.0],
-];
 /// Shift of the right view, pixels.
 const SHIFT: usize = 3;
 /// Each object's first left contour against its reference, IoU (the
@@ -64,7 +53,7 @@ fn needle_and_lamella_are_found_from_their_boxes() {
     let (w, h) = (left.width as usize, left.height as usize);
     let needle_ref =
         common::otsu_reference_mask_in_box(&left.data, w, left.max_value(), [0, 520, 300, h - 520]);
-    let lamella_ref = Polygon::new(LAMELLA_OUTLINE.to_vec())
+    let lamella_ref = Polygon::new(common::LAMELLA_OUTLINE.to_vec())
         .translated([-(SHIFT as f64), 0.0])
         .rasterize(left.width, left.height);
     let object = |name: &str, roi: [i64; 4]| {

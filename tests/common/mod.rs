@@ -196,3 +196,18 @@ pub fn fei_tiff(image: &image::GrayImage, pixel_m: f64, tilt_rad: f64) -> Vec<u8
     page.write_data(image.as_raw()).unwrap();
     out.into_inner()
 }
+
+/// The lamella in the real lift-out image, traced by hand on the image
+/// (corners of its top face, its right side and the wavy lower edge of its
+/// bright front face), full-resolution pixels. `tests/init_real.rs` checks
+/// it against the image's gradients, not against semdepth.
+pub const LAMELLA_OUTLINE: [[f64; 2]; 8] = [
+    [274.0, 449.0],
+    [457.0, 458.0],
+    [459.0, 622.0],
+    [420.0, 624.0],
+    [330.0, 618.0],
+    [265.0, 612.0],
+    [264.0, 545.0],
+    [268.0, 470.0],
+];
