@@ -101,6 +101,21 @@ pub fn encode_states(objects: &[ObjectRecord]) -> Result<String, serde_json::Err
     })
 }
 
+/// [`encode_states`], checked to read back: every state written reads as
+/// a tracker state again (a non-finite number is written as `null` and
+/// would not). The error names the object.
+pub fn encode_states_checked(objects: &[ObjectRecord]) -> Result<String, String> {
+    let text = encode_states(objects).map_err(|e| e.to_string())?;
+    let read: States = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+    for (object, stored) in objects.iter().zip(read.objects) {
+        if let (Some(_), Some(state)) = (&object.tracker_state, stored.state) {
+            serde_json::from_value::<TrackerState>(state)
+                .map_err(|e| format!("object {:?}: {e}", object.name))?;
+        }
+    }
+    Ok(text)
+}
+
 /// What reading a stored session's objects found.
 #[derive(Debug, Default)]
 pub struct Decoded {

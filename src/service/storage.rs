@@ -72,7 +72,7 @@ use tokio::sync::oneshot;
 use crate::calib::Calibration;
 
 pub use super::snapshot::ObjectRecord;
-use super::snapshot::{encode_definitions, encode_states};
+use super::snapshot::{encode_definitions, encode_states_checked};
 
 /// Schema version this build creates and understands (`PRAGMA user_version`).
 pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
@@ -850,7 +850,7 @@ fn prepare_pair(rec: PairRecord) -> Result<PreparedPair, StorageError> {
     Ok(PreparedPair {
         frame: to_i64(rec.frame, "pair of session", id, "frame")?,
         frames: to_i64(rec.frames, "pair of session", id, "frames")?,
-        tracker_json: Some(snapshot_checked(&rec.objects, "pair of session", id)?.1),
+        tracker_json: Some(states_checked(&rec.objects, "pair of session", id)?),
         session_id: rec.session_id,
         result_json: rec.result_json,
         state: rec.state,
@@ -1279,10 +1279,9 @@ fn calibration_json(rec: &CalibrationRecord) -> Result<String, StorageError> {
     Ok(body)
 }
 
-/// Serialises `value` and checks it parses back (JSON has no NaN or infinity:
-/// serde_json writes them as `null`, which would not read back).
 /// The `params` and `tracker_state` columns of a session's objects,
-/// checked to read back as they are (a non-finite number would not).
+/// checked to read back as they are (JSON has no NaN or infinity:
+/// serde_json writes them as `null`, which would not read back).
 fn snapshot_checked(
     objects: &[ObjectRecord],
     kind: &str,
@@ -1290,26 +1289,27 @@ fn snapshot_checked(
 ) -> Result<(String, String), StorageError> {
     let params = encode_definitions(objects)
         .map_err(|e| StorageError::Unstorable(format!("{kind} {id:?}: params: {e}")))?;
-    let states = encode_states(objects)
-        .map_err(|e| StorageError::Unstorable(format!("{kind} {id:?}: tracker_state: {e}")))?;
-    match super::snapshot::decode(&params, Some(&states), 0) {
-        Ok(d) if d.notes.is_empty() && states_match(&d.objects, objects) => Ok((params, states)),
-        Ok(d) => Err(StorageError::Unstorable(format!(
-            "{kind} {id:?}: params or tracker_state would not read back (non-finite number?){}{}",
-            if d.notes.is_empty() { "" } else { ": " },
-            d.notes.join("; ")
-        ))),
-        Err(e) => Err(StorageError::Unstorable(format!("{kind} {id:?}: {e}"))),
+    match super::snapshot::decode(&params, None, 0) {
+        Ok(d) if d.notes.is_empty() => {}
+        Ok(d) => {
+            return Err(StorageError::Unstorable(format!(
+                "{kind} {id:?}: params would not read back (non-finite number?): {}",
+                d.notes.join("; ")
+            )))
+        }
+        Err(e) => return Err(StorageError::Unstorable(format!("{kind} {id:?}: {e}"))),
     }
+    Ok((params, states_checked(objects, kind, id)?))
 }
 
-/// Every object's state read back as present or absent as it was.
-fn states_match(read: &[ObjectRecord], written: &[ObjectRecord]) -> bool {
-    read.len() == written.len()
-        && read
-            .iter()
-            .zip(written)
-            .all(|(r, w)| r.tracker_state.is_some() == w.tracker_state.is_some())
+/// The `tracker_state` column alone (stored after every pair), checked to
+/// read back as [`snapshot_checked`] checks it.
+fn states_checked(objects: &[ObjectRecord], kind: &str, id: &str) -> Result<String, StorageError> {
+    encode_states_checked(objects).map_err(|e| {
+        StorageError::Unstorable(format!(
+            "{kind} {id:?}: tracker_state would not read back (non-finite number?): {e}"
+        ))
+    })
 }
 
 fn parse_json<T: serde::de::DeserializeOwned>(
