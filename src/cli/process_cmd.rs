@@ -501,46 +501,7 @@ const JSON_KEY_ORDER: [&str; 14] = [
 /// The pair's result as one JSON object: the [`PairResult`] fields as they
 /// serialise, plus `name` and `timing_ms`.
 fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -> Result<String, CliError> {
-    let internal = |e: serde_json::Error| CliError::with_code(1, format!("error[internal]: {e}"));
-    let serde_json::Value::Object(mut map) = serde_json::to_value(result).map_err(internal)? else {
-        return Err(CliError::with_code(
-            1,
-            "error[internal]: a pair result is not a JSON object",
-        ));
-    };
-    map.insert("name".into(), name.into());
-    map.insert(
-        "timing_ms".into(),
-        serde_json::to_value(timing).map_err(internal)?,
-    );
-    if !contour {
-        for side in ["left", "right"] {
-            if let Some(serde_json::Value::Object(image)) = map.get_mut(side) {
-                image.remove("contour");
-            }
-        }
-    }
-    let mut keys: Vec<String> = JSON_KEY_ORDER
-        .iter()
-        .filter(|k| map.contains_key(**k))
-        .map(|k| k.to_string())
-        .collect();
-    keys.extend(
-        map.keys()
-            .filter(|k| !JSON_KEY_ORDER.contains(&k.as_str()))
-            .cloned(),
-    );
-    let mut line = String::from("{");
-    for (i, key) in keys.iter().enumerate() {
-        if i > 0 {
-            line.push(',');
-        }
-        line.push_str(&serde_json::to_string(key).map_err(internal)?);
-        line.push(':');
-        line.push_str(&serde_json::to_string(&map[key]).map_err(internal)?);
-    }
-    line.push('}');
-    Ok(line)
+    ordered_json(&record_map(result, name, Some(timing), contour)?)
 }
 
 /// A pair's measurement with named objects as one JSON object: the first
@@ -548,53 +509,81 @@ fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -
 /// results have them), then `objects` (each object's fields, its `name`
 /// first) and `relative`.
 fn json_measurement(m: &Measurement, name: &str, timing: Timing, contour: bool) -> Result<String, CliError> {
-    let internal = |e: serde_json::Error| CliError::with_code(1, format!("error[internal]: {e}"));
-    let mut objects = Vec::with_capacity(m.objects.len());
-    for o in &m.objects {
-        let line = json_record(&o.result, &o.name, timing, contour)?;
-        let mut value: serde_json::Map<String, serde_json::Value> =
-            serde_json::from_str(&line).map_err(internal)?;
-        value.remove("timing_ms");
-        value.remove("frame");
-        objects.push(value);
-    }
     let mut line = json_record(&m.objects[0].result, name, timing, contour)?;
     line.pop(); // the closing brace
-    line.push_str(",\"objects\":");
-    line.push_str(&object_array(&objects).map_err(internal)?);
-    line.push_str(",\"relative\":");
-    line.push_str(&serde_json::to_string(&m.relative).map_err(internal)?);
+    line.push_str(",\"objects\":[");
+    for (i, o) in m.objects.iter().enumerate() {
+        let mut object = record_map(&o.result, &o.name, None, contour)?;
+        object.remove("frame");
+        if i > 0 {
+            line.push(',');
+        }
+        line.push_str(&ordered_json(&object)?);
+    }
+    line.push_str("],\"relative\":");
+    line.push_str(&serde_json::to_string(&m.relative).map_err(internal_json)?);
     line.push('}');
     Ok(line)
 }
 
-/// The objects as a JSON array, each with `name` first.
-fn object_array(objects: &[serde_json::Map<String, serde_json::Value>]) -> Result<String, serde_json::Error> {
-    let mut out = String::from("[");
-    for (i, o) in objects.iter().enumerate() {
-        if i > 0 {
-            out.push(',');
-        }
-        out.push('{');
-        let mut keys: Vec<&String> = o.keys().collect();
-        keys.sort_by_key(|k| {
-            (
-                k.as_str() != "name",
-                JSON_KEY_ORDER.iter().position(|x| x == k).unwrap_or(usize::MAX),
-            )
-        });
-        for (j, k) in keys.iter().enumerate() {
-            if j > 0 {
-                out.push(',');
-            }
-            out.push_str(&serde_json::to_string(k)?);
-            out.push(':');
-            out.push_str(&serde_json::to_string(&o[k.as_str()])?);
-        }
-        out.push('}');
+/// The [`PairResult`] fields as they serialise, plus `name` and, when
+/// given, `timing_ms`; without the contours unless `contour`.
+fn record_map(
+    result: &PairResult,
+    name: &str,
+    timing: Option<Timing>,
+    contour: bool,
+) -> Result<serde_json::Map<String, serde_json::Value>, CliError> {
+    let serde_json::Value::Object(mut map) = serde_json::to_value(result).map_err(internal_json)? else {
+        return Err(CliError::with_code(
+            1,
+            "error[internal]: a pair result is not a JSON object",
+        ));
+    };
+    map.insert("name".into(), name.into());
+    if let Some(timing) = timing {
+        map.insert(
+            "timing_ms".into(),
+            serde_json::to_value(timing).map_err(internal_json)?,
+        );
     }
-    out.push(']');
-    Ok(out)
+    if !contour {
+        for side in ["left", "right"] {
+            if let Some(serde_json::Value::Object(image)) = map.get_mut(side) {
+                image.remove("contour");
+            }
+        }
+    }
+    Ok(map)
+}
+
+/// `map` as a JSON object with the keys of [`JSON_KEY_ORDER`] first, in
+/// that order, then the others.
+fn ordered_json(map: &serde_json::Map<String, serde_json::Value>) -> Result<String, CliError> {
+    let keys = JSON_KEY_ORDER
+        .iter()
+        .copied()
+        .filter(|k| map.contains_key(*k))
+        .chain(
+            map.keys()
+                .map(String::as_str)
+                .filter(|k| !JSON_KEY_ORDER.contains(k)),
+        );
+    let mut line = String::from("{");
+    for (i, key) in keys.enumerate() {
+        if i > 0 {
+            line.push(',');
+        }
+        line.push_str(&serde_json::to_string(key).map_err(internal_json)?);
+        line.push(':');
+        line.push_str(&serde_json::to_string(&map[key]).map_err(internal_json)?);
+    }
+    line.push('}');
+    Ok(line)
+}
+
+fn internal_json(e: serde_json::Error) -> CliError {
+    CliError::with_code(1, format!("error[internal]: {e}"))
 }
 
 /// Progress and summary lines on stderr.
