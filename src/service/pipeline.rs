@@ -334,7 +334,7 @@ fn track_locked(
         &mut core.session,
         calibration.as_ref(),
     )?;
-    let result = measured.objects[0].result.clone();
+    let result = &measured.objects[0].result;
     let now = now_rfc3339();
     let any_lost = measured
         .objects
@@ -355,25 +355,17 @@ fn track_locked(
         "tracking".into()
     };
     core.updated_at = now.clone();
-    let frame = FrameResult {
-        session_id: Some(session_id.to_owned()),
-        calibration_id: calibration.as_ref().and(calibration_id),
-        calibration_version,
-        result,
-        objects: named_only(measured.objects),
-        relative: measured.relative,
-        timing_ms: TimingMs {
-            queue,
-            decode: decode_ms,
-            track: track_ms,
-            total: ms(received.elapsed()),
-        },
-        provenance: Provenance {
+    let frame = frame_result(
+        Some(session_id.to_owned()),
+        (calibration.as_ref().and(calibration_id), calibration_version),
+        measured,
+        [queue, decode_ms, track_ms],
+        received,
+        Provenance {
             processed_at: Some(now.clone()),
             ..provenance
         },
-        seq: None,
-    };
+    );
     let result_json = serde_json::to_string(&frame)
         .map_err(|e| ApiError::internal(format!("serialising a result: {e}")))?;
     let commit = state.storage.record_pair(PairRecord {
@@ -432,24 +424,18 @@ pub async fn process_one_shot(
     .await
     .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
     drop(permit);
-    let outcome = outcome.map(|(measured, decode_ms, track_ms)| FrameResult {
-        session_id: None,
-        calibration_id,
-        calibration_version,
-        result: measured.objects[0].result.clone(),
-        objects: named_only(measured.objects),
-        relative: measured.relative,
-        timing_ms: TimingMs {
-            queue,
-            decode: decode_ms,
-            track: track_ms,
-            total: ms(received.elapsed()),
-        },
-        provenance: Provenance {
-            processed_at: Some(now_rfc3339()),
-            ..provenance
-        },
-        seq: None,
+    let outcome = outcome.map(|(measured, decode_ms, track_ms)| {
+        frame_result(
+            None,
+            (calibration_id, calibration_version),
+            measured,
+            [queue, decode_ms, track_ms],
+            received,
+            Provenance {
+                processed_at: Some(now_rfc3339()),
+                ..provenance
+            },
+        )
     });
     match &outcome {
         Ok(r) => state
@@ -529,6 +515,36 @@ fn decode_and_measure(
         ms(decoded.elapsed()),
         [left, right],
     ))
+}
+
+/// A measured pair as the API returns it: the first object's fields at
+/// the top level, `objects` and `relative` as [`named_only`] keeps them;
+/// `[queue, decode, track]` milliseconds, the total up to now since
+/// `received`.
+fn frame_result(
+    session_id: Option<String>,
+    (calibration_id, calibration_version): (Option<String>, Option<u64>),
+    measured: Measurement,
+    [queue, decode, track]: [f64; 3],
+    received: Instant,
+    provenance: Provenance,
+) -> FrameResult {
+    FrameResult {
+        session_id,
+        calibration_id,
+        calibration_version,
+        result: measured.objects[0].result.clone(),
+        objects: named_only(measured.objects),
+        relative: measured.relative,
+        timing_ms: TimingMs {
+            queue,
+            decode,
+            track,
+            total: ms(received.elapsed()),
+        },
+        provenance,
+        seq: None,
+    }
 }
 
 /// The objects for a result: none for a session whose one object the

@@ -438,11 +438,7 @@ pub async fn reinit_session(
             ),
         ));
     }
-    let mut params = core.primary().params().clone();
-    params.init = body
-        .apply(&params.init, &fields)
-        .map_err(|e| ApiError::internal(format!("merging initialisation parameters: {e}")))?;
-    let params = checked(params)?;
+    let params = reinited(core.primary().params(), &body, &fields)?;
     core.restart(Some(params), now_rfc3339());
     state.storage.upsert_session(core.record(&id)).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
@@ -844,11 +840,7 @@ pub async fn reinit_object(
     let mut core = state.session_core(&id).await?;
     let object = core.session.object_mut(&name)?;
     let before = object.tracker.params().clone();
-    let mut params = before.clone();
-    params.init = body
-        .apply(&params.init, &fields)
-        .map_err(|e| ApiError::internal(format!("merging initialisation parameters: {e}")))?;
-    let params = checked(params)?;
+    let params = reinited(&before, &body, &fields)?;
     let previous_state = object.tracker.state().cloned();
     let frames = object.tracker.frames();
     object.tracker.set_params(params);
@@ -861,6 +853,20 @@ pub async fn reinit_object(
         return Err(e.into());
     }
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
+}
+
+/// `current` with a reinit body's `init` applied (see
+/// [`SessionReinit::apply`]), validated.
+fn reinited(
+    current: &TrackerParams,
+    body: &SessionReinit,
+    fields: &serde_json::Map<String, serde_json::Value>,
+) -> Result<TrackerParams, ApiError> {
+    let mut params = current.clone();
+    params.init = body
+        .apply(&current.init, fields)
+        .map_err(|e| ApiError::internal(format!("merging initialisation parameters: {e}")))?;
+    checked(params)
 }
 
 fn merge_params(
