@@ -11,6 +11,11 @@
 //! dropped, and the pose is fitted with a band energy over the remaining
 //! sectors: the same two-region likelihood ratio as [`crate::energy`], with
 //! region a the union of the inner bands and b the union of the outer bands.
+//! A changed sector whose inner band keeps the object's grey is not hidden:
+//! the object is in front of a new backdrop (a tool passing over a
+//! particle). It is left out of the fit like a hidden one, but it counts
+//! neither towards the hidden share that loses the object nor towards the
+//! typical contrast ([`judge_look`]).
 //! The rigid shape then keeps the centroid right from the visible part of the
 //! outline (the paper's claim, method note section 2, "Robustness").
 
@@ -244,10 +249,22 @@ impl SectorTemplate {
     /// Michelson contrast of every sector's inner band against its outer
     /// band; NaN for a sector that is not seen.
     pub fn contrasts(&self, sums: &PrefixSums, pose: Pose) -> Vec<f64> {
-        self.band_sums(sums, pose)
+        self.look(sums, pose).contrasts
+    }
+
+    /// Every sector's contrast ([`SectorTemplate::contrasts`]) and inner
+    /// band mean; NaN for a sector that is not seen.
+    pub fn look(&self, sums: &PrefixSums, pose: Pose) -> SectorLook {
+        let (contrasts, inner) = self
+            .band_sums(sums, pose)
             .into_iter()
-            .map(|bands| bands.map_or(f64::NAN, |(a, b)| michelson(a.mean(), b.mean())))
-            .collect()
+            .map(|bands| {
+                bands.map_or((f64::NAN, f64::NAN), |(a, b)| {
+                    (michelson(a.mean(), b.mean()), a.mean())
+                })
+            })
+            .unzip();
+        SectorLook { contrasts, inner }
     }
 
     /// The inner and outer bands of the seen sectors not marked occluded,
@@ -290,11 +307,31 @@ impl SectorTemplate {
     }
 }
 
+/// How the sectors of a contour look in one view: per sector the Michelson
+/// contrast of the inner band against the outer one, and the inner band's
+/// mean grey level (NaN, or 0 in a stored reference, where not seen).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SectorLook {
+    /// Contrast per sector.
+    pub contrasts: Vec<f64>,
+    /// Inner band mean per sector (empty: not known, as in states stored
+    /// before it was kept).
+    pub inner: Vec<f64>,
+}
+
 /// What [`judge_sectors`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SectorJudgement {
-    /// Per sector: occluded (grown by one sector on each side of a run).
+    /// Per sector: left out of the fit, its contrast changed (grown by one
+    /// sector on each side of a run).
     pub occluded: Vec<bool>,
+    /// Per sector: hidden, the changed sectors whose inner band changed too
+    /// (grown likewise). A changed sector whose inner band still shows the
+    /// object's own grey is the object in front of a new backdrop (a tool
+    /// passing over a particle): its edge is left out of the fit, but the
+    /// object is not hidden there. Equal to `occluded` when the reference
+    /// has no inner band means.
+    pub hidden: Vec<bool>,
     /// Median contrast ratio (current / reference) of the strong sectors:
     /// near 1 when the pose is right and the view unobstructed, low when the
     /// contour is misplaced. 1 when no sector is strong.
@@ -331,6 +368,40 @@ impl SectorJudgement {
 /// marked. A sector not seen (its contrast not finite, e.g. cut off by the
 /// image border) is neither judged nor marked.
 pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_ratio: f64) -> SectorJudgement {
+    judge_look(
+        &SectorLook {
+            contrasts: reference.to_vec(),
+            inner: Vec::new(),
+        },
+        &SectorLook {
+            contrasts: current.to_vec(),
+            inner: Vec::new(),
+        },
+        min_ratio,
+        max_ratio,
+    )
+}
+
+/// A sector's inner band holds the object's grey when its mean, relative
+/// to the reference and to the median such ratio, stays within this
+/// fraction of 1.
+pub const INNER_HOLDS_TOLERANCE: f64 = 0.08;
+
+/// [`judge_sectors`] that also tells a hidden sector from a new backdrop by
+/// the inner band means (when both looks have them): a changed sector
+/// whose inner band holds the object's grey (within
+/// [`INNER_HOLDS_TOLERANCE`] after the median change) is backdrop. Such
+/// sectors do not set the median and lowest ratios (the typical sector of
+/// a tool over a particle lost its contrast, yet the tool is in view).
+pub fn judge_look(
+    reference: &SectorLook,
+    current: &SectorLook,
+    min_ratio: f64,
+    max_ratio: f64,
+) -> SectorJudgement {
+    let (reference_inner, reference) = (&reference.inner, &reference.contrasts[..]);
+    let current_inner = &current.inner;
+    let current = &current.contrasts[..];
     let mut magnitudes: Vec<f64> = reference
         .iter()
         .filter(|r| r.is_finite())
@@ -349,37 +420,71 @@ pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_rat
         .zip(&strong)
         .map(|((r, c), s)| if *s { c / r } else { 1.0 })
         .collect();
-    let mut strong_ratios: Vec<f64> = ratios
-        .iter()
-        .zip(&strong)
-        .filter(|(_, s)| **s)
-        .map(|(r, _)| *r)
-        .collect();
+    // Whose inner band holds the object's grey (after the median change
+    // of all strong sectors' inner bands, e.g. charging).
+    let holds: Vec<bool> =
+        if reference_inner.len() == reference.len() && current_inner.len() == reference.len() {
+            let inner_ratio = |k: usize| {
+                let (r, c) = (reference_inner[k], current_inner[k]);
+                (strong[k] && r > 0.0 && c.is_finite()).then(|| c / r)
+            };
+            let mut inner_ratios: Vec<f64> = (0..reference.len()).filter_map(inner_ratio).collect();
+            inner_ratios.sort_by(|a, b| a.total_cmp(b));
+            match inner_ratios.get(inner_ratios.len() / 2) {
+                Some(&g) if g > 0.0 => (0..reference.len())
+                    .map(|k| inner_ratio(k).is_some_and(|r| (r / g - 1.0).abs() <= INNER_HOLDS_TOLERANCE))
+                    .collect(),
+                _ => vec![false; reference.len()],
+            }
+        } else {
+            vec![false; reference.len()]
+        };
+    // Backdrop candidates (inner band held, contrast changed beyond the
+    // thresholds before normalising) do not set the median.
+    let candidate = |k: usize| holds[k] && !(min_ratio..=max_ratio).contains(&ratios[k]);
+    let sorted = |keep: &dyn Fn(usize) -> bool| {
+        let mut v: Vec<f64> = (0..reference.len())
+            .filter(|&k| strong[k] && keep(k))
+            .map(|k| ratios[k])
+            .collect();
+        v.sort_by(|a, b| a.total_cmp(b));
+        v
+    };
+    let mut strong_ratios = sorted(&|k| !candidate(k));
+    if strong_ratios.len() < 3 {
+        strong_ratios = sorted(&|_| true);
+    }
     if strong_ratios.is_empty() {
         return SectorJudgement {
             occluded: vec![false; reference.len()],
+            hidden: vec![false; reference.len()],
             median_ratio: 1.0,
             lowest_ratio: 1.0,
         };
     }
-    strong_ratios.sort_by(|a, b| a.total_cmp(b));
     let median = strong_ratios[strong_ratios.len() / 2];
     let marks: Vec<bool> = ratios
         .iter()
         .zip(&strong)
         .map(|(r, s)| *s && median > 0.0 && !(min_ratio..=max_ratio).contains(&(r / median)))
         .collect();
+    let hidden: Vec<bool> = marks.iter().zip(&holds).map(|(m, h)| *m && !h).collect();
+    let seen_ratios = sorted(&|k| !(marks[k] && holds[k]));
+    let lowest = seen_ratios.first().copied().unwrap_or(strong_ratios[0]);
     // An occluder covers a contiguous stretch of the outline, and the
     // sectors at its ends are only partly covered (their contrast changes
     // less than the threshold): each marked run grows by one sector per side.
-    let n = marks.len();
-    let grown = (0..n)
-        .map(|k| marks[k] || marks[(k + 1) % n] || marks[(k + n - 1) % n])
-        .collect();
+    let grown = |marks: &[bool]| -> Vec<bool> {
+        let n = marks.len();
+        (0..n)
+            .map(|k| marks[k] || marks[(k + 1) % n] || marks[(k + n - 1) % n])
+            .collect()
+    };
     SectorJudgement {
-        occluded: grown,
+        occluded: grown(&marks),
+        hidden: grown(&hidden),
         median_ratio: median,
-        lowest_ratio: strong_ratios[0],
+        lowest_ratio: lowest,
     }
 }
 
@@ -403,6 +508,41 @@ mod tests {
         let marked: Vec<usize> = (0..24).filter(|&k| marks[k]).collect();
         // Runs 0..=5 and 10, each grown by one sector (wrapping round to 23).
         assert_eq!(marked, vec![0, 1, 2, 3, 4, 5, 6, 9, 10, 11, 23]);
+    }
+
+    #[test]
+    fn a_new_backdrop_is_left_out_but_not_hidden() {
+        let look = |contrasts: Vec<f64>, inner: Vec<f64>| SectorLook { contrasts, inner };
+        let reference = look(vec![0.4; 24], vec![150.0; 24]);
+        // Sectors 0..=13 now lie before a particle as bright as the object
+        // (contrast gone, inner band unchanged); sectors 18..=20 are covered
+        // by a dark occluder (contrast inverted, inner band darkened).
+        let mut current = look(vec![0.4; 24], vec![151.0; 24]);
+        for k in 0..14 {
+            current.contrasts[k] = 0.02;
+        }
+        for k in 18..21 {
+            current.contrasts[k] = -0.3;
+            current.inner[k] = 40.0;
+        }
+        let judged = judge_look(&reference, &current, 0.35, 2.0);
+        let marked = |m: &[bool]| (0..24).filter(|&k| m[k]).collect::<Vec<usize>>();
+        // Every changed sector is left out of the fit (runs grown by one)...
+        let mut out: Vec<usize> = (0..15).chain(17..22).collect();
+        out.push(23);
+        assert_eq!(marked(&judged.occluded), out);
+        // ...but only the covered ones are hidden, and the typical sector
+        // keeps its contrast.
+        assert_eq!(marked(&judged.hidden), vec![17, 18, 19, 20, 21]);
+        assert!((judged.median_ratio - 1.0).abs() < 1e-12, "{judged:?}");
+        // Without inner band means the typical sector has lost its
+        // contrast, and the sectors that kept it look hidden instead.
+        let blind = judge_sectors(&reference.contrasts, &current.contrasts, 0.35, 2.0);
+        assert!(blind.median_ratio < 0.35, "{blind:?}");
+        assert!(
+            blind.hidden[16] && blind.hidden[22] && !blind.hidden[5],
+            "{blind:?}"
+        );
     }
 
     #[test]

@@ -21,7 +21,7 @@ use crate::geometry::{dist, polygon_iou, HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
-use crate::occlusion::{judge_sectors, OcclusionParams, SectorTemplate};
+use crate::occlusion::{judge_look, OcclusionParams, SectorLook, SectorTemplate};
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
 use crate::uncertainty;
@@ -407,6 +407,15 @@ pub struct TrackerState {
     /// The same for the right view.
     #[serde(default)]
     pub right_sector_contrasts: Vec<f64>,
+    /// Per-sector inner band means of the left view on the first pair (0:
+    /// not seen; empty in states stored before they were kept): a sector
+    /// whose contrast changed while its inner band kept the object's grey
+    /// has a new backdrop, and is not hidden.
+    #[serde(default)]
+    pub left_sector_inner: Vec<f64>,
+    /// The same for the right view.
+    #[serde(default)]
+    pub right_sector_inner: Vec<f64>,
     /// Where the image border cut the object when the template was made
     /// (template coordinates; empty for an object inside the image).
     #[serde(default)]
@@ -797,13 +806,13 @@ impl StereoTracker {
                 .map(|c| if c.is_finite() { c } else { 0.0 })
                 .collect()
         };
-        let left_sector_contrasts = reference(sectors.contrasts(&left_sums, left_pose));
+        let left_look = sectors.look(&left_sums, left_pose);
         let right_sums = self.sums_around(right, &template, right_pose, Self::NEAR_REACH_PX);
         // On the tables every later pair uses, so that the energy is scaled
         // as it will be then (the search's tables reach along the whole
         // disparity range).
         let right_terms = template.energy_at(&right_sums, right_pose, energy);
-        let right_sector_contrasts = reference(sectors.contrasts(&right_sums, right_pose));
+        let right_look = sectors.look(&right_sums, right_pose);
         let disparity = [right_pose.x - left_pose.x, right_pose.y - left_pose.y];
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
         let state = TrackerState {
@@ -818,8 +827,10 @@ impl StereoTracker {
             height: left.height,
             lost: false,
             left_velocity: [0.0; 3],
-            left_sector_contrasts,
-            right_sector_contrasts,
+            left_sector_contrasts: reference(left_look.contrasts),
+            right_sector_contrasts: reference(right_look.contrasts),
+            left_sector_inner: reference(left_look.inner),
+            right_sector_inner: reference(right_look.inner),
             outline,
             prefilter_sigma_px,
             missed_searches: 0,
@@ -1010,7 +1021,7 @@ impl StereoTracker {
         let mut left_fit = self.fit_view(
             left,
             left_templates,
-            &state.left_sector_contrasts,
+            &state.left_look(),
             left_predicted,
             left_search,
             left_bands,
@@ -1021,7 +1032,7 @@ impl StereoTracker {
             left_fit = self.fit_view(
                 left,
                 left_templates,
-                &state.left_sector_contrasts,
+                &state.left_look(),
                 state.left,
                 left_search,
                 left_bands,
@@ -1056,7 +1067,7 @@ impl StereoTracker {
             let fit = self.fit_view(
                 right,
                 right_templates,
-                &state.right_sector_contrasts,
+                &state.right_look(),
                 right_predicted,
                 right_search,
                 right_bands,
@@ -1097,7 +1108,7 @@ impl StereoTracker {
             let again = self.fit_view(
                 left,
                 left_templates,
-                &state.left_sector_contrasts,
+                &state.left_look(),
                 from_right,
                 ViewSearch {
                     coarse_step_px: 1.0,
@@ -1238,7 +1249,7 @@ impl StereoTracker {
         &self,
         frame: &GrayFrame,
         templates: &(RigidTemplate, SectorTemplate),
-        reference: &[f64],
+        reference: &SectorLook,
         predicted: Pose,
         search: ViewSearch,
         bands: uncertainty::NoiseBands,
@@ -1252,7 +1263,7 @@ impl StereoTracker {
         &self,
         frame: &'f GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
-        reference: &[f64],
+        reference: &SectorLook,
         predicted: Pose,
         ViewSearch {
             coarse_step_px,
@@ -1278,19 +1289,22 @@ impl StereoTracker {
                 (*sums, *widened) = (full_reach(), true);
             }
         };
-        if !occlusion.enabled || reference.len() != sectors.len() {
+        if !occlusion.enabled || reference.contrasts.len() != sectors.len() {
             let sums = full_reach();
             return (full_fit(&sums, predicted, rigid), sums);
         }
         let judge = |sums: &PrefixSums, pose: Pose| {
-            judge_sectors(
+            judge_look(
                 reference,
-                &sectors.contrasts(sums, pose),
+                &sectors.look(sums, pose),
                 occlusion.min_contrast_ratio,
                 occlusion.max_contrast_ratio,
             )
         };
-        let widespread = |mask: &[bool]| fraction(mask) > occlusion.max_occluded_fraction;
+        // Too much hidden, or too little left with its contrast.
+        let widespread = |mask: &[bool], hidden: &[bool]| {
+            fraction(hidden) > occlusion.max_occluded_fraction || fraction(mask) > MAX_MASKED_FRACTION
+        };
         // Whether the typical sector keeps its first contrast (sectors are
         // judged against each other, so a fit on something else can have
         // none marked, or all).
@@ -1308,13 +1322,17 @@ impl StereoTracker {
         let mut widened = near_reach == rigid.search_radius_px;
         let at_prediction = judge(&sums, predicted);
         let confirmed = at_prediction.confirms_pose();
-        let (mut mask, median) = (at_prediction.occluded, at_prediction.median_ratio);
+        let (mut mask, mut hidden, median) = (
+            at_prediction.occluded,
+            at_prediction.hidden,
+            at_prediction.median_ratio,
+        );
         let mut pose = predicted;
         // A tool cut by the border moves along its axis, and at the
         // prediction its tip's sectors look occluded: it is judged only
         // after a full fit.
         let cut = !template.cuts.is_empty();
-        if !cut && median >= 0.6 && mask.contains(&true) && !widespread(&mask) {
+        if !cut && median >= 0.6 && mask.contains(&true) && !widespread(&mask, &hidden) {
             // Part of the object looks occluded at the prediction. So do
             // the ends of a slender object that moved along its axis: a
             // full fit that finds every sector as it was stands, unless it
@@ -1367,7 +1385,7 @@ impl StereoTracker {
                 // that of a bright occluder nearby.
                 let lost_look = |sums: &PrefixSums, pose: Pose| {
                     let judged = judge(sums, pose);
-                    widespread(&judged.occluded) || judged.median_ratio < 0.6
+                    widespread(&judged.occluded, &judged.hidden) || judged.median_ratio < 0.6
                 };
                 if line.is_some() || !(at_limit(&fit) || lost_look(&sums, fit.pose)) {
                     fit
@@ -1410,11 +1428,11 @@ impl StereoTracker {
                 return (fit, sums);
             }
             let judged = judge(&sums, fit.pose);
-            mask = judged.occluded;
-            if !mask.contains(&true) || (widespread(&mask) && keeps_contrast(judged.median_ratio)) {
+            (mask, hidden) = (judged.occluded, judged.hidden);
+            if !mask.contains(&true) || (widespread(&mask, &hidden) && keeps_contrast(judged.median_ratio)) {
                 return (fit, sums);
             }
-            if widespread(&mask) {
+            if widespread(&mask, &hidden) {
                 // Most of the outline lost its contrast, and the typical
                 // sector too: the fit found something else, and says so, to
                 // be lost as occluded (a rod half under a bright bar
@@ -1426,6 +1444,7 @@ impl StereoTracker {
                 return (
                     ImageFit {
                         occluded: mask,
+                        hidden,
                         ..fit
                     },
                     sums,
@@ -1456,11 +1475,11 @@ impl StereoTracker {
                 Some(u) => line_polish(found, e, u, masked).0,
                 None => newton_polish(found, e, template.radius, search.rotate, masked).0,
             };
-            let new_mask = judge(&sums, pose).occluded;
-            if new_mask == mask || widespread(&new_mask) {
+            let judged = judge(&sums, pose);
+            if judged.occluded == mask || widespread(&judged.occluded, &judged.hidden) {
                 break;
             }
-            mask = new_mask;
+            (mask, hidden) = (judged.occluded, judged.hidden);
         }
         let terms = template.energy_at(&sums, pose, energy);
         // Contrast over the visible sectors' bands: the occluder does not
@@ -1473,6 +1492,7 @@ impl StereoTracker {
             contrast: michelson(ma, mb),
             axis_std_px: f64::NAN,
             occluded: mask,
+            hidden,
         };
         (fit, sums)
     }
@@ -1625,17 +1645,22 @@ impl StereoTracker {
         &self,
         sums: &PrefixSums,
         sectors: &SectorTemplate,
-        reference: &[f64],
+        reference: &SectorLook,
         pose: Pose,
     ) -> bool {
         let occlusion = &self.params.occlusion;
-        let judged = judge_sectors(
+        let judged = judge_look(
             reference,
-            &sectors.contrasts(sums, pose),
+            &sectors.look(sums, pose),
             occlusion.min_contrast_ratio,
             occlusion.max_contrast_ratio,
         );
-        !judged.occluded.contains(&true) && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
+        // Sectors before a new backdrop (judged by their inner bands) do
+        // not count against it, while most of the outline keeps its
+        // contrast.
+        !judged.hidden.contains(&true)
+            && fraction(&judged.occluded) <= occlusion.max_occluded_fraction
+            && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
     }
 
     /// The object sought by its template over the hint box (or the whole
@@ -1649,7 +1674,7 @@ impl StereoTracker {
         &self,
         frame: &'f GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
-        reference: &[f64],
+        reference: &SectorLook,
         theta: f64,
     ) -> Option<(ImageFit, PrefixSums<'f>)> {
         let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
@@ -1710,12 +1735,12 @@ impl StereoTracker {
     ) -> PairResult {
         let (template, sectors) = templates;
         let found = self
-            .search_template(left, templates, &state.left_sector_contrasts, state.left.theta)
+            .search_template(left, templates, &state.left_look(), state.left.theta)
             .and_then(|(left_fit, left_sums)| {
                 let pose = self.search_right(right, template, left_fit.pose)?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
                 let right_fit = ImageFit::full(pose, template.energy_at(&sums, pose, &self.params.energy));
-                self.shows_object(&sums, sectors, &state.right_sector_contrasts, pose)
+                self.shows_object(&sums, sectors, &state.right_look(), pose)
                     .then_some(((left_fit, left_sums), (right_fit, sums)))
             });
         let Some(((mut left_fit, left_sums), (mut right_fit, right_sums))) = found else {
@@ -1920,6 +1945,13 @@ impl StereoTracker {
             if !fit.terms.energy.is_finite() {
                 return Some(format!("no valid contour position in the {name} image"));
             }
+            if fraction(&fit.occluded) > MAX_MASKED_FRACTION {
+                return Some(format!(
+                    "occluded: {:.0}% of the outline lost its contrast in the {name} image (limit {:.0}%)",
+                    100.0 * fraction(&fit.occluded),
+                    100.0 * MAX_MASKED_FRACTION
+                ));
+            }
             if fit.occluded_fraction() > self.params.occlusion.max_occluded_fraction {
                 return Some(format!(
                     "{:.0}% of the outline is occluded in the {name} image (limit {:.0}%)",
@@ -2027,8 +2059,30 @@ struct ImageFit {
     /// Standard error of the pose along the disparity axis, pixels (NaN:
     /// not measured).
     axis_std_px: f64,
-    /// The sectors left out of the fit as occluded (empty: none).
+    /// The sectors left out of the fit, their contrast changed (empty:
+    /// none).
     occluded: Vec<bool>,
+    /// Of those, the ones where the object is hidden
+    /// ([`crate::occlusion::SectorJudgement::hidden`]).
+    hidden: Vec<bool>,
+}
+
+impl TrackerState {
+    /// The left view's reference look of the sectors.
+    fn left_look(&self) -> SectorLook {
+        SectorLook {
+            contrasts: self.left_sector_contrasts.clone(),
+            inner: self.left_sector_inner.clone(),
+        }
+    }
+
+    /// The right view's reference look of the sectors.
+    fn right_look(&self) -> SectorLook {
+        SectorLook {
+            contrasts: self.right_sector_contrasts.clone(),
+            inner: self.right_sector_inner.clone(),
+        }
+    }
 }
 
 impl ImageFit {
@@ -2040,14 +2094,20 @@ impl ImageFit {
             contrast: terms.contrast(),
             axis_std_px: f64::NAN,
             occluded: Vec::new(),
+            hidden: Vec::new(),
         }
     }
 
-    /// Fraction of sectors found occluded.
+    /// Fraction of sectors where the object is hidden.
     fn occluded_fraction(&self) -> f64 {
-        fraction(&self.occluded)
+        fraction(&self.hidden)
     }
 }
+
+/// Beyond this fraction of sectors left out of a fit (hidden, or with a
+/// new backdrop behind the object) too little of the outline keeps its
+/// contrast to place the contour.
+const MAX_MASKED_FRACTION: f64 = 0.9;
 
 /// How far both views' fits may move from their predictions, pixels,
 /// before the left view is fitted again from the right view's result (see

@@ -192,3 +192,215 @@ fn relative_height_of_a_tool_above_a_particle() {
         }
     }
 }
+
+/// `over` painted onto `under` where `mask` is set (same size).
+fn composite(under: &GrayFrame, over: &GrayFrame, mask: &[bool]) -> GrayFrame {
+    let data = under
+        .data
+        .iter()
+        .zip(&over.data)
+        .zip(mask)
+        .map(|((u, o), m)| if *m { *o } else { *u })
+        .collect();
+    GrayFrame::new(under.width, under.height, under.bit_depth, data).unwrap()
+}
+
+/// Fraction of the particle's area the tool hides (left image) beyond which
+/// the particle may be reported lost (`occluded`) rather than tracked.
+const MAY_LOSE_HIDDEN: f64 = 0.25;
+
+/// The tool passing in front of the particle on `preset`, over [`SEEDS`]
+/// (see [`a_tool_passing_in_front_of_the_particle`]).
+fn tool_passing_in_front(preset: Preset) -> Passing {
+    let calibration: Calibration =
+        from_json(r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0}"#).unwrap();
+    {
+        let (mut errors, mut reported) = (vec![], vec![]);
+        let (mut failures, mut tool_untracked, mut pairs, mut max_hidden) = (vec![], 0usize, 0usize, 0.0f64);
+        for seed in SEEDS {
+            let mut tool = SynthConfig {
+                frames: FRAMES,
+                ..SynthConfig::preset(preset, Shape::Tip, seed)
+            };
+            tool.motion.z_pattern = ZPattern::Constant;
+            tool.motion.z_start_um = 60.0;
+            tool.motion.start_px = Some([320.0, 100.0]);
+            tool.motion.start_angle_rad = Some(0.0);
+            tool.motion.drift_px_per_frame = [0.0, 8.0];
+            tool.motion.rotation_rad_per_frame = 0.0;
+            let mut particle = SynthConfig {
+                frames: FRAMES,
+                ..SynthConfig::preset(preset, Shape::Sphere, seed + 1000)
+            };
+            particle.motion.z_pattern = ZPattern::Constant;
+            particle.motion.z_start_um = -20.0;
+            particle.motion.start_px = Some([340.0, 250.0]);
+            particle.motion.drift_px_per_frame = [0.3, 0.1];
+            let (tool, particle) = (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap());
+            let (a, b) = (tool.render(0), particle.render(0));
+            let object = |name: &str, roi: [i64; 4]| {
+                SessionObject::new(
+                    name,
+                    TrackerParams {
+                        init: InitParams {
+                            roi: Some(roi),
+                            ..InitParams::default()
+                        },
+                        ..TrackerParams::default()
+                    },
+                )
+            };
+            let mut session = Session::new(
+                vec![
+                    object("tool", a.truth.left.roi_hint(0.1)),
+                    object("particle", b.truth.left.roi_hint(0.1)),
+                ],
+                0,
+            )
+            .unwrap();
+            let (mut seq_err, mut seq_reported) = (vec![], vec![]);
+            let mut own_errors = [vec![], vec![]];
+            for k in 0..FRAMES {
+                let (a, b) = (tool.render(k), particle.render(k));
+                let (w, h) = (a.left.width, a.left.height);
+                let tool_left = a.truth.left.polygon.rasterize(w, h);
+                let tool_right = a.truth.right.polygon.rasterize(w, h);
+                let under = b.truth.left.polygon.rasterize(w, h);
+                let hidden = under.iter().zip(&tool_left).filter(|(p, t)| **p && **t).count() as f64
+                    / under.iter().filter(|p| **p).count() as f64;
+                max_hidden = max_hidden.max(hidden);
+                let left = composite(&b.left, &a.left, &tool_left);
+                let right = composite(&b.right, &a.right, &tool_right);
+                let m = session.measure(&left, &right, None, Some(&calibration)).unwrap();
+                pairs += 1;
+                let measured =
+                    |i: usize| matches!(m.objects[i].result.status, Status::Initialised | Status::Tracked);
+                if !measured(0) {
+                    tool_untracked += 1;
+                }
+                if !measured(1) && hidden <= MAY_LOSE_HIDDEN {
+                    failures.push(format!(
+                        "seed {seed} pair {k}: particle {:?} ({:?}) with {:.0}% hidden",
+                        m.objects[1].result.status,
+                        m.objects[1].result.reason,
+                        100.0 * hidden
+                    ));
+                }
+                let truths = [a.truth.disparity_px[0], b.truth.disparity_px[0]];
+                for i in 0..2 {
+                    if measured(i) {
+                        let d = m.objects[i].result.disparity_axis_px.unwrap();
+                        own_errors[i].push((k, d - truths[i]));
+                    }
+                }
+                if measured(0) && measured(1) {
+                    let rel = &m.relative[0];
+                    seq_err.push(rel.disparity_axis_px.unwrap() - (truths[0] - truths[1]));
+                    seq_reported.push(rel.disparity_std_px.unwrap());
+                }
+            }
+            // Confident wrong: a measured disparity more than 1 px off
+            // the truth after the sequence's median offset.
+            for (i, name) in ["tool", "particle"].into_iter().enumerate() {
+                let offsets: Vec<f64> = own_errors[i].iter().map(|e| e.1).collect();
+                let offset = median(&offsets);
+                for (k, e) in &own_errors[i] {
+                    if (e - offset).abs() > 1.0 {
+                        failures.push(format!(
+                            "seed {seed} pair {k}: {name} disparity {:.2} px off, tracked",
+                            e - offset
+                        ));
+                    }
+                }
+            }
+            let offset = median(&seq_err);
+            errors.extend(seq_err.iter().map(|e| e - offset));
+            reported.extend(seq_reported);
+        }
+        let std = std_of(&errors);
+        let ratio = reported.iter().sum::<f64>() / reported.len() as f64 / std;
+        let share = tool_untracked as f64 / pairs as f64;
+        println!(
+            "{}: relative disparity error std {std:.3} px over {} pairs, std ratio {ratio:.2}, tool untracked {share:.3}, particle hidden up to {:.0}%",
+            preset.name(),
+            errors.len(),
+            100.0 * max_hidden
+        );
+        Passing {
+            std,
+            ratio,
+            tool_untracked: share,
+            max_hidden,
+            failures,
+        }
+    }
+}
+
+/// What [`tool_passing_in_front`] measured over the seeds.
+struct Passing {
+    /// Relative disparity error std (offset removed per sequence), pixels.
+    std: f64,
+    /// Mean reported relative std over `std`.
+    ratio: f64,
+    /// Share of pairs with the tool in front not measured.
+    tool_untracked: f64,
+    /// Largest fraction of the particle hidden.
+    max_hidden: f64,
+    /// Confident wrong pairs, and the particle lost while mostly visible.
+    failures: Vec<String>,
+}
+
+/// One object passing in front of the other: a tool 80 um above a particle
+/// sweeps down across it, hiding a third of it, in one scene. Each pair is
+/// the particle's generator scene with the tool's scene painted over it
+/// inside the tool's true outline (its own rim, grey and noise), in both
+/// views with each view's outline, so the tool hides the particle with its
+/// own disparity. Both objects keep their disparity (no confident wrong
+/// pair; the tool in front is not taken for hidden when its backdrop
+/// changes from substrate to particle), the particle is tracked wherever at
+/// most a quarter of it is hidden, and the relative disparity holds to the
+/// two-object limit.
+#[test]
+fn a_tool_passing_in_front_of_the_particle() {
+    for preset in [Preset::Clean, Preset::Noisy] {
+        let p = tool_passing_in_front(preset);
+        assert!(
+            p.max_hidden > 0.3,
+            "the tool hardly passed over the particle ({:.2})",
+            p.max_hidden
+        );
+        assert!(p.failures.is_empty(), "{}: {:#?}", preset.name(), p.failures);
+        assert!(
+            p.std <= MAX_RELATIVE_STD_PX,
+            "{}: relative disparity error std {:.3} px (limit {MAX_RELATIVE_STD_PX})",
+            preset.name(),
+            p.std
+        );
+    }
+}
+
+/// Not met yet (issue #18, measured 2026-11-26): while the tool is over
+/// the particle its edge against the brighter particle biases its fit by
+/// up to 0.24 px, which the reported std (from the noise) does not include
+/// (clean: reported relative std 0.54 of the observed 0.091 px); and the
+/// tool is lost in 3.3% (clean) and 5.8% (noisy) of pairs, said so
+/// (`occluded`), and not found again while it stays over the particle.
+#[test]
+#[ignore = "open gap of issue #18: a tool over a new backdrop is sometimes lost and its std misses a bias; run with --ignored"]
+fn a_tool_passing_in_front_of_the_particle_stays_tracked_with_a_calibrated_std() {
+    for preset in [Preset::Clean, Preset::Noisy] {
+        let p = tool_passing_in_front(preset);
+        assert!(
+            p.tool_untracked <= MAX_UNTRACKED,
+            "{}: the tool in front untracked in {:.1}% of pairs",
+            preset.name(),
+            100.0 * p.tool_untracked
+        );
+        assert!(
+            (1.0 / MAX_STD_RATIO..=MAX_STD_RATIO).contains(&p.ratio),
+            "{}: reported std / observed = {:.2} (expected within a factor {MAX_STD_RATIO})",
+            preset.name(),
+            p.ratio
+        );
+    }
+}

@@ -1390,6 +1390,8 @@ mod tests {
             left_velocity: [1.0, -0.5, 0.01],
             left_sector_contrasts: vec![0.1, 0.2, 1.0 / 3.0],
             right_sector_contrasts: vec![0.3, f],
+            left_sector_inner: vec![120.5, 99.0 + f, 0.0],
+            right_sector_inner: vec![101.25, f],
             template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
             outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
             prefilter_sigma_px: 0.5 * f,
