@@ -275,7 +275,7 @@ fn sdp1(seq: usize, left: &[u8], right: &[u8]) -> Bytes {
         "seq": seq, "encoding": "raw", "width": WIDTH, "height": HEIGHT, "bit_depth": 8,
         "left_len": left.len(), "right_len": right.len(),
     });
-    Bytes::from(semdepth::service::ws::encode_pair_message(&header, left, right))
+    Bytes::from(semdepth::service::wire::encode_pair_message(&header, left, right))
 }
 
 /// Messages with seq 0..n over the pool.

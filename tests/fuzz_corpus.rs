@@ -13,7 +13,7 @@ use std::path::Path;
 
 use axum::body::Bytes;
 use semdepth::imageio::{decode, DecodeLimits};
-use semdepth::service::ws::parse_pair_message;
+use semdepth::service::wire::parse_pair_message;
 
 #[path = "common/fuzz_seeds.rs"]
 mod fuzz_seeds;

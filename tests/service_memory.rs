@@ -159,13 +159,8 @@ async fn a_burst_of_large_uploads_stays_within_the_memory_budget() {
             for seq in 0..3u64 {
                 let header = serde_json::json!({
                     "seq": seq, "encoding": "png", "left_len": left.len(), "right_len": right.len()
-                })
-                .to_string();
-                let mut message = b"SDP1".to_vec();
-                message.extend_from_slice(&(header.len() as u32).to_le_bytes());
-                message.extend_from_slice(header.as_bytes());
-                message.extend_from_slice(&left);
-                message.extend_from_slice(&right);
+                });
+                let message = server::sdp1(&header, &left, &right);
                 ws.send(Message::Binary(message.into())).await.unwrap();
             }
             let mut seqs = Vec::new();

@@ -8,6 +8,7 @@
 //! - [`listener`]: the accept loop (header deadline, connection cap).
 //! - [`state`]: configuration, sessions and calibrations in memory.
 //! - [`pipeline`]: decode and track one pair, in session order, bounded.
+//! - [`wire`]: SDP1, the WebSocket pair message, parsed and encoded.
 //! - [`budget`]: the memory budget for bodies, messages and decoded images in flight.
 //! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
 //! - [`live`]: the browser page at `/`, latest frames as PNG, result events.
@@ -47,6 +48,7 @@ pub mod sessions;
 pub mod snapshot;
 pub mod state;
 pub mod storage;
+pub mod wire;
 pub mod ws;
 
 use error::ApiError;
@@ -284,7 +286,7 @@ pub fn openapi_yaml_text() -> String {
         (name = "depth", description = "One-shot measurement without a session"),
         (name = "operations", description = "Health, readiness, metrics, this document"),
     ),
-    components(schemas(ws::PairHeader, ws::SkippedReply, ws::StreamErrorReply, ws::Encoding, ws::Policy, live::Side, live::PngImage))
+    components(schemas(wire::PairHeader, ws::SkippedReply, ws::StreamErrorReply, wire::Encoding, ws::Policy, live::Side, live::PngImage))
 )]
 struct ApiDoc;
 

@@ -4,7 +4,7 @@
 
 use std::io::Cursor;
 
-use semdepth::service::ws::encode_pair_message;
+use semdepth::service::wire::encode_pair_message;
 
 fn encoded(img: image::DynamicImage, format: image::ImageFormat) -> Vec<u8> {
     let mut out = Cursor::new(Vec::new());

@@ -148,7 +148,7 @@ pub fn frames_form(left: &GrayFrame, right: &GrayFrame) -> reqwest::multipart::F
 
 /// A binary stream message: `SDP1`, header length, JSON header, left, right.
 pub fn sdp1(header: &serde_json::Value, left: &[u8], right: &[u8]) -> Vec<u8> {
-    semdepth::service::ws::encode_pair_message(header, left, right)
+    semdepth::service::wire::encode_pair_message(header, left, right)
 }
 
 /// A raw 8-bit stream message for a synthetic pair.
