@@ -158,3 +158,84 @@ async fn a_full_database_never_lets_a_session_run_ahead_of_storage() {
     assert_eq!((status, body["frame"].as_u64()), (200, Some(stored)), "{body}");
     server.stop().await.unwrap();
 }
+
+/// Issue #18 (the session layer): a change to a session that storage
+/// refuses leaves the session as stored, in memory too. With the database
+/// full, objects are added until one addition does not fit: it is a 503,
+/// the session keeps the objects stored before it, a PATCH refused the
+/// same way changes nothing, and a restart finds the same session.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_change_storage_refuses_leaves_the_session_as_stored() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = dir.path().join("db.sqlite3");
+    let mut config = test_config(&db);
+    config.max_db_bytes = Some(400 * 1024);
+    let server = TestServer::start(config.clone()).await;
+    let http = reqwest::Client::new();
+    let base = server.base.clone();
+    let sid = new_session(&base).await;
+    // Fill the database with results.
+    let filler = new_session(&base).await;
+    let mut step = 0;
+    while upload(&http, &base, &filler, step).await.0 == 200 {
+        step += 1;
+        assert!(step < 500, "the size limit never took effect");
+    }
+    // Each object stores its parameters with the session's row: the row
+    // soon needs a page the database cannot have.
+    let objects = |view: &Value| -> Vec<String> {
+        view["objects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| o["name"].as_str().unwrap().to_string())
+            .collect()
+    };
+    let (mut refused, mut added) = (None, vec!["object".to_string()]);
+    for k in 0..15 {
+        let r = http
+            .post(format!("{base}/v1/sessions/{sid}/objects"))
+            .json(&serde_json::json!({"name": format!("part{k}"), "roi": [10, 10, 40, 40]}))
+            .send()
+            .await
+            .unwrap();
+        let (status, body) = server::json_of(r).await;
+        if status != 201 {
+            assert_eq!(status, 503, "{body}");
+            refused = Some(format!("part{k}"));
+            break;
+        }
+        added.push(format!("part{k}"));
+    }
+    let refused = refused.expect("an object that does not fit the full database");
+    let view = get_json(&format!("{base}/v1/sessions/{sid}")).await;
+    let kept = objects(&view);
+    assert!(!kept.contains(&refused), "{kept:?} holds the refused {refused}");
+    assert_eq!(kept, added);
+    // A PATCH that grows the row is refused the same way and changes nothing.
+    let long_name = "n".repeat(200);
+    let r = http
+        .patch(format!("{base}/v1/sessions/{sid}"))
+        .json(&serde_json::json!({"name": long_name, "tracker": {"occlusion": {"sectors": 32}}}))
+        .send()
+        .await
+        .unwrap();
+    let (status, body) = server::json_of(r).await;
+    let after = get_json(&format!("{base}/v1/sessions/{sid}")).await;
+    eprintln!("adding {refused}: 503; a PATCH: {status}");
+    if status == 503 {
+        assert_eq!(after["name"], view["name"], "{after}");
+        assert_eq!(after["tracker"], view["tracker"], "{after}");
+    } else {
+        assert_eq!(status, 200, "{body}");
+        assert_eq!(after["name"].as_str(), Some(long_name.as_str()));
+    }
+    // Memory and disk agree across a restart.
+    server.stop().await.unwrap();
+    let server = TestServer::start(config).await;
+    let restarted = get_json(&format!("{}/v1/sessions/{sid}", server.base)).await;
+    assert_eq!(objects(&restarted), kept);
+    assert_eq!(restarted["name"], after["name"]);
+    assert_eq!(restarted["tracker"], after["tracker"]);
+    server.stop().await.unwrap();
+}

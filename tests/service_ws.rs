@@ -224,7 +224,10 @@ async fn ping_is_answered_while_pairs_are_processed() {
             }
             Message::Text(t) => {
                 let r: Value = serde_json::from_str(&t).unwrap();
-                if pong_after.is_none() {
+                // A `skipped` reply is the reader's own (pair 2 replaced
+                // pair 1 in the queue) and may precede the pong; results
+                // are the processor's.
+                if pong_after.is_none() && r["status"] != "skipped" {
                     replies_before_pong += 1;
                 }
                 last_seq_answered = r["seq"] == 2 && r["status"] != "skipped";
@@ -238,7 +241,7 @@ async fn ping_is_answered_while_pairs_are_processed() {
     // pairs (the first one alone, an initialisation, takes tens of ms).
     assert!(
         replies_before_pong <= 1,
-        "{replies_before_pong} replies before the pong"
+        "{replies_before_pong} results before the pong"
     );
     ws.close(None).await.unwrap();
     server.stop().await.unwrap();

@@ -27,7 +27,7 @@ use super::model::{
     SessionList, SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted, HINT_FIELDS,
 };
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
-use super::state::{new_id, now_rfc3339, AppState, Session, SessionCore};
+use super::state::{now_rfc3339, AppState, Session, SessionCore};
 
 /// Most results returned by one `GET .../results` request.
 pub const MAX_RESULTS_PAGE: usize = 10_000;
@@ -95,8 +95,6 @@ pub async fn create_session(
             Objects::new(objects, 0)?
         }
     };
-    let slot = state.reserve_session()?;
-    let id = new_id("s");
     let core = SessionCore::new(
         body.name,
         body.calibration_id,
@@ -105,9 +103,7 @@ pub async fn create_session(
         objects,
         now_rfc3339(),
     );
-    let view = core.view(&id, state.config.default_retention);
-    state.storage.upsert_session(core.record(&id)).await?;
-    slot.fill(Arc::new(Session::new(id, core)))?;
+    let (_, view) = state.create_session(core).await?;
     Ok((StatusCode::CREATED, ApiJson(view)))
 }
 
@@ -205,47 +201,44 @@ pub async fn patch_session(
         }
         _ => None,
     };
-    let mut core = state.session_core(&id).await?;
     let names_hints = |v: &Option<serde_json::Value>| {
         v.as_ref()
             .and_then(|v| v.as_object())
             .is_some_and(|m| HINT_FIELDS.iter().any(|h| m.contains_key(*h)))
     };
     let tracker_init = body.tracker.as_ref().and_then(|t| t.get("init")).cloned();
-    if core.session.objects().len() > 1 && (names_hints(&body.init) || names_hints(&tracker_init)) {
-        return Err(ApiError::conflict(
-            "several_objects",
-            "the session tracks several objects; their hints are their own (expected POST /v1/sessions/{id}/objects/{name}/reinit)",
-        ));
-    }
-    if body.init.is_some() || body.tracker.is_some() {
-        let mut changed = Vec::new();
-        for object in core.session.objects() {
-            changed.push(patched_params(
-                object.tracker.params(),
-                body.init.clone(),
-                body.tracker.clone(),
-            )?);
-        }
-        for (object, params) in core.session.objects_mut().iter_mut().zip(changed) {
-            object.tracker.set_params(params);
-        }
-    }
-    if let Some(name) = body.name {
-        core.name = name;
-    }
-    if let Some(cal) = body.calibration_id {
-        core.calibration_id = cal;
-    }
-    if let Some(r) = body.retention {
-        core.retention = Some(r);
-    }
-    if let Some(keep) = body.keep {
-        core.keep = keep;
-    }
-    core.updated_at = now_rfc3339();
-    state.storage.upsert_session(core.record(&id)).await?;
-    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+    let hints = names_hints(&body.init) || names_hints(&tracker_init);
+    let (_, view) = state
+        .update_session(&id, |core| {
+            if core.session.objects().len() > 1 && hints {
+                return Err(ApiError::conflict(
+                    "several_objects",
+                    "the session tracks several objects; their hints are their own (expected POST /v1/sessions/{id}/objects/{name}/reinit)",
+                ));
+            }
+            if body.init.is_some() || body.tracker.is_some() {
+                for object in core.session.objects_mut() {
+                    let params =
+                        patched_params(object.tracker.params(), body.init.clone(), body.tracker.clone())?;
+                    object.tracker.set_params(params);
+                }
+            }
+            if let Some(name) = body.name {
+                core.name = name;
+            }
+            if let Some(cal) = body.calibration_id {
+                core.calibration_id = cal;
+            }
+            if let Some(r) = body.retention {
+                core.retention = Some(r);
+            }
+            if let Some(keep) = body.keep {
+                core.keep = keep;
+            }
+            Ok(())
+        })
+        .await?;
+    Ok(ApiJson(view))
 }
 
 /// Delete a session and its results.
@@ -392,10 +385,13 @@ pub async fn reset_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let mut core = state.session_core(&id).await?;
-    core.restart(None, now_rfc3339());
-    state.storage.upsert_session(core.record(&id)).await?;
-    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+    let (_, view) = state
+        .update_session(&id, |core| {
+            core.restart(None);
+            Ok(())
+        })
+        .await?;
+    Ok(ApiJson(view))
 }
 
 /// Name the object anew: the next pair initialises with these hints.
@@ -428,20 +424,23 @@ pub async fn reinit_session(
     ApiPath(id): ApiPath<String>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let mut core = state.session_core(&id).await?;
-    if core.session.objects().len() > 1 {
-        return Err(ApiError::conflict(
-            "several_objects",
-            format!(
-                "session {id:?} tracks {} objects (expected POST /v1/sessions/{{id}}/objects/{{name}}/reinit to name one)",
-                core.session.objects().len()
-            ),
-        ));
-    }
-    let params = reinited(core.primary().params(), &body, &fields)?;
-    core.restart(Some(params), now_rfc3339());
-    state.storage.upsert_session(core.record(&id)).await?;
-    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+    let (_, view) = state
+        .update_session(&id, |core| {
+            if core.session.objects().len() > 1 {
+                return Err(ApiError::conflict(
+                    "several_objects",
+                    format!(
+                        "session {id:?} tracks {} objects (expected POST /v1/sessions/{{id}}/objects/{{name}}/reinit to name one)",
+                        core.session.objects().len()
+                    ),
+                ));
+            }
+            let params = reinited(core.primary().params(), &body, &fields)?;
+            core.restart(Some(params));
+            Ok(())
+        })
+        .await?;
+    Ok(ApiJson(view))
 }
 
 /// Output format of the results.
@@ -752,24 +751,13 @@ pub async fn add_object(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<ObjectCreate>,
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
-    let mut core = state.session_core(&id).await?;
-    let params = checked(body.params(core.primary().params()))?;
-    core.session.add(SessionObject::new(body.name, params))?;
-    core.updated_at = now_rfc3339();
-    if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
-        let name = core
-            .session
-            .objects()
-            .last()
-            .map(|o| o.name.clone())
-            .unwrap_or_default();
-        let _ = core.session.remove(&name);
-        return Err(e.into());
-    }
-    Ok((
-        StatusCode::CREATED,
-        ApiJson(core.view(&id, state.config.default_retention)),
-    ))
+    let (_, view) = state
+        .update_session(&id, |core| {
+            let params = checked(body.params(core.primary().params()))?;
+            Ok(core.session.add(SessionObject::new(body.name, params))?)
+        })
+        .await?;
+    Ok((StatusCode::CREATED, ApiJson(view)))
 }
 
 /// Remove an object from a session (a session keeps at least one); the
@@ -796,15 +784,10 @@ pub async fn delete_object(
     State(state): State<AppState>,
     ApiPath((id, name)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let mut core = state.session_core(&id).await?;
-    let removed = core.session.remove(&name)?;
-    core.updated_at = now_rfc3339();
-    if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
-        // Put it back where it was: the session is as stored.
-        let _ = core.session.add(removed);
-        return Err(e.into());
-    }
-    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+    let (_, view) = state
+        .update_session(&id, |core| Ok(core.session.remove(&name).map(drop)?))
+        .await?;
+    Ok(ApiJson(view))
 }
 
 /// Name one object anew: its next pair initialises with these hints (the
@@ -837,22 +820,16 @@ pub async fn reinit_object(
     ApiPath((id, name)): ApiPath<(String, String)>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let mut core = state.session_core(&id).await?;
-    let object = core.session.object_mut(&name)?;
-    let before = object.tracker.params().clone();
-    let params = reinited(&before, &body, &fields)?;
-    let previous_state = object.tracker.state().cloned();
-    let frames = object.tracker.frames();
-    object.tracker.set_params(params);
-    object.tracker.reset();
-    core.updated_at = now_rfc3339();
-    if let Err(e) = state.storage.upsert_session(core.record(&id)).await {
-        if let Ok(object) = core.session.object_mut(&name) {
-            object.tracker = crate::tracker::StereoTracker::from_state(before, previous_state, frames);
-        }
-        return Err(e.into());
-    }
-    Ok(ApiJson(core.view(&id, state.config.default_retention)))
+    let (_, view) = state
+        .update_session(&id, |core| {
+            let object = core.session.object_mut(&name)?;
+            let params = reinited(object.tracker.params(), &body, &fields)?;
+            object.tracker.set_params(params);
+            object.tracker.reset();
+            Ok(())
+        })
+        .await?;
+    Ok(ApiJson(view))
 }
 
 /// `current` with a reinit body's `init` applied (see

@@ -381,7 +381,7 @@ impl SessionCore {
 
     /// Forgets the object so that the next pair initialises again, with
     /// `params` when given (new hints); the frame count and the results stay.
-    pub fn restart(&mut self, params: Option<TrackerParams>, now: String) {
+    pub fn restart(&mut self, params: Option<TrackerParams>) {
         for object in self.session.objects_mut() {
             if let Some(params) = &params {
                 object.tracker.set_params(params.clone());
@@ -389,7 +389,6 @@ impl SessionCore {
             object.tracker.reset();
         }
         self.state = "awaiting_first_pair".into();
-        self.updated_at = now;
     }
 
     /// The first object's tracker (a one-object session's only one).
@@ -519,6 +518,51 @@ impl Inner {
             return Err(ApiError::not_found("session", id));
         }
         Ok(core)
+    }
+
+    /// Creates a session of `core` under the session limit and writes it to
+    /// storage before it is listed: its id and view, or 409
+    /// `session_limit_reached`, or the storage error (nothing is kept).
+    pub async fn create_session(&self, core: SessionCore) -> Result<(String, SessionView), ApiError> {
+        let slot = self.reserve_session()?;
+        let id = new_id("s");
+        let view = core.view(&id, self.config.default_retention);
+        self.storage.upsert_session(core.record(&id)).await?;
+        slot.fill(Arc::new(Session::new(id.clone(), core)))?;
+        Ok((id, view))
+    }
+
+    /// Applies `change` to the session's core (locked and caught up with
+    /// storage; 404 when unknown or deleted), stamps it updated and writes
+    /// it through to storage. When `change` fails nothing is written, and
+    /// when it or storage fails the core is put back as it was: the session
+    /// in memory is always the one stored. Returns `change`'s value and the
+    /// session's view.
+    pub async fn update_session<T>(
+        &self,
+        id: &str,
+        change: impl FnOnce(&mut SessionCore) -> Result<T, ApiError>,
+    ) -> Result<(T, SessionView), ApiError> {
+        let mut core = self.session_core(id).await?;
+        let before = core.record(id);
+        let put_back = |core: &mut SessionCore| {
+            let (latest, meta_watch) = (core.latest_disparity_px, std::mem::take(&mut core.meta_watch));
+            *core = SessionCore::restore(before, latest);
+            core.meta_watch = meta_watch;
+        };
+        let value = match change(&mut core) {
+            Ok(value) => value,
+            Err(e) => {
+                put_back(&mut core);
+                return Err(e);
+            }
+        };
+        core.updated_at = now_rfc3339();
+        if let Err(e) = self.storage.upsert_session(core.record(id)).await {
+            put_back(&mut core);
+            return Err(e.into());
+        }
+        Ok((value, core.view(id, self.config.default_retention)))
     }
 
     /// Deletes the session with this id and its results: waits for a pair
