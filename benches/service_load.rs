@@ -26,7 +26,8 @@
 //! under 20 ms at 100 pairs/s, under 5 MB of server memory per idle session.
 //!
 //! `cargo bench --bench service_load [-- --quick] [-- SCENARIO...]`
-//! (scenario names: ws_one, ws_objects_2, ws_objects_4, ws_viewed, ws_paced,
+//! (scenario names: ws_one, ws_objects_2, ws_objects_4, ws_objects_2_one_worker,
+//! ws_objects_4_one_worker, ws_viewed, ws_paced,
 //! ws_eight, rest_one, rest_four,
 //! idle_memory; a name filters by substring; unknown flags are ignored).
 //!
@@ -1070,14 +1071,31 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
             cpu,
         ));
     }
-    for (objects, name) in [(2usize, "ws_objects_2"), (4, "ws_objects_4")] {
-        if !wanted(name) {
+    // With one worker slot a session's objects are tracked one after the
+    // other: the reference for tracking them side by side.
+    let one_worker =
+        wanted("ws_objects").then(|| Server::start(&["--max-sessions", "1024", "--workers", "1"]));
+    for (objects, name, server) in [
+        (2usize, "ws_objects_2", &server),
+        (4, "ws_objects_4", &server),
+        (
+            2,
+            "ws_objects_2_one_worker",
+            one_worker.as_ref().unwrap_or(&server),
+        ),
+        (
+            4,
+            "ws_objects_4_one_worker",
+            one_worker.as_ref().unwrap_or(&server),
+        ),
+    ] {
+        if !wanted(name) || (name.ends_with("one_worker") && one_worker.is_none()) {
             continue;
         }
         eprintln!("service_load: {name}");
         let msgs = Arc::new(ws_messages[..sizes.ws_warmup + sizes.ws_pairs].to_vec());
         let (runs, cpu, _) = ws_scenario(
-            &server,
+            server,
             &http,
             ticks,
             &msgs,
@@ -1091,7 +1109,12 @@ async fn run(sizes: Sizes, quick: bool, wanted: &dyn Fn(&str) -> bool) {
         summaries.push(Summary::new(
             name,
             format!(
-                "as ws_one, the session tracking {objects} objects (each its own tracker on the one blob)"
+                "as ws_one, the session tracking {objects} objects (each its own tracker on the one blob){}",
+                if name.ends_with("one_worker") {
+                    ", one worker slot (objects one after the other)"
+                } else {
+                    ""
+                }
             ),
             &runs,
             cpu,

@@ -247,17 +247,71 @@ impl Session {
         meta: Option<(&ImageMeta, &ImageMeta)>,
         calibration: Option<&Calibration>,
     ) -> Result<Measurement, MeasureError> {
+        self.measure_on(left, right, meta, calibration, 1)
+    }
+
+    /// How many threads the next pair's objects are worth: one per object
+    /// when any of them initialises or searches for itself (tens of
+    /// milliseconds each), else 1. A tracking step (about 0.5 ms at
+    /// 1024x768) gains nothing from a thread of its own: two objects over
+    /// one WebSocket on 2 cores gave 534 pairs/s side by side against 689
+    /// one after the other (BENCHMARKS.md).
+    pub fn useful_threads(&self) -> usize {
+        let searching = |o: &SessionObject| o.tracker.state().is_none_or(|s| s.lost);
+        if self.objects.len() > 1 && self.objects.iter().any(searching) {
+            self.objects.len()
+        } else {
+            1
+        }
+    }
+
+    /// [`Session::measure`] with the objects tracked on up to `threads`
+    /// threads at once (each object's tracker is independent of the
+    /// others', so the results are the same for any count; 0 and 1 track
+    /// them one after the other on the calling thread).
+    pub fn measure_on(
+        &mut self,
+        left: &GrayFrame,
+        right: &GrayFrame,
+        meta: Option<(&ImageMeta, &ImageMeta)>,
+        calibration: Option<&Calibration>,
+        threads: usize,
+    ) -> Result<Measurement, MeasureError> {
         let before: Vec<_> = self
             .objects
             .iter()
             .map(|o| (o.tracker.state().cloned(), o.tracker.frames()))
             .collect();
-        let mut objects = Vec::with_capacity(self.objects.len());
-        for object in &mut self.objects {
-            if let Some(c) = calibration {
+        if let Some(c) = calibration {
+            for object in &mut self.objects {
                 object.tracker.set_tilt_axis_deg(c.tilt_axis_deg());
             }
-            match object.tracker.process(left, right) {
+        }
+        let track = |objects: &mut [SessionObject]| -> Vec<Result<PairResult, TrackError>> {
+            objects
+                .iter_mut()
+                .map(|o| o.tracker.process(left, right))
+                .collect()
+        };
+        let outcomes = if threads <= 1 || self.objects.len() < 2 {
+            track(&mut self.objects)
+        } else {
+            let per_thread = self.objects.len().div_ceil(threads);
+            std::thread::scope(|scope| {
+                let handles: Vec<_> = self
+                    .objects
+                    .chunks_mut(per_thread)
+                    .map(|chunk| scope.spawn(move || track(chunk)))
+                    .collect();
+                handles
+                    .into_iter()
+                    .flat_map(|h| h.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)))
+                    .collect()
+            })
+        };
+        let mut objects = Vec::with_capacity(self.objects.len());
+        for (object, outcome) in self.objects.iter_mut().zip(outcomes) {
+            match outcome {
                 Ok(mut result) => {
                     result.frame = self.frames;
                     if let Some((l, r)) = meta {
@@ -403,5 +457,60 @@ mod tests {
         assert_eq!(session.frames(), 0);
         assert!(session.objects()[0].tracker.state().is_none());
         assert_eq!(session.objects()[0].tracker.frames(), 0);
+    }
+
+    #[test]
+    fn objects_tracked_side_by_side_measure_as_one_after_the_other() {
+        let cfg = crate::synth::SynthConfig {
+            frames: 3,
+            ..crate::synth::SynthConfig::preset(crate::synth::Preset::Noisy, crate::synth::Shape::Tip, 11)
+        };
+        let scene = crate::synth::Scene::new(&cfg).unwrap();
+        let truth = scene.render(0).truth.left;
+        let session = || {
+            // The same object three ways: automatic, from a box, from a point.
+            let hinted = |roi: Option<[i64; 4]>, point: Option<[f64; 2]>| TrackerParams {
+                init: crate::init::InitParams {
+                    roi,
+                    point,
+                    ..Default::default()
+                },
+                ..TrackerParams::default()
+            };
+            Session::new(
+                vec![
+                    SessionObject::new("auto", TrackerParams::default()),
+                    SessionObject::new("box", hinted(Some(truth.roi_hint(0.1)), None)),
+                    SessionObject::new("point", hinted(None, Some(truth.visible_centroid))),
+                ],
+                0,
+            )
+            .unwrap()
+        };
+        let (mut one, mut side_by_side) = (session(), session());
+        for k in 0..3 {
+            let pair = scene.render(k);
+            let a = one.measure_on(&pair.left, &pair.right, None, None, 1).unwrap();
+            let b = side_by_side
+                .measure_on(&pair.left, &pair.right, None, None, 2)
+                .unwrap();
+            assert_eq!(a.objects.len(), 3);
+            for (x, y) in a.objects.iter().zip(&b.objects) {
+                assert_eq!(x.name, y.name);
+                assert_eq!(x.result.status, y.result.status, "pair {k}, {}", x.name);
+                assert_eq!(
+                    x.result.disparity_px, y.result.disparity_px,
+                    "pair {k}, {}",
+                    x.name
+                );
+                assert_eq!(x.result.disparity_std_px, y.result.disparity_std_px);
+                assert!(
+                    x.result.disparity_px.is_some(),
+                    "pair {k}, {}: {:?}",
+                    x.name,
+                    x.result.reason
+                );
+            }
+        }
     }
 }

@@ -364,17 +364,22 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     // The CSV header goes out with the first record, so that an error on
     // the first pair (e.g. hints that do not fit the images) prints nothing.
     let mut header_due = args.format == Format::Csv;
+    // Objects that initialise or search are tracked side by side, up to
+    // one thread per core.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     for pair in &pairs {
+        let threads = session.useful_threads().min(cores);
         let started = Instant::now();
         let (left, left_meta) = read_image(&pair.left, &limits)?;
         let (right, right_meta) = read_image(&pair.right, &limits)?;
         let decoded = Instant::now();
         let measured = session
-            .measure(
+            .measure_on(
                 &left,
                 &right,
                 Some((&left_meta, &right_meta)),
                 calibration.as_ref(),
+                threads,
             )
             .map_err(|e| match &e.error {
                 // The hints do not fit the images: name the flag or field.

@@ -328,12 +328,20 @@ fn track_locked(
     let queue = ms(received.elapsed());
     // The session measures every object across its calibration's tilt
     // axis (see `crate::session`).
+    // Objects that initialise or search are tracked side by side on the
+    // worker slots that are idle now (each thread holds one), one after the
+    // other otherwise.
+    let extra: Vec<_> = (1..core.session.useful_threads())
+        .map_while(|_| state.workers.clone().try_acquire_owned().ok())
+        .collect();
     let (measured, decode_ms, track_ms, [left, right]) = decode_and_measure(
         input,
         &state.config.decode_limits,
         &mut core.session,
         calibration.as_ref(),
+        1 + extra.len(),
     )?;
+    drop(extra);
     let result = &measured.objects[0].result;
     let now = now_rfc3339();
     let any_lost = measured
@@ -419,7 +427,8 @@ pub async fn process_one_shot(
     let outcome = tokio::task::spawn_blocking(move || {
         let _held = held;
         let mut session = Objects::single(params);
-        decode_and_measure(&input, &limits, &mut session, calibration.as_ref()).map(|(m, d, t, _)| (m, d, t))
+        decode_and_measure(&input, &limits, &mut session, calibration.as_ref(), 1)
+            .map(|(m, d, t, _)| (m, d, t))
     })
     .await
     .map_err(|e| ApiError::internal(format!("tracking task failed: {e}")))?;
@@ -486,29 +495,30 @@ async fn worker_permit(state: &AppState) -> Result<OwnedSemaphorePermit, ApiErro
         .map_err(|_| ApiError::shutting_down())
 }
 
-/// Decodes and measures every object of `session`; returns the
-/// measurement, the decode and measure times (ms) and the decoded images.
+/// Decodes and measures every object of `session` on up to `threads`
+/// threads; returns the measurement, the decode and measure times (ms) and
+/// the decoded images.
 fn decode_and_measure(
     input: &PairInput,
     limits: &DecodeLimits,
     session: &mut Objects,
     calibration: Option<&Calibration>,
+    threads: usize,
 ) -> Result<(Measurement, f64, f64, [GrayFrame; 2]), ApiError> {
     let started = Instant::now();
     let (left, right, meta) = input.decode(limits)?;
     let decoded = Instant::now();
     let meta = meta.as_ref().map(|(l, r)| (l, r));
-    let measured =
-        session
-            .measure(&left, &right, meta, calibration)
-            .map_err(|e| match session.objects().len() {
-                1 => ApiError::from(e.error),
-                _ => {
-                    let mut err = ApiError::from(e.error);
-                    err.message = format!("object {:?}: {}", e.object, err.message);
-                    err
-                }
-            })?;
+    let measured = session
+        .measure_on(&left, &right, meta, calibration, threads)
+        .map_err(|e| match session.objects().len() {
+            1 => ApiError::from(e.error),
+            _ => {
+                let mut err = ApiError::from(e.error);
+                err.message = format!("object {:?}: {}", e.object, err.message);
+                err
+            }
+        })?;
     Ok((
         measured,
         ms(decoded - started),
