@@ -339,9 +339,8 @@ fn write_table(
 
 /// Ids of the sessions whose calibration is `id`.
 async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
-    let sessions: Vec<_> = match state.sessions.read() {
-        Ok(table) => table.values().cloned().collect(),
-        Err(_) => return Vec::new(),
+    let Ok(sessions) = state.sessions.all() else {
+        return Vec::new();
     };
     let mut users = Vec::new();
     for s in sessions {

@@ -72,9 +72,8 @@ pub fn publish(state: &Inner, session: &Session, mut frame: LiveFrame) {
         frame.images = None;
     }
     session.live.send_replace(Some(Arc::new(frame)));
-    let sessions: Vec<Arc<Session>> = match state.sessions.read() {
-        Ok(table) => table.values().cloned().collect(),
-        Err(_) => return,
+    let Ok(sessions) = state.sessions.all() else {
+        return;
     };
     let mut held: Vec<(Instant, usize, Arc<Session>)> = sessions
         .into_iter()
@@ -184,7 +183,7 @@ pub async fn latest_frame(
             ));
         }
     }
-    let session = state.session(&id)?;
+    let session = state.sessions.get(&id)?;
     let live = session.live.borrow().clone();
     let no_frame = |why: &str| {
         ApiError::new(
@@ -263,7 +262,7 @@ pub async fn session_events(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
-    let session = state.session(&id)?;
+    let session = state.sessions.get(&id)?;
     let mut rx = session.live.subscribe();
     if rx.borrow().is_some() {
         rx.mark_changed();

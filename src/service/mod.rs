@@ -7,6 +7,7 @@
 //!   resolves (tests pass a port-0 listener).
 //! - [`listener`]: the accept loop (header deadline, connection cap).
 //! - [`state`]: configuration, sessions and calibrations in memory.
+//! - [`registry`]: the sessions held, their limit and their write-through to storage.
 //! - [`pipeline`]: decode and track one pair, in session order, bounded.
 //! - [`wire`]: SDP1, the WebSocket pair message, parsed and encoded.
 //! - [`budget`]: the memory budget for bodies, messages and decoded images in flight.
@@ -44,6 +45,7 @@ pub mod metrics;
 pub mod model;
 pub mod ops;
 pub mod pipeline;
+pub mod registry;
 pub mod sessions;
 pub mod snapshot;
 pub mod state;
@@ -133,7 +135,7 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
             _ = state.shutdown.cancelled() => return,
             _ = tokio::time::sleep(period) => {}
         }
-        let ids = match state.matching_sessions(Some(expiry), None, false) {
+        let ids = match state.sessions.matching(Some(expiry), None, false) {
             Ok(ids) => ids,
             Err(e) => {
                 tracing::warn!(error = %e.message, "session expiry: cannot list sessions");
@@ -141,7 +143,7 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
             }
         };
         for id in ids {
-            match state.remove_session(&id).await {
+            match state.sessions.remove(&id).await {
                 Ok(()) => {
                     tracing::info!(session = %id, idle_h = expiry.as_secs_f64() / 3600.0, "session expired")
                 }
@@ -161,7 +163,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         .map(|c| (c.id.clone(), c))
         .collect();
     let metrics = metrics::Metrics::new();
-    let mut sessions = std::collections::HashMap::new();
+    let mut sessions = Vec::new();
     for record in storage.sessions().await? {
         let latest = match record.frames.checked_sub(1) {
             Some(last) => storage
@@ -174,9 +176,8 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         };
         let id = record.id.clone();
         let core = SessionCore::restore(record, latest);
-        sessions.insert(id.clone(), Arc::new(Session::new(id, core)));
+        sessions.push(Arc::new(Session::new(id, core)));
     }
-    metrics.active_sessions.set(sessions.len() as i64);
     tracing::info!(
         calibrations = calibrations.len(),
         sessions = sessions.len(),
@@ -184,14 +185,20 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
     );
     let workers = config.workers;
     let config_budget = config.max_inflight_bytes;
+    let sessions = registry::Registry::new(
+        sessions,
+        config.max_sessions,
+        config.default_retention,
+        storage.clone(),
+        metrics.active_sessions.clone(),
+    );
     Ok(AppState(Arc::new(Inner {
         config,
         storage,
         calibrations: std::sync::RwLock::new(calibrations),
-        sessions: std::sync::RwLock::new(sessions),
+        sessions,
         calibration_writes: tokio::sync::Mutex::new(()),
         calibration_links: tokio::sync::Mutex::new(()),
-        pending_sessions: Default::default(),
         workers: Arc::new(tokio::sync::Semaphore::new(workers)),
         metrics,
         shutdown: tokio_util::sync::CancellationToken::new(),

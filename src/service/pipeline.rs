@@ -393,7 +393,7 @@ fn track_locked(
     let (live_state, live_session) = (state.clone(), session.id.clone());
     let commit = async move {
         commit.await?;
-        if let Ok(session) = live_state.session(&live_session) {
+        if let Ok(session) = live_state.sessions.get(&live_session) {
             publish(&live_state, &session, shown);
         }
         Ok(())

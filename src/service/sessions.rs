@@ -3,7 +3,6 @@
 //! CSV), calibration samples from the latest disparity, and the one-shot
 //! measurement (hints as query parameters).
 
-use std::sync::Arc;
 use std::time::Instant;
 
 use axum::extract::{Request, State};
@@ -27,7 +26,7 @@ use super::model::{
     SessionList, SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted, HINT_FIELDS,
 };
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
-use super::state::{now_rfc3339, AppState, Session, SessionCore};
+use super::state::{now_rfc3339, AppState, SessionCore};
 
 /// Most results returned by one `GET .../results` request.
 pub const MAX_RESULTS_PAGE: usize = 10_000;
@@ -103,7 +102,7 @@ pub async fn create_session(
         objects,
         now_rfc3339(),
     );
-    let (_, view) = state.create_session(core).await?;
+    let (_, view) = state.sessions.create(core).await?;
     Ok((StatusCode::CREATED, ApiJson(view)))
 }
 
@@ -119,23 +118,9 @@ pub async fn create_session(
     )
 )]
 pub async fn list_sessions(State(state): State<AppState>) -> Result<ApiJson<SessionList>, ApiError> {
-    let all: Vec<Arc<Session>> = state
-        .sessions
-        .read()
-        .map_err(|_| ApiError::internal("session table lock poisoned"))?
-        .values()
-        .cloned()
-        .collect();
-    let mut sessions = Vec::with_capacity(all.len());
-    for s in all {
-        let core = s.lock_core(&state.storage).await?;
-        if !core.deleted {
-            sessions.push(core.view(&s.id, state.config.default_retention));
-        }
-    }
-    // UUIDv7 ids sort in creation order.
-    sessions.sort_by(|a, b| a.id.cmp(&b.id));
-    Ok(ApiJson(SessionList { sessions }))
+    Ok(ApiJson(SessionList {
+        sessions: state.sessions.views().await?,
+    }))
 }
 
 /// Get one session.
@@ -156,7 +141,7 @@ pub async fn get_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let core = state.session_core(&id).await?;
+    let core = state.sessions.core(&id).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
 }
 
@@ -186,7 +171,7 @@ pub async fn patch_session(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<SessionPatch>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    state.session(&id)?; // 404 before the body's own errors
+    state.sessions.get(&id)?; // 404 before the body's own errors
     if let Some(Some(name)) = &body.name {
         check_name(Some(name))?;
     }
@@ -209,7 +194,8 @@ pub async fn patch_session(
     let tracker_init = body.tracker.as_ref().and_then(|t| t.get("init")).cloned();
     let hints = names_hints(&body.init) || names_hints(&tracker_init);
     let (_, view) = state
-        .update_session(&id, |core| {
+        .sessions
+        .update(&id, |core| {
             if core.session.objects().len() > 1 && hints {
                 return Err(ApiError::conflict(
                     "several_objects",
@@ -260,7 +246,7 @@ pub async fn delete_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
-    state.remove_session(&id).await?;
+    state.sessions.remove(&id).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -316,10 +302,12 @@ pub async fn delete_sessions(
         }
         None => None,
     };
-    let ids = state.matching_sessions(idle_for, query.name_prefix.as_deref(), query.include_kept)?;
+    let ids = state
+        .sessions
+        .matching(idle_for, query.name_prefix.as_deref(), query.include_kept)?;
     let mut deleted = Vec::with_capacity(ids.len());
     for id in ids {
-        match state.remove_session(&id).await {
+        match state.sessions.remove(&id).await {
             Ok(()) => deleted.push(id),
             // Deleted meanwhile by another request.
             Err(e) if e.status == StatusCode::NOT_FOUND => {}
@@ -356,7 +344,7 @@ pub async fn upload_pair(
     request: Request,
 ) -> Result<ApiJson<FrameResult>, ApiError> {
     let received = Instant::now();
-    let session = state.session(&id)?;
+    let session = state.sessions.get(&id)?;
     let (input, provenance) = read_pair_upload(request).await?;
     let result = process_session_pair(&state, &session, input, provenance, received, None).await?;
     Ok(ApiJson(if query.contours {
@@ -386,7 +374,8 @@ pub async fn reset_session(
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let (_, view) = state
-        .update_session(&id, |core| {
+        .sessions
+        .update(&id, |core| {
             core.restart(None);
             Ok(())
         })
@@ -425,7 +414,8 @@ pub async fn reinit_session(
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let (_, view) = state
-        .update_session(&id, |core| {
+        .sessions
+        .update(&id, |core| {
             if core.session.objects().len() > 1 {
                 return Err(ApiError::conflict(
                     "several_objects",
@@ -497,7 +487,7 @@ pub async fn session_results(
     ApiPath(id): ApiPath<String>,
     ApiQuery(query): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
-    state.session(&id)?;
+    state.sessions.get(&id)?;
     if query.since > MAX_INDEX {
         return Err(ApiError::bad_request(
             "invalid_query",
@@ -586,10 +576,10 @@ pub async fn add_session_calibration_sample(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<SessionSampleCreate>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
-    state.session(&id)?; // 404 for the session before the calibration
+    state.sessions.get(&id)?; // 404 for the session before the calibration
     let calibration = state.calibration(&body.calibration_id)?;
     let (disparity, frame) = {
-        let core = state.session_core(&id).await?;
+        let core = state.sessions.core(&id).await?;
         // Only the latest pair's own disparity: after a lost pair (or a
         // reset) the height would be paired with an older pair's.
         let frames = core.session.frames();
@@ -752,7 +742,8 @@ pub async fn add_object(
     ApiJson(body): ApiJson<ObjectCreate>,
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
     let (_, view) = state
-        .update_session(&id, |core| {
+        .sessions
+        .update(&id, |core| {
             let params = checked(body.params(core.primary().params()))?;
             Ok(core.session.add(SessionObject::new(body.name, params))?)
         })
@@ -785,7 +776,8 @@ pub async fn delete_object(
     ApiPath((id, name)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let (_, view) = state
-        .update_session(&id, |core| Ok(core.session.remove(&name).map(drop)?))
+        .sessions
+        .update(&id, |core| Ok(core.session.remove(&name).map(drop)?))
         .await?;
     Ok(ApiJson(view))
 }
@@ -821,7 +813,8 @@ pub async fn reinit_object(
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let (_, view) = state
-        .update_session(&id, |core| {
+        .sessions
+        .update(&id, |core| {
             let object = core.session.object_mut(&name)?;
             let params = reinited(object.tracker.params(), &body, &fields)?;
             object.tracker.set_params(params);

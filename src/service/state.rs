@@ -2,7 +2,7 @@
 //! calibrations and sessions held in memory (write-through to storage), the
 //! bounded worker pool and the shutdown signal.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::BTreeMap;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
@@ -230,17 +230,14 @@ pub struct Inner {
     pub storage: Storage,
     /// All calibrations, by id (write-through to storage).
     pub calibrations: RwLock<BTreeMap<String, CalibrationRecord>>,
-    /// All sessions, by id.
-    pub sessions: RwLock<HashMap<String, Arc<Session>>>,
+    /// All sessions, the session limit and their write-through to storage.
+    pub sessions: super::registry::Registry,
     /// Serialises read-modify-write of calibrations (appending samples).
     pub calibration_writes: Mutex<()>,
     /// Serialises attaching a calibration to a session (creation, PATCH)
     /// with deleting a calibration, so that no session is left pointing
     /// at a deleted one. Taken before any session's core.
     pub calibration_links: Mutex<()>,
-    /// Session slots reserved by creations still writing to storage; with
-    /// the table's size, held under the session limit.
-    pub pending_sessions: std::sync::Mutex<usize>,
     /// Bounds the pairs processed at once (`config.workers` permits).
     pub workers: Arc<Semaphore>,
     /// Prometheus metrics.
@@ -432,205 +429,7 @@ impl SessionCore {
     }
 }
 
-/// A slot under the session limit, reserved by [`Inner::reserve_session`]
-/// until the session is inserted ([`SessionSlot::fill`]) or the slot is
-/// dropped (the creation failed).
-pub struct SessionSlot<'a> {
-    inner: &'a Inner,
-    filled: bool,
-}
-
-impl SessionSlot<'_> {
-    /// Inserts the session into the table in place of the reservation.
-    pub fn fill(mut self, session: Arc<Session>) -> Result<(), ApiError> {
-        let mut pending = self.inner.pending()?;
-        self.inner
-            .sessions
-            .write()
-            .map_err(|_| ApiError::internal("session table lock poisoned"))?
-            .insert(session.id.clone(), session);
-        *pending -= 1;
-        self.filled = true;
-        self.inner.metrics.active_sessions.inc();
-        Ok(())
-    }
-}
-
-impl Drop for SessionSlot<'_> {
-    fn drop(&mut self) {
-        if !self.filled {
-            if let Ok(mut pending) = self.inner.pending() {
-                *pending -= 1;
-            }
-        }
-    }
-}
-
 impl Inner {
-    fn pending(&self) -> Result<std::sync::MutexGuard<'_, usize>, ApiError> {
-        self.pending_sessions
-            .lock()
-            .map_err(|_| ApiError::internal("session slot lock poisoned"))
-    }
-
-    /// A slot for a new session, or 409 `session_limit_reached` when the
-    /// sessions held and those being created fill `max_sessions`: checked
-    /// and reserved in one step, so concurrent creations never exceed it.
-    pub fn reserve_session(&self) -> Result<SessionSlot<'_>, ApiError> {
-        let mut pending = self.pending()?;
-        let held = self
-            .sessions
-            .read()
-            .map_err(|_| ApiError::internal("session table lock poisoned"))?
-            .len();
-        if held + *pending >= self.config.max_sessions {
-            return Err(ApiError::conflict(
-                "session_limit_reached",
-                format!(
-                    "the server holds its maximum of {} sessions (delete one first)",
-                    self.config.max_sessions
-                ),
-            ));
-        }
-        *pending += 1;
-        Ok(SessionSlot {
-            inner: self,
-            filled: false,
-        })
-    }
-
-    /// The session with this id, or 404.
-    pub fn session(&self, id: &str) -> Result<Arc<Session>, ApiError> {
-        self.sessions
-            .read()
-            .map_err(|_| ApiError::internal("session table lock poisoned"))?
-            .get(id)
-            .cloned()
-            .ok_or_else(|| ApiError::not_found("session", id))
-    }
-
-    /// The session with this id with its core locked (caught up with
-    /// storage first), or 404 when it is unknown or deleted.
-    pub async fn session_core(&self, id: &str) -> Result<OwnedMutexGuard<SessionCore>, ApiError> {
-        let session = self.session(id)?;
-        let core = session.lock_core(&self.storage).await?;
-        if core.deleted {
-            return Err(ApiError::not_found("session", id));
-        }
-        Ok(core)
-    }
-
-    /// Creates a session of `core` under the session limit and writes it to
-    /// storage before it is listed: its id and view, or 409
-    /// `session_limit_reached`, or the storage error (nothing is kept).
-    pub async fn create_session(&self, core: SessionCore) -> Result<(String, SessionView), ApiError> {
-        let slot = self.reserve_session()?;
-        let id = new_id("s");
-        let view = core.view(&id, self.config.default_retention);
-        self.storage.upsert_session(core.record(&id)).await?;
-        slot.fill(Arc::new(Session::new(id.clone(), core)))?;
-        Ok((id, view))
-    }
-
-    /// Applies `change` to the session's core (locked and caught up with
-    /// storage; 404 when unknown or deleted), stamps it updated and writes
-    /// it through to storage. When `change` fails nothing is written, and
-    /// when it or storage fails the core is put back as it was: the session
-    /// in memory is always the one stored. Returns `change`'s value and the
-    /// session's view.
-    pub async fn update_session<T>(
-        &self,
-        id: &str,
-        change: impl FnOnce(&mut SessionCore) -> Result<T, ApiError>,
-    ) -> Result<(T, SessionView), ApiError> {
-        let mut core = self.session_core(id).await?;
-        let before = core.record(id);
-        let put_back = |core: &mut SessionCore| {
-            let (latest, meta_watch) = (core.latest_disparity_px, std::mem::take(&mut core.meta_watch));
-            *core = SessionCore::restore(before, latest);
-            core.meta_watch = meta_watch;
-        };
-        let value = match change(&mut core) {
-            Ok(value) => value,
-            Err(e) => {
-                put_back(&mut core);
-                return Err(e);
-            }
-        };
-        core.updated_at = now_rfc3339();
-        if let Err(e) = self.storage.upsert_session(core.record(id)).await {
-            put_back(&mut core);
-            return Err(e.into());
-        }
-        Ok((value, core.view(id, self.config.default_retention)))
-    }
-
-    /// Deletes the session with this id and its results: waits for a pair
-    /// in flight, and streams still holding it stop. 404 when unknown.
-    pub async fn remove_session(&self, id: &str) -> Result<(), ApiError> {
-        let session = self.session(id)?;
-        let mut core = session.core.lock().await;
-        if core.deleted {
-            return Err(ApiError::not_found("session", id));
-        }
-        self.storage.delete_session(id).await?;
-        core.deleted = true;
-        drop(core);
-        self.sessions
-            .write()
-            .map_err(|_| ApiError::internal("session table lock poisoned"))?
-            .remove(id);
-        self.metrics.active_sessions.dec();
-        Ok(())
-    }
-
-    /// Ids of the sessions that match: last active at least `idle_for` ago
-    /// (when given), named with `name_prefix` (when given), and not marked
-    /// `keep` unless `include_kept`. A session busy with a pair is active.
-    pub fn matching_sessions(
-        &self,
-        idle_for: Option<Duration>,
-        name_prefix: Option<&str>,
-        include_kept: bool,
-    ) -> Result<Vec<String>, ApiError> {
-        let now = time::OffsetDateTime::now_utc();
-        let all: Vec<Arc<Session>> = self
-            .sessions
-            .read()
-            .map_err(|_| ApiError::internal("session table lock poisoned"))?
-            .values()
-            .cloned()
-            .collect();
-        let mut out = Vec::new();
-        for session in all {
-            let Ok(core) = session.core.try_lock() else {
-                continue;
-            };
-            if core.deleted || (core.keep && !include_kept) {
-                continue;
-            }
-            if let Some(prefix) = name_prefix {
-                if !core.name.as_deref().is_some_and(|n| n.starts_with(prefix)) {
-                    continue;
-                }
-            }
-            if let Some(idle_for) = idle_for {
-                let last = time::OffsetDateTime::parse(
-                    &core.updated_at,
-                    &time::format_description::well_known::Rfc3339,
-                );
-                // An unreadable time is no reason to delete.
-                let Ok(last) = last else { continue };
-                if now - last < idle_for {
-                    continue;
-                }
-            }
-            out.push(session.id.clone());
-        }
-        out.sort();
-        Ok(out)
-    }
-
     /// The calibration with this id, or 404.
     pub fn calibration(&self, id: &str) -> Result<CalibrationRecord, ApiError> {
         self.calibrations

@@ -108,7 +108,7 @@ pub async fn stream_session(
     slot: Option<axum::Extension<super::listener::ConnectionSlot>>,
     upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
-    let session = state.session(&id)?;
+    let session = state.sessions.get(&id)?;
     let upgrade = upgrade.map_err(|e| {
         let status = if e.status().is_client_error() {
             e.status()
