@@ -319,6 +319,15 @@ pub struct SectorLook {
     pub inner: Vec<f64>,
 }
 
+/// `marks` with each marked run grown by one sector on each side (the
+/// sectors wrap round).
+pub fn grown(marks: &[bool]) -> Vec<bool> {
+    let n = marks.len();
+    (0..n)
+        .map(|k| marks[k] || marks[(k + 1) % n] || marks[(k + n - 1) % n])
+        .collect()
+}
+
 /// What [`judge_sectors`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SectorJudgement {
@@ -474,12 +483,6 @@ pub fn judge_look(
     // An occluder covers a contiguous stretch of the outline, and the
     // sectors at its ends are only partly covered (their contrast changes
     // less than the threshold): each marked run grows by one sector per side.
-    let grown = |marks: &[bool]| -> Vec<bool> {
-        let n = marks.len();
-        (0..n)
-            .map(|k| marks[k] || marks[(k + 1) % n] || marks[(k + n - 1) % n])
-            .collect()
-    };
     SectorJudgement {
         occluded: grown(&marks),
         hidden: grown(&hidden),
