@@ -385,10 +385,10 @@ fn a_tool_passing_in_front_of_the_particle() {
     }
 }
 
-/// Not met yet (issue #18, measured 2026-11-26): the tool in front is
-/// lost in 3.3% (clean) and 5.8% (noisy) of pairs, said so (`occluded`,
-/// or its contrast collapsed while over the particle), and not found again
-/// while it stays over the particle.
+/// Not met yet (issue #18, measured 2026-11-26): under the noisy preset the
+/// tool in front is lost in 5.8% of pairs (none clean), said so
+/// (`occluded`, or its contrast collapsed while over the particle), and not
+/// found again while it stays over the particle.
 #[test]
 #[ignore = "open gap of issue #18: a tool over a new backdrop is sometimes lost; run with --ignored"]
 fn a_tool_passing_in_front_of_the_particle_stays_tracked() {
