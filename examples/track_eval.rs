@@ -129,10 +129,14 @@ fn main() {
                 // Confident wrong (issue #17): tracked while the disparity
                 // is off by more than 1 px or the left centroid by more than
                 // 3 px, after removing the sequence's median offsets.
-                wrong += deviations_from_medians(&errs, &cents)
+                let seq_wrong = deviations_from_medians(&errs, &cents)
                     .iter()
                     .filter(|d| d.confident_wrong())
                     .count();
+                if seq_wrong > 0 {
+                    eprintln!("{}/{}/{seed}: {seq_wrong} confident wrong", preset.name(), shape.name());
+                }
+                wrong += seq_wrong;
                 if std::env::var("VERBOSE").is_ok() {
                     let rms = (errs.iter().map(|e| (e - mean).powi(2)).sum::<f64>()
                         / errs.len().max(1) as f64)
