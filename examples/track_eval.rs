@@ -134,7 +134,11 @@ fn main() {
                     .filter(|d| d.confident_wrong())
                     .count();
                 if seq_wrong > 0 {
-                    eprintln!("{}/{}/{seed}: {seq_wrong} confident wrong", preset.name(), shape.name());
+                    eprintln!(
+                        "{}/{}/{seed}: {seq_wrong} confident wrong",
+                        preset.name(),
+                        shape.name()
+                    );
                 }
                 wrong += seq_wrong;
                 if std::env::var("VERBOSE").is_ok() {
