@@ -393,13 +393,17 @@ pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_rat
 
 /// A sector's inner band holds the object's grey when its mean, relative
 /// to the reference and to the median such ratio, stays within this
-/// fraction of 1.
+/// fraction of 1, or within three robust standard deviations of the
+/// sectors' ratios (up to [`MAX_INNER_HOLDS_TOLERANCE`]).
 pub const INNER_HOLDS_TOLERANCE: f64 = 0.08;
+
+/// The largest tolerance of [`INNER_HOLDS_TOLERANCE`] in noisy frames.
+pub const MAX_INNER_HOLDS_TOLERANCE: f64 = 0.2;
 
 /// [`judge_sectors`] that also tells a hidden sector from a new backdrop by
 /// the inner band means (when both looks have them): a changed sector
-/// whose inner band holds the object's grey (within
-/// [`INNER_HOLDS_TOLERANCE`] after the median change) is backdrop. Such
+/// whose inner band holds the object's grey (see [`INNER_HOLDS_TOLERANCE`])
+/// is backdrop. Such
 /// sectors do not set the median and lowest ratios (the typical sector of
 /// a tool over a particle lost its contrast, yet the tool is in view).
 pub fn judge_look(
@@ -440,9 +444,17 @@ pub fn judge_look(
             let mut inner_ratios: Vec<f64> = (0..reference.len()).filter_map(inner_ratio).collect();
             inner_ratios.sort_by(|a, b| a.total_cmp(b));
             match inner_ratios.get(inner_ratios.len() / 2) {
-                Some(&g) if g > 0.0 => (0..reference.len())
-                    .map(|k| inner_ratio(k).is_some_and(|r| (r / g - 1.0).abs() <= INNER_HOLDS_TOLERANCE))
-                    .collect(),
+                Some(&g) if g > 0.0 => {
+                    // The tolerance grows with the sectors' own scatter
+                    // (three robust standard deviations) in noisy frames.
+                    let mut deviations: Vec<f64> = inner_ratios.iter().map(|r| (r / g - 1.0).abs()).collect();
+                    deviations.sort_by(|a, b| a.total_cmp(b));
+                    let scatter = 1.4826 * deviations[deviations.len() / 2];
+                    let tolerance = (3.0 * scatter).clamp(INNER_HOLDS_TOLERANCE, MAX_INNER_HOLDS_TOLERANCE);
+                    (0..reference.len())
+                        .map(|k| inner_ratio(k).is_some_and(|r| (r / g - 1.0).abs() <= tolerance))
+                        .collect()
+                }
                 _ => vec![false; reference.len()],
             }
         } else {
