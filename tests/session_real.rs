@@ -9,9 +9,8 @@ mod common;
 
 use semdepth::geometry::{mask_iou, Polygon};
 use semdepth::imageio::{read_file, DecodeLimits, GrayFrame};
-use semdepth::init::InitParams;
-use semdepth::session::{Session, SessionObject};
-use semdepth::tracker::{Status, TrackerParams};
+use semdepth::session::Session;
+use semdepth::tracker::Status;
 
 /// The needle's box as a person draws it (running past the left border).
 const NEEDLE_BOX: [i64; 4] = [-20, 520, 320, 520];
@@ -48,18 +47,7 @@ fn first_pair() -> (semdepth::session::Measurement, [Vec<bool>; 2], GrayFrame) {
     let lamella_ref = Polygon::new(common::LAMELLA_OUTLINE.to_vec())
         .translated([-(SHIFT as f64), 0.0])
         .rasterize(left.width, left.height);
-    let object = |name: &str, roi: [i64; 4]| {
-        SessionObject::new(
-            name,
-            TrackerParams {
-                init: InitParams {
-                    roi: Some(roi),
-                    ..InitParams::default()
-                },
-                ..TrackerParams::default()
-            },
-        )
-    };
+    let object = common::boxed_object;
     let mut session = Session::new(
         vec![object("needle", NEEDLE_BOX), object("lamella", LAMELLA_BOX)],
         0,

@@ -5,12 +5,13 @@
 //! sequence), so each object's true disparity is its scene's and the
 //! relative truth is their difference.
 
+mod common;
+
 use semdepth::calib::{from_json, Calibration};
 use semdepth::imageio::GrayFrame;
-use semdepth::init::InitParams;
-use semdepth::session::{Session, SessionObject};
+use semdepth::session::Session;
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig, ZPattern};
-use semdepth::tracker::{Status, TrackerParams};
+use semdepth::tracker::Status;
 
 /// Pairs per sequence.
 const FRAMES: usize = 24;
@@ -92,18 +93,7 @@ fn relative_height_of_a_tool_above_a_particle() {
             let roi_tool = first.0.truth.left.roi_hint(0.1);
             let mut roi_particle = first.1.truth.left.roi_hint(0.1);
             roi_particle[0] += width;
-            let object = |name: &str, roi: [i64; 4]| {
-                SessionObject::new(
-                    name,
-                    TrackerParams {
-                        init: InitParams {
-                            roi: Some(roi),
-                            ..InitParams::default()
-                        },
-                        ..TrackerParams::default()
-                    },
-                )
-            };
+            let object = common::boxed_object;
             let mut session = Session::new(
                 vec![object("tool", roi_tool), object("particle", roi_particle)],
                 0,
@@ -245,18 +235,7 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
             particle.motion.drift_px_per_frame = [0.3, 0.1];
             let (tool, particle) = (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap());
             let (a, b) = (tool.render(0), particle.render(0));
-            let object = |name: &str, roi: [i64; 4]| {
-                SessionObject::new(
-                    name,
-                    TrackerParams {
-                        init: InitParams {
-                            roi: Some(roi),
-                            ..InitParams::default()
-                        },
-                        ..TrackerParams::default()
-                    },
-                )
-            };
+            let object = common::boxed_object;
             let mut session = Session::new(
                 vec![
                     object("tool", a.truth.left.roi_hint(0.1)),

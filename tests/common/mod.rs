@@ -211,3 +211,18 @@ pub const LAMELLA_OUTLINE: [[f64; 2]; 8] = [
     [264.0, 545.0],
     [268.0, 470.0],
 ];
+
+/// A session object named `name` whose hint is the box `roi`
+/// (`[x, y, width, height]`), tracked with the default parameters.
+pub fn boxed_object(name: &str, roi: [i64; 4]) -> semdepth::session::SessionObject {
+    semdepth::session::SessionObject::new(
+        name,
+        semdepth::tracker::TrackerParams {
+            init: semdepth::init::InitParams {
+                roi: Some(roi),
+                ..Default::default()
+            },
+            ..Default::default()
+        },
+    )
+}
