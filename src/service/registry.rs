@@ -128,48 +128,39 @@ impl Registry {
     }
 
     /// Creates a session of `core` under the session limit and writes it to
-    /// storage before it is listed: its id and view, or 409
+    /// storage before it is listed: its view, or 409
     /// `session_limit_reached`, or the storage error (nothing is kept).
-    pub async fn create(&self, core: SessionCore) -> Result<(String, SessionView), ApiError> {
+    pub async fn create(&self, core: SessionCore) -> Result<SessionView, ApiError> {
         let slot = self.reserve()?;
         let id = new_id("s");
         let view = core.view(&id, self.default_retention);
         self.storage.upsert_session(core.record(&id)).await?;
-        slot.fill(Arc::new(Session::new(id.clone(), core)))?;
-        Ok((id, view))
+        slot.fill(Arc::new(Session::new(id, core)))?;
+        Ok(view)
     }
 
     /// Applies `change` to the session's core (locked and caught up with
     /// storage; 404 when unknown or deleted), stamps it updated and writes
     /// it through to storage. When `change` fails nothing is written, and
     /// when it or storage fails the core is put back as it was: the session
-    /// in memory is always the one stored. Returns `change`'s value and the
-    /// session's view.
-    pub async fn update<T>(
+    /// in memory is always the one stored. Returns the session's view.
+    pub async fn update(
         &self,
         id: &str,
-        change: impl FnOnce(&mut SessionCore) -> Result<T, ApiError>,
-    ) -> Result<(T, SessionView), ApiError> {
+        change: impl FnOnce(&mut SessionCore) -> Result<(), ApiError>,
+    ) -> Result<SessionView, ApiError> {
         let mut core = self.core(id).await?;
         let before = core.record(id);
-        let put_back = |core: &mut SessionCore| {
-            let (latest, meta_watch) = (core.latest_disparity_px, std::mem::take(&mut core.meta_watch));
-            *core = SessionCore::restore(before, latest);
-            core.meta_watch = meta_watch;
-        };
-        let value = match change(&mut core) {
-            Ok(value) => value,
-            Err(e) => {
-                put_back(&mut core);
-                return Err(e);
-            }
-        };
+        if let Err(e) = change(&mut core) {
+            core.reload(before);
+            return Err(e);
+        }
         core.updated_at = now_rfc3339();
         if let Err(e) = self.storage.upsert_session(core.record(id)).await {
-            put_back(&mut core);
+            core.reload(before);
             return Err(e.into());
         }
-        Ok((value, core.view(id, self.default_retention)))
+        Ok(core.view(id, self.default_retention))
     }
 
     /// Deletes the session with this id and its results: waits for a pair

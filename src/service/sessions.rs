@@ -102,7 +102,7 @@ pub async fn create_session(
         objects,
         now_rfc3339(),
     );
-    let (_, view) = state.sessions.create(core).await?;
+    let view = state.sessions.create(core).await?;
     Ok((StatusCode::CREATED, ApiJson(view)))
 }
 
@@ -193,7 +193,7 @@ pub async fn patch_session(
     };
     let tracker_init = body.tracker.as_ref().and_then(|t| t.get("init")).cloned();
     let hints = names_hints(&body.init) || names_hints(&tracker_init);
-    let (_, view) = state
+    let view = state
         .sessions
         .update(&id, |core| {
             if core.session.objects().len() > 1 && hints {
@@ -373,7 +373,7 @@ pub async fn reset_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let (_, view) = state
+    let view = state
         .sessions
         .update(&id, |core| {
             core.restart(None);
@@ -413,7 +413,7 @@ pub async fn reinit_session(
     ApiPath(id): ApiPath<String>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let (_, view) = state
+    let view = state
         .sessions
         .update(&id, |core| {
             if core.session.objects().len() > 1 {
@@ -741,7 +741,7 @@ pub async fn add_object(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<ObjectCreate>,
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
-    let (_, view) = state
+    let view = state
         .sessions
         .update(&id, |core| {
             let params = checked(body.params(core.primary().params()))?;
@@ -775,7 +775,7 @@ pub async fn delete_object(
     State(state): State<AppState>,
     ApiPath((id, name)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let (_, view) = state
+    let view = state
         .sessions
         .update(&id, |core| Ok(core.session.remove(&name).map(drop)?))
         .await?;
@@ -812,7 +812,7 @@ pub async fn reinit_object(
     ApiPath((id, name)): ApiPath<(String, String)>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let (_, view) = state
+    let view = state
         .sessions
         .update(&id, |core| {
             let object = core.session.object_mut(&name)?;

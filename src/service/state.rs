@@ -289,10 +289,7 @@ impl Session {
         if self.behind.swap(false, Ordering::AcqRel) && !core.deleted {
             match storage.reload_session(&self.id).await {
                 Ok(Some(record)) => {
-                    let latest = core.latest_disparity_px;
-                    let meta_watch = std::mem::take(&mut core.meta_watch);
-                    *core = SessionCore::restore(record, latest);
-                    core.meta_watch = meta_watch;
+                    core.reload(record);
                     tracing::warn!(session = %self.id, frames = core.session.frames(), "session reloaded from storage after a failed write");
                 }
                 Ok(None) => {}
@@ -374,6 +371,14 @@ impl SessionCore {
             deleted: false,
             meta_watch: MetaWatch::default(),
         }
+    }
+
+    /// This core as `record` stores it, keeping what is not stored (the
+    /// latest disparity and the metadata watch).
+    pub fn reload(&mut self, record: SessionRecord) {
+        let meta_watch = std::mem::take(&mut self.meta_watch);
+        *self = SessionCore::restore(record, self.latest_disparity_px);
+        self.meta_watch = meta_watch;
     }
 
     /// Forgets the object so that the next pair initialises again, with
