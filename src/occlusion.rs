@@ -25,6 +25,7 @@ use crate::energy::{data_term, michelson};
 use crate::fit::{place, Pose, RigidTemplate};
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::region::{PrefixSums, RegionSum};
+use crate::uncertainty::median_and_spread;
 
 /// Parameters of the occlusion handling.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
@@ -319,6 +320,17 @@ pub struct SectorLook {
     pub inner: Vec<f64>,
 }
 
+/// A view's reference look of the sectors as stored (borrowed): per sector
+/// the contrast and the inner band mean (0 where not seen; `inner` empty
+/// in states stored before it was kept).
+#[derive(Clone, Copy, Debug)]
+pub struct SectorReference<'a> {
+    /// Contrast per sector.
+    pub contrasts: &'a [f64],
+    /// Inner band mean per sector.
+    pub inner: &'a [f64],
+}
+
 /// `marks` with each marked run grown by one sector on each side (the
 /// sectors wrap round).
 pub fn grown(marks: &[bool]) -> Vec<bool> {
@@ -378,9 +390,9 @@ impl SectorJudgement {
 /// image border) is neither judged nor marked.
 pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_ratio: f64) -> SectorJudgement {
     judge_look(
-        &SectorLook {
-            contrasts: reference.to_vec(),
-            inner: Vec::new(),
+        SectorReference {
+            contrasts: reference,
+            inner: &[],
         },
         &SectorLook {
             contrasts: current.to_vec(),
@@ -403,16 +415,16 @@ pub const MAX_INNER_HOLDS_TOLERANCE: f64 = 0.2;
 /// [`judge_sectors`] that also tells a hidden sector from a new backdrop by
 /// the inner band means (when both looks have them): a changed sector
 /// whose inner band holds the object's grey (see [`INNER_HOLDS_TOLERANCE`])
-/// is backdrop. Such
-/// sectors do not set the median and lowest ratios (the typical sector of
-/// a tool over a particle lost its contrast, yet the tool is in view).
+/// is backdrop. Such sectors do not set the median and lowest ratios (the
+/// typical sector of a tool over a particle lost its contrast, yet the tool
+/// is in view).
 pub fn judge_look(
-    reference: &SectorLook,
+    reference: SectorReference,
     current: &SectorLook,
     min_ratio: f64,
     max_ratio: f64,
 ) -> SectorJudgement {
-    let (reference_inner, reference) = (&reference.inner, &reference.contrasts[..]);
+    let (reference_inner, reference) = (reference.inner, reference.contrasts);
     let current_inner = &current.inner;
     let current = &current.contrasts[..];
     let mut magnitudes: Vec<f64> = reference
@@ -435,31 +447,28 @@ pub fn judge_look(
         .collect();
     // Whose inner band holds the object's grey (after the median change
     // of all strong sectors' inner bands, e.g. charging).
-    let holds: Vec<bool> =
-        if reference_inner.len() == reference.len() && current_inner.len() == reference.len() {
-            let inner_ratio = |k: usize| {
-                let (r, c) = (reference_inner[k], current_inner[k]);
-                (strong[k] && r > 0.0 && c.is_finite()).then(|| c / r)
-            };
-            let mut inner_ratios: Vec<f64> = (0..reference.len()).filter_map(inner_ratio).collect();
-            inner_ratios.sort_by(|a, b| a.total_cmp(b));
-            match inner_ratios.get(inner_ratios.len() / 2) {
-                Some(&g) if g > 0.0 => {
-                    // The tolerance grows with the sectors' own scatter
-                    // (three robust standard deviations) in noisy frames.
-                    let mut deviations: Vec<f64> = inner_ratios.iter().map(|r| (r / g - 1.0).abs()).collect();
-                    deviations.sort_by(|a, b| a.total_cmp(b));
-                    let scatter = 1.4826 * deviations[deviations.len() / 2];
-                    let tolerance = (3.0 * scatter).clamp(INNER_HOLDS_TOLERANCE, MAX_INNER_HOLDS_TOLERANCE);
-                    (0..reference.len())
-                        .map(|k| inner_ratio(k).is_some_and(|r| (r / g - 1.0).abs() <= tolerance))
-                        .collect()
-                }
-                _ => vec![false; reference.len()],
-            }
-        } else {
-            vec![false; reference.len()]
+    let holds: Vec<bool> = if reference_inner.len() == reference.len()
+        && current_inner.len() == reference.len()
+    {
+        let inner_ratio = |k: usize| {
+            let (r, c) = (reference_inner[k], current_inner[k]);
+            (strong[k] && r > 0.0 && c.is_finite()).then(|| c / r)
         };
+        let inner_ratios: Vec<f64> = (0..reference.len()).filter_map(inner_ratio).collect();
+        match median_and_spread(&inner_ratios) {
+            Some((g, spread)) if g > 0.0 => {
+                // The tolerance grows with the sectors' own scatter
+                // (three robust standard deviations) in noisy frames.
+                let tolerance = (3.0 * spread / g).clamp(INNER_HOLDS_TOLERANCE, MAX_INNER_HOLDS_TOLERANCE);
+                (0..reference.len())
+                    .map(|k| inner_ratio(k).is_some_and(|r| (r / g - 1.0).abs() <= tolerance))
+                    .collect()
+            }
+            _ => vec![false; reference.len()],
+        }
+    } else {
+        vec![false; reference.len()]
+    };
     // Backdrop candidates (inner band held, contrast halved or doubled
     // before normalising) do not set the median. Partly changed sectors
     // count as candidates too, so that most of a tool's outline over a
@@ -546,7 +555,15 @@ mod tests {
             current.contrasts[k] = -0.3;
             current.inner[k] = 40.0;
         }
-        let judged = judge_look(&reference, &current, 0.35, 2.0);
+        let judged = judge_look(
+            SectorReference {
+                contrasts: &reference.contrasts,
+                inner: &reference.inner,
+            },
+            &current,
+            0.35,
+            2.0,
+        );
         let marked = |m: &[bool]| (0..24).filter(|&k| m[k]).collect::<Vec<usize>>();
         // Every changed sector is left out of the fit (runs grown by one)...
         let mut out: Vec<usize> = (0..15).chain(17..22).collect();

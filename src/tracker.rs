@@ -21,7 +21,7 @@ use crate::geometry::{dist, polygon_iou, HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
-use crate::occlusion::{grown, judge_look, OcclusionParams, SectorLook, SectorTemplate};
+use crate::occlusion::{grown, judge_look, OcclusionParams, SectorReference, SectorTemplate};
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
 use crate::uncertainty;
@@ -1021,7 +1021,7 @@ impl StereoTracker {
         let mut left_fit = self.fit_view(
             left,
             left_templates,
-            &state.left_look(),
+            state.left_look(),
             left_predicted,
             left_search,
             left_bands,
@@ -1032,7 +1032,7 @@ impl StereoTracker {
             left_fit = self.fit_view(
                 left,
                 left_templates,
-                &state.left_look(),
+                state.left_look(),
                 state.left,
                 left_search,
                 left_bands,
@@ -1067,7 +1067,7 @@ impl StereoTracker {
             let fit = self.fit_view(
                 right,
                 right_templates,
-                &state.right_look(),
+                state.right_look(),
                 right_predicted,
                 right_search,
                 right_bands,
@@ -1108,7 +1108,7 @@ impl StereoTracker {
             let again = self.fit_view(
                 left,
                 left_templates,
-                &state.left_look(),
+                state.left_look(),
                 from_right,
                 ViewSearch {
                     coarse_step_px: 1.0,
@@ -1249,7 +1249,7 @@ impl StereoTracker {
         &self,
         frame: &GrayFrame,
         templates: &(RigidTemplate, SectorTemplate),
-        reference: &SectorLook,
+        reference: SectorReference,
         predicted: Pose,
         search: ViewSearch,
         bands: uncertainty::NoiseBands,
@@ -1265,7 +1265,7 @@ impl StereoTracker {
         &self,
         frame: &'f GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
-        reference: &SectorLook,
+        reference: SectorReference,
         predicted: Pose,
         ViewSearch {
             coarse_step_px,
@@ -1470,13 +1470,18 @@ impl StereoTracker {
             along: template.search_axis(),
             only: line,
         };
-        for _ in 0..2 {
-            let masked = |p: Pose| sectors.masked_energy(&sums, p, &mask, m_ref);
-            let (found, e, _) = search.run(pose, masked);
-            pose = match line {
+        // The band energy over the sectors not in `marks`, minimised from
+        // `start`.
+        let masked_fit = |start: Pose, marks: &[bool], search: &CompassSearch| {
+            let masked = |p: Pose| sectors.masked_energy(&sums, p, marks, m_ref);
+            let (found, e, _) = search.run(start, masked);
+            match line {
                 Some(u) => line_polish(found, e, u, masked).0,
                 None => newton_polish(found, e, template.radius, search.rotate, masked).0,
-            };
+            }
+        };
+        for _ in 0..2 {
+            pose = masked_fit(pose, &mask, &search);
             let judged = judge(&sums, pose);
             if judged.occluded == mask || widespread(&judged.occluded, &judged.hidden) {
                 break;
@@ -1491,18 +1496,12 @@ impl StereoTracker {
         // measures it.
         let wider = grown(&mask);
         let mask_shift_px = if wider != mask && fraction(&wider) <= MAX_MASKED_FRACTION {
-            let masked = |p: Pose| sectors.masked_energy(&sums, p, &wider, m_ref);
             let near = CompassSearch {
                 first_step: 1.0,
                 ..search
             };
-            let (found, e, _) = near.run(pose, masked);
-            let moved = match line {
-                Some(u) => line_polish(found, e, u, masked).0,
-                None => newton_polish(found, e, template.radius, search.rotate, masked).0,
-            };
-            let t = self.params.tilt_axis_deg.to_radians();
-            let d = (moved.x - pose.x) * t.sin() - (moved.y - pose.y) * t.cos();
+            let moved = masked_fit(pose, &wider, &near);
+            let d = axis_component(self.params.tilt_axis_deg, [moved.x - pose.x, moved.y - pose.y]);
             if d.is_finite() {
                 d.abs()
             } else {
@@ -1676,7 +1675,7 @@ impl StereoTracker {
         &self,
         sums: &PrefixSums,
         sectors: &SectorTemplate,
-        reference: &SectorLook,
+        reference: SectorReference,
         pose: Pose,
     ) -> bool {
         let occlusion = &self.params.occlusion;
@@ -1705,7 +1704,7 @@ impl StereoTracker {
         &self,
         frame: &'f GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
-        reference: &SectorLook,
+        reference: SectorReference,
         theta: f64,
     ) -> Option<(ImageFit, PrefixSums<'f>)> {
         let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
@@ -1766,12 +1765,12 @@ impl StereoTracker {
     ) -> PairResult {
         let (template, sectors) = templates;
         let found = self
-            .search_template(left, templates, &state.left_look(), state.left.theta)
+            .search_template(left, templates, state.left_look(), state.left.theta)
             .and_then(|(left_fit, left_sums)| {
                 let pose = self.search_right(right, template, left_fit.pose)?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
                 let right_fit = ImageFit::full(pose, template.energy_at(&sums, pose, &self.params.energy));
-                self.shows_object(&sums, sectors, &state.right_look(), pose)
+                self.shows_object(&sums, sectors, state.right_look(), pose)
                     .then_some(((left_fit, left_sums), (right_fit, sums)))
             });
         let Some(((mut left_fit, left_sums), (mut right_fit, right_sums))) = found else {
@@ -2104,18 +2103,18 @@ struct ImageFit {
 
 impl TrackerState {
     /// The left view's reference look of the sectors.
-    fn left_look(&self) -> SectorLook {
-        SectorLook {
-            contrasts: self.left_sector_contrasts.clone(),
-            inner: self.left_sector_inner.clone(),
+    fn left_look(&self) -> SectorReference<'_> {
+        SectorReference {
+            contrasts: &self.left_sector_contrasts,
+            inner: &self.left_sector_inner,
         }
     }
 
     /// The right view's reference look of the sectors.
-    fn right_look(&self) -> SectorLook {
-        SectorLook {
-            contrasts: self.right_sector_contrasts.clone(),
-            inner: self.right_sector_inner.clone(),
+    fn right_look(&self) -> SectorReference<'_> {
+        SectorReference {
+            contrasts: &self.right_sector_contrasts,
+            inner: &self.right_sector_inner,
         }
     }
 }

@@ -122,11 +122,7 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
     // band (texture that varies slowly along the outline moves the fit as
     // a whole: an AR(1) sum's variance grows by (1 + rho) / (1 - rho)).
     let spread = |v: &[f64], correlated: bool| {
-        let mut sorted = v.to_vec();
-        let mid = sorted.len() / 2;
-        let median = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let mut dev: Vec<f64> = v.iter().map(|x| (x - median).abs()).collect();
-        let mad = 1.4826 * *dev.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let (median, mad) = median_and_spread(v).expect("8 samples or more");
         // Deviations beyond 3 MAD (an occluder, a rim) are clipped.
         let c: Vec<f64> = v
             .iter()
@@ -145,6 +141,23 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
     // substrate's texture outside does.
     (inside.len() >= 8 && outside.len() >= 8)
         .then(|| (0.5 * (spread(&inside, false) + spread(&outside, true))).sqrt())
+}
+
+/// The median of `v` (the upper one of an even count) and 1.4826 times the
+/// median absolute deviation from it: a centre and a standard deviation
+/// that a minority of outliers does not move. `None` for an empty `v`.
+pub fn median_and_spread(v: &[f64]) -> Option<(f64, f64)> {
+    if v.is_empty() {
+        return None;
+    }
+    let mid = v.len() / 2;
+    let mut sorted = v.to_vec();
+    let median = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let mut dev: Vec<f64> = v.iter().map(|x| (x - median).abs()).collect();
+    Some((
+        median,
+        1.4826 * *dev.select_nth_unstable_by(mid, f64::total_cmp).1,
+    ))
 }
 
 /// `S`: the length of the `arcs` weighted by `(n . u)^2`, pixels; for an
