@@ -44,6 +44,11 @@ pub const STEP_PX: f64 = 0.5;
 /// band negative).
 const BAND_PX: [f64; 2] = [1.5, 2.5];
 
+/// How much farther out than the outer band the correlation of the
+/// substrate's texture is measured, pixels: beyond an edge's blur and
+/// rim, whose shape varies slowly along the outline too.
+const FAR_PX: f64 = 4.0;
+
 /// Unit normals of the open polyline `arc`, pointing to the side given by
 /// `outward` (+1 or -1: the sign of the closed outline's signed area).
 fn normals(arc: &[Point], outward: f64) -> Vec<Point> {
@@ -103,8 +108,10 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
         -BAND_PX[0],
         BAND_PX[0] + outer_offset_px,
         BAND_PX[1] + outer_offset_px,
+        BAND_PX[0] + FAR_PX + outer_offset_px,
+        BAND_PX[1] + FAR_PX + outer_offset_px,
     ];
-    let mut runs: [Vec<f64>; 4] = Default::default();
+    let mut runs: [Vec<f64>; 6] = Default::default();
     for arc in arcs {
         for (p, n) in arc.iter().zip(normals(arc, outward)) {
             for (run, d) in runs.iter_mut().zip(offsets) {
@@ -116,31 +123,95 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
             }
         }
     }
-    let [i0, i1, o0, o1] = runs;
-    let (inside, outside) = ([i0, i1].concat(), [o0, o1].concat());
-    // Robust spread, and the correlation of neighbouring samples along the
-    // band (texture that varies slowly along the outline moves the fit as
-    // a whole: an AR(1) sum's variance grows by (1 + rho) / (1 - rho)).
-    let spread = |v: &[f64], correlated: bool| {
-        let (median, mad) = median_and_spread(v).expect("8 samples or more");
-        // Deviations beyond 3 MAD (an occluder, a rim) are clipped.
-        let c: Vec<f64> = v
-            .iter()
-            .map(|x| (x - median).clamp(-3.0 * mad, 3.0 * mad))
-            .collect();
-        let var: f64 = c.iter().map(|x| x * x).sum::<f64>();
-        let lag: f64 = c.windows(2).map(|w| w[0] * w[1]).sum::<f64>();
-        let rho = if var > 0.0 && correlated {
-            (lag / var).clamp(0.0, 0.9)
-        } else {
-            0.0
-        };
-        mad * mad * (1.0 + rho) / (1.0 - rho)
+    let spacing = mean_spacing(arcs);
+    let [i0, i1, o0, o1, f0, f1] = runs;
+    let inside = [i0, i1].concat();
+    (inside.len() >= 8 && o0.len() + o1.len() >= 8).then(|| {
+        // Texture inside moves with the object and does not move the fit;
+        // the substrate's texture outside does, as a whole where it varies
+        // slowly along the outline.
+        let inner = median_and_spread(&inside).expect("8 samples or more").1;
+        let outer = median_and_spread(&[o0, o1].concat())
+            .expect("8 samples or more")
+            .1;
+        let factor = correlation_factor(&[&f0, &f1], spacing);
+        (0.5 * (inner * inner + outer * outer * factor)).sqrt()
+    })
+}
+
+/// Mean distance between consecutive points of the `arcs`, pixels (1 when
+/// they have no length).
+fn mean_spacing(arcs: &[Vec<Point>]) -> f64 {
+    let (length, steps) = arcs
+        .iter()
+        .flat_map(|arc| arc.windows(2))
+        .fold((0.0, 0usize), |(l, n), w| {
+            (l + (w[1][0] - w[0][0]).hypot(w[1][1] - w[0][1]), n + 1)
+        });
+    if steps > 0 && length > 0.0 {
+        length / steps as f64
+    } else {
+        1.0
+    }
+}
+
+/// Largest factor [`correlation_factor`] gives: texture correlated over
+/// more than this many pixels of outline is a shape, not noise.
+const MAX_CORRELATION_PX: f64 = 40.0;
+
+/// By how much the correlation of the samples of `runs` (each in order
+/// along the outline, `spacing` pixels apart) multiplies the variance of
+/// an integral along the outline, per pixel of length: `spacing * tau - (spacing - 1)` for spacings of a
+/// pixel or more, `tau = 1 + 2 sum rho_k` the integrated autocorrelation
+/// of the samples, summed over lags up to the first `k >= 5 tau` (Sokal's
+/// window) if neighbours are correlated beyond the noise of the estimate
+/// (`2 / sqrt(n)`; otherwise `tau = 1`), within 1..=[`MAX_CORRELATION_PX`]. Deviations beyond 3 spreads (an
+/// occluder, a rim) are clipped.
+fn correlation_factor(runs: &[&[f64]], spacing: f64) -> f64 {
+    let all: Vec<f64> = runs.concat();
+    let Some((median, mad)) = median_and_spread(&all) else {
+        return 1.0;
     };
-    // Texture inside moves with the object and does not move the fit; the
-    // substrate's texture outside does.
-    (inside.len() >= 8 && outside.len() >= 8)
-        .then(|| (0.5 * (spread(&inside, false) + spread(&outside, true))).sqrt())
+    let clipped: Vec<Vec<f64>> = runs
+        .iter()
+        .map(|r| {
+            r.iter()
+                .map(|x| (x - median).clamp(-3.0 * mad, 3.0 * mad))
+                .collect()
+        })
+        .collect();
+    let var: f64 = clipped.iter().flatten().map(|x| x * x).sum();
+    if var <= 0.0 {
+        return 1.0;
+    }
+    let total: usize = clipped.iter().map(Vec::len).sum();
+    // The runs lie side by side, so they are not independent samples: a
+    // correlation below 2 / sqrt(one run's length) is noise.
+    let significant = 2.0 / (total as f64 / runs.len() as f64).sqrt();
+    let longest = clipped.iter().map(Vec::len).max().unwrap_or(0);
+    let mut tau = 1.0;
+    for k in 1..longest / 2 {
+        let lag: f64 = clipped
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .zip(&r[k.min(r.len())..])
+                    .map(|(a, b)| a * b)
+                    .sum::<f64>()
+            })
+            .sum();
+        let pairs: usize = clipped.iter().map(|r| r.len().saturating_sub(k)).sum();
+        let rho = lag / var * total as f64 / pairs.max(1) as f64;
+        if k == 1 && rho < significant {
+            break;
+        }
+        tau += 2.0 * rho;
+        if k as f64 >= 5.0 * tau {
+            break;
+        }
+    }
+    let step = spacing.max(1.0);
+    (step * tau - (step - 1.0)).clamp(1.0, MAX_CORRELATION_PX)
 }
 
 /// The median of `v` (the upper one of an even count) and 1.4826 times the
@@ -226,6 +297,26 @@ mod tests {
             })
             .collect();
         GrayFrame::new(w, h, 8, data).unwrap()
+    }
+
+    /// White noise along the outline has no correlation to speak of; noise
+    /// smoothed along it over about 10 samples multiplies the variance of
+    /// an integral by about its correlation length.
+    #[test]
+    fn correlated_texture_counts_more_than_white_noise() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let normal = Normal::new(0.0, 10.0).unwrap();
+        let white: Vec<f64> = (0..400).map(|_| normal.sample(&mut rng)).collect();
+        let factor = correlation_factor(&[&white], 1.0);
+        assert!((1.0..1.3).contains(&factor), "white noise: factor {factor:.2}");
+        // A moving average over 11 samples: the variance of a long sum
+        // grows 11-fold.
+        let smooth: Vec<f64> = white.windows(11).map(|w| w.iter().sum::<f64>() / 11.0).collect();
+        let factor = correlation_factor(&[&smooth], 1.0);
+        assert!(
+            (5.0..=22.0).contains(&factor),
+            "smoothed noise: factor {factor:.2}"
+        );
     }
 
     /// Over 40 noisy discs, the noise estimate is right on average and the
