@@ -249,6 +249,13 @@ pub fn fit_free_within(
             pts = polygon.resampled(vertices(&polygon)).points;
         }
     }
+    let pts = match cut_spurs(&pts, SPUR_NECK * params.spacing_px, SPUR_PATH * params.spacing_px) {
+        Some(cut) => {
+            let polygon = Polygon::new(cut);
+            polygon.resampled(vertices(&polygon)).points
+        }
+        None => pts,
+    };
     let terms = evaluate(sums, &pts, energy, margin);
     FreeFitOutcome {
         polygon: Polygon::new(pts),
@@ -256,6 +263,86 @@ pub fn fit_free_within(
         sweeps,
         converged,
     }
+}
+
+/// Widest neck of a spur [`cut_spurs`] removes, in vertex spacings.
+const SPUR_NECK: f64 = 0.75;
+
+/// Longest outline around a spur [`cut_spurs`] removes, in vertex spacings.
+const SPUR_PATH: f64 = 8.0;
+
+/// The outline without its spurs and notches: runs of vertices that leave
+/// the outline through a neck narrower than `neck` px (the distance between
+/// the edges leaving and re-entering) and come back within `max_path` px of
+/// outline, reaching more than `neck` from the cut, while the outline on
+/// either side runs on in about the same direction (within 60 degrees; at
+/// a tool's point or a rod's end it turns back, and is kept). The free fit
+/// grows such spikes into noise or a rim; they carry little area but make
+/// a disc's rotation look observable. `None` when there is nothing to cut.
+fn cut_spurs(pts: &[Point], neck: f64, max_path: f64) -> Option<Vec<Point>> {
+    let n = pts.len();
+    if n < 8 {
+        return None;
+    }
+    let p = |i: usize| pts[i % n];
+    let unit = |a: Point, b: Point| {
+        let l = dist(a, b).max(1e-12);
+        [(b[0] - a[0]) / l, (b[1] - a[1]) / l]
+    };
+    let mut cut = vec![false; n];
+    for i in 0..n {
+        if cut[i] {
+            continue;
+        }
+        // The farthest vertex j along the outline that closes a neck at i.
+        let (mut path, mut best) = (0.0, None);
+        for k in 3..n / 2 {
+            path += dist(p(i + k - 1), p(i + k));
+            if path > max_path {
+                break;
+            }
+            let (j, d_in, d_out) = (i + k, unit(p(i + n - 1), p(i)), unit(p(i + k), p(i + k + 1)));
+            let width = segment_distance([p(i), p(i + 1)], [p(j - 1), p(j)]);
+            let reach = (i + 1..j)
+                .map(|m| point_segment_distance(p(m), p(i), p(j)))
+                .fold(0.0, f64::max);
+            if width < neck && reach > neck && d_in[0] * d_out[0] + d_in[1] * d_out[1] > 0.5 {
+                best = Some(k);
+            }
+        }
+        if let Some(k) = best {
+            for m in 1..k {
+                cut[(i + m) % n] = true;
+            }
+        }
+    }
+    let kept: Vec<Point> = pts
+        .iter()
+        .zip(&cut)
+        .filter(|(_, c)| !**c)
+        .map(|(p, _)| *p)
+        .collect();
+    (kept.len() < n && kept.len() >= 3).then_some(kept)
+}
+
+/// Distance from `q` to the segment from `a` to `b`.
+fn point_segment_distance(q: Point, a: Point, b: Point) -> f64 {
+    let (e, w) = ([b[0] - a[0], b[1] - a[1]], [q[0] - a[0], q[1] - a[1]]);
+    let l2 = e[0] * e[0] + e[1] * e[1];
+    let t = if l2 > 0.0 {
+        ((w[0] * e[0] + w[1] * e[1]) / l2).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    dist(q, [a[0] + t * e[0], a[1] + t * e[1]])
+}
+
+/// Distance between two segments that do not cross.
+fn segment_distance(s: [Point; 2], t: [Point; 2]) -> f64 {
+    point_segment_distance(s[0], t[0], t[1])
+        .min(point_segment_distance(s[1], t[0], t[1]))
+        .min(point_segment_distance(t[0], s[0], s[1]))
+        .min(point_segment_distance(t[1], s[0], s[1]))
 }
 
 /// Position and rotation of a rigid contour: the template (vertices relative
@@ -1013,6 +1100,45 @@ mod tests {
     use crate::imageio::GrayFrame;
     use crate::region::PixelRect;
     use crate::synth::{Preset, Scene, Shape, SynthConfig};
+
+    /// A spike and a notch 3 px wide on a circle are cut; a tool's point
+    /// and a thin rod's ends, where the outline turns back, are kept.
+    #[test]
+    fn spurs_are_cut_and_points_kept() {
+        let at = |angle: f64, r: f64| [r * angle.cos(), r * angle.sin()];
+        let circle = Polygon::circle([0.0, 0.0], 60.0, 64).points;
+        let mut points = Vec::new();
+        for (k, p) in circle.iter().enumerate() {
+            points.push(*p);
+            let a = k as f64 * std::f64::consts::TAU / 64.0 + 0.04;
+            if k == 10 || k == 40 {
+                // 16 px out, or in, through a 3-px neck.
+                let r = if k == 10 { 76.0 } else { 44.0 };
+                points.extend([at(a, 60.0), at(a + 0.025, r), at(a + 0.05, 60.0)]);
+            }
+        }
+        let spiky = Polygon::new(points);
+        let spiky = spiky.resampled((spiky.length() / 6.0).round() as usize).points;
+        let cut = cut_spurs(&spiky, 4.5, 48.0).expect("a spike and a notch");
+        let radius = |p: &Point| p[0].hypot(p[1]);
+        assert!(
+            cut.iter().all(|p| (radius(p) - 60.0).abs() < 1.0),
+            "a vertex left {:.1} px off the circle",
+            cut.iter().map(|p| (radius(p) - 60.0).abs()).fold(0.0, f64::max)
+        );
+        assert!(
+            cut_spurs(&circle, 4.5, 48.0).is_none(),
+            "nothing to cut on a circle"
+        );
+        // A tool tip: a 10-degree point 120 px long, a vertex every 6 px.
+        let tip = Polygon::new(vec![[0.0, 0.0], [120.0, -10.5], [120.0, 10.5]]);
+        let tip = tip.resampled((tip.length() / 6.0).round() as usize).points;
+        assert!(cut_spurs(&tip, 4.5, 48.0).is_none(), "the point is kept");
+        // A rod 4 px wide (both sides within the neck) and 200 px long.
+        let rod = Polygon::new(vec![[0.0, 0.0], [200.0, 0.0], [200.0, 4.0], [0.0, 4.0]]);
+        let rod = rod.resampled((rod.length() / 6.0).round() as usize).points;
+        assert!(cut_spurs(&rod, 4.5, 48.0).is_none(), "the ends are kept");
+    }
 
     #[test]
     fn free_fit_pulls_a_rough_outline_onto_the_object() {
