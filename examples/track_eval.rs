@@ -9,7 +9,10 @@
 //! speed (px per pair) in the seed's drift direction, `ROT=0.005` the
 //! rotation per pair (rad). "Confident wrong":
 //! tracked pairs off by more than 1 px in disparity or 3 px in the left
-//! centroid, after removing the sequence's median offsets.
+//! centroid, after removing the sequence's median offsets. For an object
+//! that crosses the image border, the left centroid is the point the
+//! tracked contour carries where the object's centroid was in the first
+//! pair.
 use semdepth::synth::{deviations_from_medians, frames, Preset, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
@@ -80,6 +83,7 @@ fn main() {
                 let mut tracker = StereoTracker::new(params);
                 let mut errs = Vec::new();
                 let mut cents: Vec<[f64; 2]> = Vec::new();
+                let mut anchor: Option<([f64; 2], [f64; 2], f64)> = None;
                 for pair in pairs {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
                     if r.status == Status::Lost {
@@ -106,20 +110,50 @@ fn main() {
                             r.frame,
                             r.disparity_px.unwrap()[0],
                             pair.truth.disparity_px[0],
-                            l.centroid[0] - pair.truth.left.centroid[0],
-                            l.centroid[1] - pair.truth.left.centroid[1],
-                            rr.centroid[0] - pair.truth.right.centroid[0],
-                            rr.centroid[1] - pair.truth.right.centroid[1],
+                            l.centroid[0] - pair.truth.left.visible_centroid[0],
+                            l.centroid[1] - pair.truth.left.visible_centroid[1],
+                            rr.centroid[0] - pair.truth.right.visible_centroid[0],
+                            rr.centroid[1] - pair.truth.right.visible_centroid[1],
                             l.occluded_fraction,
                             rr.occluded_fraction,
                             l.energy,
                             rr.energy
                         );
                     }
-                    let c = r.left.as_ref().unwrap().centroid;
-                    let tc = pair.truth.left.centroid;
+                    // For an object crossing the border, the left
+                    // centroid is judged by where the tracked contour puts
+                    // the point that was the object's centroid in the
+                    // first tracked pair (moved with the contour's own
+                    // translation and rotation), against that centroid's
+                    // truth: the tracked part's centroid is not the
+                    // object's, and a disc cut by the border may turn
+                    // about its centre unseen.
+                    let left = r.left.as_ref().unwrap();
+                    let truth = &pair.truth.left;
+                    let (p0, c0, a0) = *anchor.get_or_insert(if truth.border.is_empty() {
+                        (truth.centroid, truth.centroid, left.angle_rad)
+                    } else {
+                        (left.centroid, truth.centroid, left.angle_rad)
+                    });
+                    let turn = (left.angle_rad - a0 + std::f64::consts::FRAC_PI_2)
+                        .rem_euclid(std::f64::consts::PI)
+                        - std::f64::consts::FRAC_PI_2;
+                    let (sin, cos) = turn.sin_cos();
+                    let (ax, ay) = (c0[0] - p0[0], c0[1] - p0[1]);
+                    let c = [
+                        left.centroid[0] + ax * cos - ay * sin,
+                        left.centroid[1] + ax * sin + ay * cos,
+                    ];
+                    let tc = truth.centroid;
                     sq_c += (c[0] - tc[0]).powi(2) + (c[1] - tc[1]).powi(2);
                     cents.push([c[0] - tc[0], c[1] - tc[1]]);
+                    if std::env::var("FRAMES_OUT").is_ok() {
+                        eprintln!(
+                            "    left centroid error ({:.2}, {:.2})",
+                            c[0] - tc[0],
+                            c[1] - tc[1]
+                        );
+                    }
                     errs.push(d);
                     if let Some(std) = r.disparity_std_px {
                         (sum_std, n_std) = (sum_std + std, n_std + 1);
