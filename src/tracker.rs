@@ -1234,12 +1234,16 @@ impl StereoTracker {
         let s = uncertainty::weighted_length(&arcs, u);
         if fit.occluded.contains(&true) {
             let (a, b) = sectors.visible_bands(sums, pose, &fit.occluded);
+            let means = [a.mean(), b.mean()];
+            let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| sectors.masked_energy(sums, shifted(d), &fit.occluded, m_ref);
-            uncertainty::axis_std(energy, m_ref, [a.mean(), b.mean()], s, sigma)
+            uncertainty::axis_std(energy, m_ref, means, s, sigma)
         } else {
             let terms = template.energy_at(sums, pose, &self.params.energy);
+            let means = [terms.mean_inside, terms.mean_outside];
+            let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| template.energy_at(sums, shifted(d), &self.params.energy).energy;
-            uncertainty::axis_std(energy, m_ref, [terms.mean_inside, terms.mean_outside], s, sigma)
+            uncertainty::axis_std(energy, m_ref, means, s, sigma)
         }
     }
 
@@ -2230,6 +2234,47 @@ fn noise_bands(
             ..unsmoothed
         }
     })
+}
+
+/// What the cuts of a template crossing the image border add to
+/// [`uncertainty::weighted_length`]'s `S` (see [`uncertainty::cut_length`]):
+/// each cut carries a strip of the object's pixels in or out of both the
+/// object's region and the window as the template moves along `u`.
+fn cut_length(template: &RigidTemplate, sums: &PrefixSums, pose: Pose, u: Point, means: [f64; 2]) -> f64 {
+    if template.cuts.is_empty() {
+        return 0.0;
+    }
+    let extent = sums.image_extent();
+    let inside = HalfPlane::sides_of_box(extent)
+        .iter()
+        .fold(place(&template.points, pose), |p, side| side.clip(&p));
+    let region = template
+        .cuts_at(pose)
+        .iter()
+        .fold(inside.clone(), |p, cut| cut.clip(&p));
+    let area = Polygon::new(region.clone()).area();
+    let [x0, y0, x1, y1] = Polygon::new(region).bounds();
+    let m = template.margin;
+    let [ex0, ey0, ex1, ey1] = extent;
+    let window =
+        ((x1 + m).min(ex1) - (x0 - m).max(ex0)).max(0.0) * ((y1 + m).min(ey1) - (y0 - m).max(ey0)).max(0.0);
+    template
+        .cuts
+        .iter()
+        .map(|c| c.moved(pose.theta, [pose.x, pose.y]))
+        .map(|cut| {
+            let area_at = |d: f64| {
+                let moved = HalfPlane {
+                    offset: cut.offset + d,
+                    ..cut
+                };
+                Polygon::new(moved.clip(&inside)).area()
+            };
+            let chord = (area_at(-0.5) - area_at(0.5)).max(0.0);
+            let along = cut.normal[0] * u[0] + cut.normal[1] * u[1];
+            uncertainty::cut_length(chord * along * along, means, area / window.max(area).max(1.0))
+        })
+        .sum()
 }
 
 /// The sign of the template's signed area: +1 when its normals, as

@@ -249,6 +249,25 @@ pub fn weighted_length(arcs: &[Vec<Point>], u: Point) -> f64 {
         .sum()
 }
 
+/// A cut's share of `S`: a template cut by the image border (a tool whose
+/// base lies outside, [`crate::energy::evaluate_cut`]) bounds both the
+/// object's region a and the window by its cut, which moves with it. A
+/// pixel of value `I` it carries out of both changes `D` by
+/// `I ln(m_w / m_a)` plus terms without `I`, where `m_w` is the window's
+/// mean (`inside_share` of it is region a). So a cut of length `l`
+/// weighs `l (n . u)^2 = s_cut` times `(ln(m_w / m_a) / ln(m_a / m_b))^2`
+/// in `S`, for the region means `[m_a, m_b]`.
+pub fn cut_length(s_cut: f64, [m_a, m_b]: [f64; 2], inside_share: f64) -> f64 {
+    let share = inside_share.clamp(0.0, 1.0);
+    let m_w = share * m_a + (1.0 - share) * m_b;
+    let ratio = (m_w / m_a).ln() / (m_a / m_b).ln();
+    if ratio.is_finite() {
+        s_cut * ratio * ratio
+    } else {
+        0.0
+    }
+}
+
 /// The standard error (pixels) of a position whose energy (as the fit
 /// minimised it, `E = const - D / m_ref`) is `energy(t)` at a shift `t` along
 /// the direction of `weighted_length`'s `s`, for region means `means`
