@@ -22,7 +22,10 @@
 //! the energy at +-[`STEP_PX`], times `m_ref`), so blur, anti-aliasing and the
 //! actual contrast are in it. `sigma` is the robust spread of the grey levels
 //! in bands just inside and just outside the outline ([`band_sigma`]), so
-//! texture where the fit looks counts as noise too.
+//! texture where the fit looks counts as noise too; outside, with its
+//! integrated autocorrelation along the outline, since texture that varies
+//! slowly along it moves the fit as a whole. A template cut by the image
+//! border adds the strip its cut carries ([`cut_length`]).
 //!
 //! What this leaves out (the template not matching the outline exactly,
 //! sub-pixel discretisation) is the tracker's floor
@@ -82,8 +85,10 @@ pub struct NoiseBands {
 /// px outside, the outer band moved out by `bands.outer_offset_px` more (a
 /// dark object's rim), sampled at the nearest pixels. Each band's spread is
 /// 1.4826 times the median absolute deviation from its median, so an
-/// occluder or a rim in part of a band does not count. `None` with fewer
-/// than 8 samples of a band in the image.
+/// occluder or a rim in part of a band does not count. The outer band's
+/// variance is multiplied by the correlation factor of two more bands
+/// `FAR_PX` (4 px) farther out. `None` with fewer than 8 samples of a band in
+/// the image.
 ///
 /// On a frame smoothed by a Gaussian of width `s`, the same measure on the
 /// frame before (`bands.raw_noise`, `w`) gives it instead: for white noise
