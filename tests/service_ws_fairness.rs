@@ -6,19 +6,30 @@
 #[path = "common/server.rs"]
 mod server;
 
+use std::sync::Arc;
 use std::time::Instant;
 
 use futures_util::{SinkExt, StreamExt};
 use semdepth::synth::{Preset, Shape};
 use serde_json::json;
 use server::{next_reply, sdp1_raw, synth_pairs, test_config, TestServer};
+use tokio::sync::Barrier;
 use tokio_tungstenite::tungstenite::Message;
 
-/// Streams one sequence as fast as the server takes it and returns when
-/// each reply arrived, checking that the replies are this stream's own, in
-/// order.
-async fn stream_all(url: String, messages: Vec<Vec<u8>>, first_seq: u64) -> Vec<Instant> {
+/// Streams one sequence as fast as the server takes it, once every stream
+/// at `start` has connected, and returns when each reply arrived, checking
+/// that the replies are this stream's own, in order.
+async fn stream_all(
+    url: String,
+    messages: Vec<Vec<u8>>,
+    first_seq: u64,
+    start: Arc<Barrier>,
+) -> Vec<Instant> {
     let (ws, _) = tokio_tungstenite::connect_async(url).await.unwrap();
+    // Both streams start together: a stream that connected first could
+    // otherwise be answered in full before the other one sent anything
+    // (seen in 2 of 9 runs), which says nothing about taking turns.
+    start.wait().await;
     let (mut sink, mut stream) = ws.split();
     let count = messages.len();
     let sender = tokio::spawn(async move {
@@ -71,10 +82,11 @@ async fn saturated_streams_sharing_one_worker_take_turns() {
         let session = server::post_json(&format!("{}/v1/sessions", server.base), slow.clone()).await;
         urls.push(server.stream_url(session["id"].as_str().unwrap(), "all"));
     }
+    let start = Arc::new(Barrier::new(streams.len()));
     let tasks: Vec<_> = streams
         .into_iter()
         .zip(urls)
-        .map(|((first_seq, messages), url)| tokio::spawn(stream_all(url, messages, first_seq)))
+        .map(|((first_seq, messages), url)| tokio::spawn(stream_all(url, messages, first_seq, start.clone())))
         .collect();
     let mut arrivals = Vec::new();
     for t in tasks {
