@@ -86,7 +86,7 @@ pub struct NoiseBands {
 /// dark object's rim), sampled at the nearest pixels. Each band's spread is
 /// 1.4826 times the median absolute deviation from its median, so an
 /// occluder or a rim in part of a band does not count. The outer band's
-/// variance is multiplied by the correlation factor of two more bands
+/// variance is multiplied by the correlation factor of one more band
 /// `FAR_PX` (4 px) farther out. `None` with fewer than 8 samples of a band in
 /// the image.
 ///
@@ -113,10 +113,9 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
         -BAND_PX[0],
         BAND_PX[0] + outer_offset_px,
         BAND_PX[1] + outer_offset_px,
-        BAND_PX[0] + FAR_PX + outer_offset_px,
-        BAND_PX[1] + FAR_PX + outer_offset_px,
+        0.5 * (BAND_PX[0] + BAND_PX[1]) + FAR_PX + outer_offset_px,
     ];
-    let mut runs: [Vec<f64>; 6] = Default::default();
+    let mut runs: [Vec<f64>; 5] = Default::default();
     for arc in arcs {
         for (p, n) in arc.iter().zip(normals(arc, outward)) {
             for (run, d) in runs.iter_mut().zip(offsets) {
@@ -129,7 +128,7 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
         }
     }
     let spacing = mean_spacing(arcs);
-    let [i0, i1, o0, o1, f0, f1] = runs;
+    let [i0, i1, o0, o1, far] = runs;
     let inside = [i0, i1].concat();
     (inside.len() >= 8 && o0.len() + o1.len() >= 8).then(|| {
         // Texture inside moves with the object and does not move the fit;
@@ -139,7 +138,7 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
         let outer = median_and_spread(&[o0, o1].concat())
             .expect("8 samples or more")
             .1;
-        let factor = correlation_factor(&[&f0, &f1], spacing);
+        let factor = correlation_factor(&far, spacing);
         (0.5 * (inner * inner + outer * outer * factor)).sqrt()
     })
 }
@@ -164,49 +163,37 @@ fn mean_spacing(arcs: &[Vec<Point>]) -> f64 {
 /// more than this many pixels of outline is a shape, not noise.
 const MAX_CORRELATION_PX: f64 = 40.0;
 
-/// By how much the correlation of the samples of `runs` (each in order
-/// along the outline, `spacing` pixels apart) multiplies the variance of
-/// an integral along the outline, per pixel of length: `spacing * tau - (spacing - 1)` for spacings of a
-/// pixel or more, `tau = 1 + 2 sum rho_k` the integrated autocorrelation
-/// of the samples, summed over lags up to the first `k >= 5 tau` (Sokal's
-/// window) if neighbours are correlated beyond the noise of the estimate
-/// (`2 / sqrt(n)`; otherwise `tau = 1`), within 1..=[`MAX_CORRELATION_PX`]. Deviations beyond 3 spreads (an
-/// occluder, a rim) are clipped.
-fn correlation_factor(runs: &[&[f64]], spacing: f64) -> f64 {
-    let all: Vec<f64> = runs.concat();
-    let Some((median, mad)) = median_and_spread(&all) else {
+/// By how much the correlation of the samples of `run` (in order along the
+/// outline, `spacing` pixels apart) multiplies the variance of an integral
+/// along the outline, per pixel of length: `spacing * tau - (spacing - 1)`
+/// for spacings of a pixel or more, `tau = 1 + 2 sum rho_k` the integrated
+/// autocorrelation of the samples, summed over lags up to the first
+/// `k >= 5 tau` (Sokal's window) if neighbours are correlated beyond the
+/// noise of the estimate (`2 / sqrt(n)`; otherwise `tau = 1`), within
+/// 1..=[`MAX_CORRELATION_PX`]. Deviations beyond 3 spreads (an occluder, a
+/// rim) are clipped.
+fn correlation_factor(run: &[f64], spacing: f64) -> f64 {
+    let Some((median, mad)) = median_and_spread(run) else {
         return 1.0;
     };
-    let clipped: Vec<Vec<f64>> = runs
+    let clipped: Vec<f64> = run
         .iter()
-        .map(|r| {
-            r.iter()
-                .map(|x| (x - median).clamp(-3.0 * mad, 3.0 * mad))
-                .collect()
-        })
+        .map(|x| (x - median).clamp(-3.0 * mad, 3.0 * mad))
         .collect();
-    let var: f64 = clipped.iter().flatten().map(|x| x * x).sum();
-    if var <= 0.0 {
+    let var: f64 = clipped.iter().map(|x| x * x).sum();
+    let n = clipped.len();
+    if var <= 0.0 || n < 8 {
         return 1.0;
     }
-    let total: usize = clipped.iter().map(Vec::len).sum();
-    // The runs lie side by side, so they are not independent samples: a
-    // correlation below 2 / sqrt(one run's length) is noise.
-    let significant = 2.0 / (total as f64 / runs.len() as f64).sqrt();
-    let longest = clipped.iter().map(Vec::len).max().unwrap_or(0);
+    let significant = 2.0 / (n as f64).sqrt();
+    let step = spacing.max(1.0);
+    // Lags beyond the largest factor's length add nothing the clamp below
+    // keeps.
+    let max_lag = ((MAX_CORRELATION_PX / step).ceil() as usize).min(n / 2);
     let mut tau = 1.0;
-    for k in 1..longest / 2 {
-        let lag: f64 = clipped
-            .iter()
-            .map(|r| {
-                r.iter()
-                    .zip(&r[k.min(r.len())..])
-                    .map(|(a, b)| a * b)
-                    .sum::<f64>()
-            })
-            .sum();
-        let pairs: usize = clipped.iter().map(|r| r.len().saturating_sub(k)).sum();
-        let rho = lag / var * total as f64 / pairs.max(1) as f64;
+    for k in 1..max_lag {
+        let lag: f64 = clipped.iter().zip(&clipped[k..]).map(|(a, b)| a * b).sum();
+        let rho = lag / var * n as f64 / (n - k) as f64;
         if k == 1 && rho < significant {
             break;
         }
@@ -215,7 +202,6 @@ fn correlation_factor(runs: &[&[f64]], spacing: f64) -> f64 {
             break;
         }
     }
-    let step = spacing.max(1.0);
     (step * tau - (step - 1.0)).clamp(1.0, MAX_CORRELATION_PX)
 }
 
@@ -331,12 +317,12 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
         let normal = Normal::new(0.0, 10.0).unwrap();
         let white: Vec<f64> = (0..400).map(|_| normal.sample(&mut rng)).collect();
-        let factor = correlation_factor(&[&white], 1.0);
+        let factor = correlation_factor(&white, 1.0);
         assert!((1.0..1.3).contains(&factor), "white noise: factor {factor:.2}");
         // A moving average over 11 samples: the variance of a long sum
         // grows 11-fold.
         let smooth: Vec<f64> = white.windows(11).map(|w| w.iter().sum::<f64>() / 11.0).collect();
-        let factor = correlation_factor(&[&smooth], 1.0);
+        let factor = correlation_factor(&smooth, 1.0);
         assert!(
             (5.0..=22.0).contains(&factor),
             "smoothed noise: factor {factor:.2}"

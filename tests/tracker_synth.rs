@@ -285,7 +285,7 @@ fn an_edge_chain_touching_the_outline_does_not_become_part_of_it() {
 /// entering along the disparity axis reached 0.28 px before the right view
 /// was held to its epipolar line, where it slid along its own axis). The
 /// reported standard error is calibrated within a factor of 1.5 over all
-/// of them (measured 0.89; 0.83 before the cuts' share of the noise).
+/// of them (measured 0.90; 0.83 before the cuts' share of the noise).
 #[test]
 fn tools_entering_from_the_border_are_tracked() {
     use semdepth::geometry::Polygon;
