@@ -106,8 +106,9 @@ fn main() {
                     if std::env::var("FRAMES_OUT").is_ok() {
                         let (l, rr) = (r.left.as_ref().unwrap(), r.right.as_ref().unwrap());
                         eprintln!(
-                            "  frame {}: err {d:+.3} disparity {:.3} (truth {:.3}) left - truth ({:.2}, {:.2}) right - truth ({:.2}, {:.2}) occluded {:.2}/{:.2} energy {:.1}/{:.1}",
+                            "  frame {}: err {d:+.3} std {:.3} disparity {:.3} (truth {:.3}) left - truth ({:.2}, {:.2}) right - truth ({:.2}, {:.2}) occluded {:.2}/{:.2} energy {:.1}/{:.1}",
                             r.frame,
+                            r.disparity_std_px.unwrap_or(f64::NAN),
                             r.disparity_px.unwrap()[0],
                             pair.truth.disparity_px[0],
                             l.centroid[0] - pair.truth.left.visible_centroid[0],
