@@ -1993,6 +1993,14 @@ impl StereoTracker {
                     100.0 * self.params.occlusion.max_occluded_fraction
                 ));
             }
+            // No standard error: the energy of what is visible has no
+            // minimum along the disparity axis (a tip whose long side a bar
+            // covered, sliding along its axis with the bar, 20 px off).
+            if !fit.axis_std_px.is_finite() {
+                return Some(format!(
+                    "occluded: what is visible of the outline fixes no position along the disparity axis in the {name} image"
+                ));
+            }
             let reference = state.reference_contrast;
             if fit.contrast * reference.signum() < self.params.min_contrast_ratio * reference.abs() {
                 return Some(format!(

@@ -609,3 +609,40 @@ fn a_disparity_that_jumps_under_heavy_occlusion_is_not_trusted() {
         }
     }
 }
+
+/// A tracked pair always carries its standard error (issue #17). Where
+/// what is visible of the outline has no energy minimum along the
+/// disparity axis, the pair is lost as occluded instead: a tip whose long
+/// side a dark bar covered (crossing, seed 203, 20 pairs) slid 14-20 px
+/// along its axis with the bar at pairs 10 and 11, reported `tracked`
+/// without a standard error.
+#[test]
+fn a_fit_without_a_minimum_along_the_axis_is_not_tracked() {
+    let config = SynthConfig {
+        frames: 20,
+        ..SynthConfig::preset(Preset::Crossing, Shape::Tip, 203)
+    };
+    let mut without_minimum = 0;
+    for (result, _) in tracked_sequence(&config) {
+        match result.status {
+            Status::Tracked | Status::Initialised => assert!(
+                result.disparity_std_px.is_some_and(f64::is_finite),
+                "pair {}: tracked without a standard error",
+                result.frame
+            ),
+            _ => {
+                let reason = result.reason.unwrap_or_default();
+                without_minimum += usize::from(reason.contains("fixes no position along the disparity axis"));
+                assert!(
+                    result.disparity_px.is_none(),
+                    "pair {}: a lost pair has no number",
+                    result.frame
+                );
+            }
+        }
+    }
+    assert!(
+        without_minimum >= 1,
+        "no pair was lost for want of a minimum along the axis"
+    );
+}
