@@ -9,7 +9,7 @@ use crate::energy::{
     combine, evaluate, evaluate_cut, evaluate_with_length, window_of, EnergyParams, EnergyTerms,
     INTENSITY_OFFSET,
 };
-use crate::geometry::{dist, HalfPlane, Point, Polygon};
+use crate::geometry::{dist, segment_distance, segments_distance, HalfPlane, Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::region::{PixelRect, PrefixSums};
 
@@ -302,9 +302,9 @@ fn cut_spurs(pts: &[Point], neck: f64, max_path: f64) -> Option<Vec<Point>> {
                 break;
             }
             let (j, d_in, d_out) = (i + k, unit(p(i + n - 1), p(i)), unit(p(i + k), p(i + k + 1)));
-            let width = segment_distance([p(i), p(i + 1)], [p(j - 1), p(j)]);
+            let width = segments_distance(p(i), p(i + 1), p(j - 1), p(j));
             let reach = (i + 1..j)
-                .map(|m| point_segment_distance(p(m), p(i), p(j)))
+                .map(|m| segment_distance(p(m), p(i), p(j)))
                 .fold(0.0, f64::max);
             if width < neck && reach > neck && d_in[0] * d_out[0] + d_in[1] * d_out[1] > 0.5 {
                 best = Some(k);
@@ -323,26 +323,6 @@ fn cut_spurs(pts: &[Point], neck: f64, max_path: f64) -> Option<Vec<Point>> {
         .map(|(p, _)| *p)
         .collect();
     (kept.len() < n && kept.len() >= 3).then_some(kept)
-}
-
-/// Distance from `q` to the segment from `a` to `b`.
-fn point_segment_distance(q: Point, a: Point, b: Point) -> f64 {
-    let (e, w) = ([b[0] - a[0], b[1] - a[1]], [q[0] - a[0], q[1] - a[1]]);
-    let l2 = e[0] * e[0] + e[1] * e[1];
-    let t = if l2 > 0.0 {
-        ((w[0] * e[0] + w[1] * e[1]) / l2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    dist(q, [a[0] + t * e[0], a[1] + t * e[1]])
-}
-
-/// Distance between two segments that do not cross.
-fn segment_distance(s: [Point; 2], t: [Point; 2]) -> f64 {
-    point_segment_distance(s[0], t[0], t[1])
-        .min(point_segment_distance(s[1], t[0], t[1]))
-        .min(point_segment_distance(t[0], s[0], s[1]))
-        .min(point_segment_distance(t[1], s[0], s[1]))
 }
 
 /// Position and rotation of a rigid contour: the template (vertices relative

@@ -476,6 +476,21 @@ pub fn dist(a: Point, b: Point) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
 }
 
+/// Distance from `p` to the segment a-b.
+pub fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
+    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+    let t = (((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / (ex * ex + ey * ey).max(1e-18)).clamp(0.0, 1.0);
+    (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
+}
+
+/// Distance between the segments a-b and c-d when they do not cross.
+pub fn segments_distance(a: Point, b: Point, c: Point, d: Point) -> f64 {
+    segment_distance(a, c, d)
+        .min(segment_distance(b, c, d))
+        .min(segment_distance(c, a, b))
+        .min(segment_distance(d, a, b))
+}
+
 /// True when segments a-b and c-d share a point (touching counts).
 pub fn segments_intersect(a: Point, b: Point, c: Point, d: Point) -> bool {
     let orient = |p: Point, q: Point, r: Point| (q[0] - p[0]) * (r[1] - p[1]) - (q[1] - p[1]) * (r[0] - p[0]);

@@ -2261,11 +2261,10 @@ fn cut_length(template: &RigidTemplate, sums: &PrefixSums, pose: Pose, u: Point,
         .iter()
         .fold(inside.clone(), |p, cut| cut.clip(&p));
     let area = Polygon::new(region.clone()).area();
-    let [x0, y0, x1, y1] = Polygon::new(region).bounds();
-    let m = template.margin;
+    // The region's box grown by the margin, within the image.
+    let [x0, y0, x1, y1] = window_of(&region, template.margin);
     let [ex0, ey0, ex1, ey1] = extent;
-    let window =
-        ((x1 + m).min(ex1) - (x0 - m).max(ex0)).max(0.0) * ((y1 + m).min(ey1) - (y0 - m).max(ey0)).max(0.0);
+    let window = (x1.min(ex1) - x0.max(ex0)).max(0.0) * (y1.min(ey1) - y0.max(ey0)).max(0.0);
     template
         .cuts
         .iter()

@@ -15,7 +15,7 @@ use super::shapes::{
 use super::substrate::{self, ReliefField, SubstrateLine};
 use super::truth::{FrameTruth, ObjectTruth, OccluderTruth, SynthPair};
 use super::SynthError;
-use crate::geometry::{Point, Polygon};
+use crate::geometry::{segment_distance, Point, Polygon};
 use crate::imageio::GrayFrame;
 
 /// Independent random streams derived from the seed.
@@ -557,13 +557,6 @@ impl Scene {
         }
         out
     }
-}
-
-/// Distance from `p` to the segment a-b.
-fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
-    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-    let t = (((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / (ex * ex + ey * ey).max(1e-18)).clamp(0.0, 1.0);
-    (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
 }
 
 /// Composites a polygon over `img` (size [w, h]): each pixel moves towards

@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::config::{Fibres, Relief};
 use super::raster::{coverage, mix64, ValueNoise};
-use crate::geometry::{Point, Polygon};
+use crate::geometry::{segment_distance, Point, Polygon};
 
 /// Arc-length step between the vertices of a substrate line, pixels.
 const LINE_STEP: f64 = 1.5;
@@ -41,13 +41,6 @@ impl SubstrateLine {
             .map(|s| segment_distance(p, s[0], s[1]))
             .fold(f64::INFINITY, f64::min)
     }
-}
-
-/// Distance from `p` to the segment a-b.
-pub fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
-    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
-    let t = (((p[0] - a[0]) * ex + (p[1] - a[1]) * ey) / (ex * ex + ey * ey).max(1e-18)).clamp(0.0, 1.0);
-    (p[0] - a[0] - t * ex).hypot(p[1] - a[1] - t * ey)
 }
 
 /// Places `cfg.under_object` lines through random points inside `object`
