@@ -240,6 +240,38 @@ pub fn weighted_length(arcs: &[Vec<Point>], u: Point) -> f64 {
         .sum()
 }
 
+/// How much less well the `arcs` fix a position in their weakest
+/// direction than along `u`: `sqrt(J_uu / lambda_min(J))` for the
+/// geometric information matrix `J`, the integral of `n n^T` over the
+/// arcs (its quadratic form in `u` is `S`, [`weighted_length`]). With the
+/// same noise everywhere, the standard error of the position in its
+/// weakest direction is the one along `u` times this factor; infinite
+/// when the arcs fix no position along some direction (one straight edge,
+/// as a slender object shows when a bar hides its other side and both
+/// ends). 1 for a circle.
+pub fn weakest_direction_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
+    let (mut xx, mut xy, mut yy) = (0.0, 0.0, 0.0);
+    for w in arcs.iter().flat_map(|arc| arc.windows(2)) {
+        let e = [w[1][0] - w[0][0], w[1][1] - w[0][1]];
+        let l = e[0].hypot(e[1]);
+        if l > 0.0 {
+            // n n^T l for the unit normal (e_y, -e_x) / l.
+            xx += e[1] * e[1] / l;
+            xy -= e[0] * e[1] / l;
+            yy += e[0] * e[0] / l;
+        }
+    }
+    let half_trace = 0.5 * (xx + yy);
+    let lambda_min = half_trace - (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
+    let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
+    // Below a millionth of the total, the smallest eigenvalue is rounding.
+    if lambda_min <= 1e-6 * (xx + yy) {
+        f64::INFINITY
+    } else {
+        (j_uu / lambda_min).sqrt()
+    }
+}
+
 /// A cut's share of `S`: a template cut by the image border (a tool whose
 /// base lies outside, [`crate::energy::evaluate_cut`]) bounds both the
 /// object's region a and the window by its cut, which moves with it. A
@@ -278,6 +310,35 @@ pub fn axis_std(energy: impl Fn(f64) -> f64, m_ref: f64, means: [f64; 2], s: f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_weakest_direction_of_an_outline() {
+        let circle: Vec<Point> = (0..=64)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 64.0;
+                [10.0 * a.cos(), 10.0 * a.sin()]
+            })
+            .collect();
+        let f = weakest_direction_factor(std::slice::from_ref(&circle), [1.0, 0.0]);
+        assert!((f - 1.0).abs() < 1e-9, "circle: {f}");
+        // One straight edge fixes nothing along itself.
+        let edge = vec![[0.0, 0.0], [30.0, 10.0], [60.0, 20.0]];
+        assert!(weakest_direction_factor(std::slice::from_ref(&edge), [1.0, 0.0]).is_infinite());
+        // A rod's two long sides and one end along x: the end fixes x
+        // weakly (its length 2r against the sides' 2L), while along y,
+        // which the sides fix, the factor stays near 1.
+        let (l, r) = (40.0, 5.0);
+        let mut rod = vec![[-l, -r], [l, -r]];
+        rod.extend((1..16).map(|k| {
+            let a = -std::f64::consts::FRAC_PI_2 + k as f64 * std::f64::consts::PI / 16.0;
+            [l + r * a.cos(), r * a.sin()]
+        }));
+        rod.extend([[l, r], [-l, r]]);
+        let along = weakest_direction_factor(std::slice::from_ref(&rod), [1.0, 0.0]);
+        let across = weakest_direction_factor(std::slice::from_ref(&rod), [0.0, 1.0]);
+        assert!((0.99..1.01).contains(&along), "along the rod: {along}");
+        assert!((4.0..8.0).contains(&across), "across the rod: {across}");
+    }
     use crate::energy::{EnergyParams, INTENSITY_OFFSET};
     use crate::fit::{Pose, RigidTemplate};
     use crate::geometry::Polygon;

@@ -121,11 +121,22 @@ fn assert_calibrated_std(preset: Preset, a: &Accuracy) {
     );
 }
 
-fn check(preset: Preset, max_disparity_rms: f64) {
+/// The condition on the seeds 100..105: no confident wrong pair, at most
+/// `max_lost_share` of the pairs not tracked, the std calibrated, and the
+/// disparity and left centroid RMS within their limits.
+fn check(preset: Preset, max_disparity_rms: f64, max_lost_share: f64) {
     let a = measure(preset, &Shape::ALL, SEEDS, FRAMES);
-    assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
+    let total = Shape::ALL.len() * SEEDS.count() * FRAMES;
+    assert_eq!(a.pairs + a.lost, total);
+    assert!(
+        a.lost as f64 <= max_lost_share * total as f64,
+        "{}: {} of {total} pairs not tracked (limit {:.0}%)",
+        preset.name(),
+        a.lost,
+        100.0 * max_lost_share
+    );
+    assert_eq!(a.confident_wrong, 0, "{}: confident wrong pairs", preset.name());
     assert_calibrated_std(preset, &a);
-    assert_eq!(a.pairs, Shape::ALL.len() * SEEDS.count() * FRAMES);
     assert!(
         a.disparity_rms <= max_disparity_rms,
         "{}: disparity RMS {:.4} px > {max_disparity_rms}",
@@ -142,28 +153,32 @@ fn check(preset: Preset, max_disparity_rms: f64) {
 
 #[test]
 fn clean_sequences() {
-    check(Preset::Clean, 0.05);
+    check(Preset::Clean, 0.05, 0.0);
 }
 
 #[test]
 fn strong_poisson_and_scan_line_noise() {
-    check(Preset::Noisy, 0.15);
+    check(Preset::Noisy, 0.15, 0.0);
 }
 
 #[test]
 fn quarter_occlusion_entering_after_the_first_pair() {
-    check(Preset::Occluded, 0.15);
+    // The object stays visible, so at most 5% of the pairs may be untracked
+    // (issue #17): a pair whose disparity's standard error grew past
+    // `max_disparity_std_px` under the occluder is `uncertain` (measured:
+    // 1 of 200, rod 101, 0.64 px).
+    check(Preset::Occluded, 0.15, 0.05);
 }
 
 #[test]
 fn grey_level_flicker() {
-    check(Preset::Flicker, 0.15);
+    check(Preset::Flicker, 0.15, 0.0);
 }
 
 #[test]
 fn cluttered_background() {
     // Not a condition of the issue; held to the noisy limit.
-    check(Preset::Cluttered, 0.15);
+    check(Preset::Cluttered, 0.15, 0.0);
 }
 
 /// Issue #17, items 3 and 4: a bright or dark bar at its own height that
@@ -645,4 +660,139 @@ fn a_fit_without_a_minimum_along_the_axis_is_not_tracked() {
         without_minimum >= 1,
         "no pair was lost for want of a minimum along the axis"
     );
+}
+
+/// After the first pair the right view is searched along its epipolar
+/// line only, keeping the last pair's offset along the tilt axis: a rod
+/// beside a bright bar (crossing, seed 118, 20 pairs) was found 22 px off
+/// that line on the bar at pairs 13-15, the disparity 15-18 px wrong and
+/// `tracked`. Every tracked pair's disparity across the line (y) stays
+/// within 1 px of the truth's, none is confidently wrong, and at least
+/// half the pairs are tracked.
+#[test]
+fn the_right_view_is_searched_on_its_epipolar_line() {
+    let config = SynthConfig {
+        frames: 20,
+        ..SynthConfig::preset(Preset::Crossing, Shape::Rod, 118)
+    };
+    let (mut errors, mut centroids) = (Vec::new(), Vec::new());
+    for (result, pair) in tracked_sequence(&config) {
+        let Some(d) = result.disparity_px else {
+            continue;
+        };
+        assert!(
+            (d[1] - pair.truth.disparity_px[1]).abs() < 1.0,
+            "pair {}: disparity across the line {:.2} px, truth {:.2}",
+            result.frame,
+            d[1],
+            pair.truth.disparity_px[1]
+        );
+        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
+        errors.push(d[0] - pair.truth.disparity_px[0]);
+        centroids.push([c[0] - t[0], c[1] - t[1]]);
+    }
+    let wrong = deviations_from_medians(&errors, &centroids)
+        .iter()
+        .filter(|d| d.confident_wrong())
+        .count();
+    assert_eq!(wrong, 0, "confident wrong pairs of {} tracked", errors.len());
+    // Pairs 11-15, under the bar, are `uncertain` (standard errors of
+    // 0.7-2 px, or the position fixed in one direction only).
+    assert!(errors.len() >= 10, "only {} of 20 pairs tracked", errors.len());
+}
+
+/// Re-acquisition takes the object again only where its whole outline
+/// shows, at most a quarter of it before a new backdrop: a faint rod lost
+/// under a bright bar (combined, seed 118, 20 pairs) was taken again
+/// inside the bar, half its outline along the bar's edge and the other
+/// half "before a new backdrop" of the bar's grey, 13-47 px off and
+/// `tracked` with reason `reacquired` at pairs 14-19. No re-acquired pair's
+/// left centroid is more than 3 px from the truth.
+#[test]
+fn a_reacquired_object_shows_its_whole_outline() {
+    use semdepth::tracker::REACQUIRED;
+    let config = SynthConfig {
+        frames: 20,
+        ..SynthConfig::preset(Preset::Combined, Shape::Rod, 118)
+    };
+    for (result, pair) in tracked_sequence(&config) {
+        if result.disparity_px.is_none() || result.reason.as_deref() != Some(REACQUIRED) {
+            continue;
+        }
+        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
+        assert!(
+            (c[0] - t[0]).hypot(c[1] - t[1]) < 3.0,
+            "pair {} ({:?}): left centroid ({:.1}, {:.1}), truth ({:.1}, {:.1})",
+            result.frame,
+            result.reason,
+            c[0],
+            c[1],
+            t[0],
+            t[1]
+        );
+    }
+}
+
+/// A pair whose disparity's standard error exceeds `max_disparity_std_px`
+/// (an occluded tip, seed 101, pair 6: 0.59 px), or whose left outline
+/// fixes the object's position in one direction only to more than 1.5 px
+/// (an occluded rod whose ends and one side are hidden, seed 101, pair 8:
+/// 2.4 px), is `lost` with reason `uncertain` and no numbers, and tracking
+/// goes on from it: the next pair is tracked, not searched for. With the
+/// limit raised, the tip's pair is tracked with that standard error.
+#[test]
+fn an_uncertain_pair_is_not_reported() {
+    use semdepth::tracker::UNCERTAIN;
+    let sequence = |shape: Shape, params: TrackerParams| -> Vec<PairResult> {
+        let config = SynthConfig {
+            frames: 10,
+            ..SynthConfig::preset(Preset::Occluded, shape, 101)
+        };
+        let mut tracker = StereoTracker::new(params);
+        frames(&config)
+            .unwrap()
+            .map(|pair| tracker.process(&pair.left, &pair.right).unwrap())
+            .collect()
+    };
+    let first_uncertain = |results: &[PairResult], why: &str| -> u64 {
+        let uncertain: Vec<&PairResult> = results
+            .iter()
+            .filter(|r| r.reason.as_deref().is_some_and(|s| s.starts_with(UNCERTAIN)))
+            .collect();
+        for r in &uncertain {
+            assert_eq!(r.status, Status::Lost);
+            assert!(r.disparity_px.is_none() && r.disparity_std_px.is_none() && r.z_um.is_none());
+            if let Some(next) = results.iter().find(|n| n.frame == r.frame + 1) {
+                assert!(
+                    next.status == Status::Tracked && next.reason.is_none()
+                        || next.reason.as_deref().is_some_and(|s| s.starts_with(UNCERTAIN)),
+                    "pair {} after an uncertain one: {:?} {:?}",
+                    next.frame,
+                    next.status,
+                    next.reason
+                );
+            }
+        }
+        uncertain
+            .iter()
+            .find(|r| r.reason.as_deref().is_some_and(|s| s.contains(why)))
+            .unwrap_or_else(|| panic!("no pair uncertain for: {why}"))
+            .frame
+    };
+    let tip = sequence(Shape::Tip, TrackerParams::default());
+    let frame = first_uncertain(&tip, "standard error is");
+    first_uncertain(
+        &sequence(Shape::Rod, TrackerParams::default()),
+        "fixes the object's position only",
+    );
+    let relaxed = sequence(
+        Shape::Tip,
+        TrackerParams {
+            max_disparity_std_px: 1000.0,
+            ..TrackerParams::default()
+        },
+    );
+    let same = &relaxed[frame as usize];
+    assert_eq!(same.status, Status::Tracked, "{:?}", same.reason);
+    assert!(same.disparity_std_px.unwrap() > TrackerParams::default().max_disparity_std_px);
 }
