@@ -30,6 +30,9 @@ fn main() {
         let (mut sq_d, mut sq_c, mut n, mut lost, mut worst, mut flagged) =
             (0.0, 0.0, 0usize, 0usize, 0.0f64, 0usize);
         let (mut sum_std, mut n_std) = (0.0f64, 0usize);
+        // Tracked pairs, and confident wrong ones, by reported std:
+        // <= 0.5, 0.5-1, > 1 px.
+        let (mut std_bins, mut wrong_bins) = ([0usize; 3], [0usize; 3]);
         let mut wrong = 0usize;
         let t = std::time::Instant::now();
         for shape in Shape::ALL {
@@ -58,6 +61,9 @@ fn main() {
                     prefilter_sigma_px: std::env::var("PREFILTER").ok().map(|s| s.parse().unwrap()),
                     ..TrackerParams::default()
                 };
+                if let Ok(v) = std::env::var("MAXSTD") {
+                    params.max_disparity_std_px = v.parse().unwrap();
+                }
                 if let Ok(v) = std::env::var("LAMBDA") {
                     params.energy.lambda = v.parse().unwrap();
                 }
@@ -83,6 +89,7 @@ fn main() {
                 let mut tracker = StereoTracker::new(params);
                 let mut errs = Vec::new();
                 let mut cents: Vec<[f64; 2]> = Vec::new();
+                let mut stds: Vec<f64> = Vec::new();
                 let mut anchor: Option<([f64; 2], [f64; 2], f64)> = None;
                 for pair in pairs {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
@@ -156,6 +163,7 @@ fn main() {
                         );
                     }
                     errs.push(d);
+                    stds.push(r.disparity_std_px.unwrap_or(f64::NAN));
                     if let Some(std) = r.disparity_std_px {
                         (sum_std, n_std) = (sum_std + std, n_std + 1);
                     }
@@ -164,10 +172,21 @@ fn main() {
                 // Confident wrong (issue #17): tracked while the disparity
                 // is off by more than 1 px or the left centroid by more than
                 // 3 px, after removing the sequence's median offsets.
-                let seq_wrong = deviations_from_medians(&errs, &cents)
-                    .iter()
-                    .filter(|d| d.confident_wrong())
-                    .count();
+                let deviations = deviations_from_medians(&errs, &cents);
+                let seq_wrong = deviations.iter().filter(|d| d.confident_wrong()).count();
+                for (d, s) in deviations.iter().zip(&stds) {
+                    let k = if *s > 1.0 {
+                        2
+                    } else if *s > 0.5 {
+                        1
+                    } else {
+                        0
+                    };
+                    std_bins[k] += 1;
+                    if d.confident_wrong() {
+                        wrong_bins[k] += 1;
+                    }
+                }
                 if seq_wrong > 0 {
                     eprintln!(
                         "{}/{}/{seed}: {seq_wrong} confident wrong",
@@ -208,6 +227,10 @@ fn main() {
             worst,
             (sq_c / n as f64).sqrt(),
             t.elapsed().as_secs_f64() * 1e3 / (n + lost) as f64
+        );
+        println!(
+            "{:>9}  tracked pairs by reported std <=0.5 / 0.5-1 / >1 px: {:?}, confident wrong among them: {:?}",
+            "", std_bins, wrong_bins
         );
     }
 }
