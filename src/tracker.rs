@@ -474,6 +474,11 @@ pub struct TrackerState {
 }
 
 impl TrackerState {
+    /// The last pair's disparity, right pose minus left pose, pixels.
+    fn disparity(&self) -> Point {
+        [self.right.x - self.left.x, self.right.y - self.left.y]
+    }
+
     /// The poses the next pair is predicted at: each view's last pose
     /// moved on by the left view's velocity (the right view keeps the last
     /// disparity).
@@ -646,7 +651,7 @@ impl StereoTracker {
         self.frames += 1;
         // The templates are lent to the step, not copied: tracking does not
         // change them, and initialising replaces them.
-        let result = match (&self.state, self.template.take()) {
+        let mut result = match (&self.state, self.template.take()) {
             (Some(state), Some(templates)) if !state.lost => {
                 let state = state.clone();
                 let [left_predicted, right_predicted] = state.predicted();
@@ -685,7 +690,6 @@ impl StereoTracker {
                 self.initialise(frame, left, right)
             }
         };
-        let mut result = result;
         let first = self.state.as_ref().map_or(0.0, |s| s.first_disparity_std_px);
         let limit = self.params.max_disparity_std_px.max(STD_GROWTH * first);
         if let Some(std) = result
@@ -1059,7 +1063,7 @@ impl StereoTracker {
             last: Some(state.left),
         };
         let shared = (!template.cuts.is_empty()).then(|| {
-            let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
+            let disparity = state.disparity();
             let [l, r] = shared_view_limits(template, state.left, disparity, [left.width, left.height]);
             [
                 (template.limited_to(l.clone()), templates.1.limited_to(l)),
@@ -1125,7 +1129,7 @@ impl StereoTracker {
                 right_bands,
             );
             let fit = if dist(fit.pose.center(), right_predicted.center()) > DISPARITY_JUMP_PX {
-                let last = [state.right.x - state.left.x, state.right.y - state.left.y];
+                let last = state.disparity();
                 self.searched_right(
                     right,
                     right_templates,
@@ -1190,7 +1194,7 @@ impl StereoTracker {
                 right_fit.pose.x - left_fit.pose.x,
                 right_fit.pose.y - left_fit.pose.y,
             ],
-            [state.right.x - state.left.x, state.right.y - state.left.y],
+            state.disparity(),
         );
         let occluded_jump = (jump > DISPARITY_JUMP_PX
             && left_fit.occluded_fraction() > OCCLUDED_JUMP_FRACTION)
@@ -1245,29 +1249,14 @@ impl StereoTracker {
         result
     }
 
-    /// Rigid fit in one view from a predicted pose, ignoring occluded
-    /// sectors: when the prediction is roughly right (median sector contrast
-    /// ratio >= 0.6) occlusion is judged there, before anything can slide
-    /// onto the occluder; otherwise (large motion), or when the full fit
-    /// moved 1 px or more from a clear prediction, after a full fit. Sectors
-    /// that look occluded at the prediction are masked only when a full fit
-    /// does not find every sector as it was (a slender object that moved
-    /// along its axis shows its ends "occluded" at the prediction). The
-    /// full fit skips its coarse stage when the judgement at the prediction
-    /// confirms it ([`crate::occlusion::SectorJudgement::confirms_pose`]). A masked
-    /// fit re-derives the mask at its result and refits once if it changed.
-    /// When more than `max_occluded_fraction` of the sectors change, that is
-    /// a change of appearance (e.g. the outline of a 3-D object changing
-    /// with tilt), not an occluder: the full fit stands. `coarse_step_px`
-    /// sets the first step of the coarse stage (the right view is predicted
-    /// well from the left one and needs only a short search).
     /// Standard error of `fit` along the disparity axis, pixels, for the
     /// objective the fit minimised (the full energy, or the band energy
     /// over the visible sectors when some were occluded), from its
     /// curvature and the grey-level spread near it (see
     /// [`crate::uncertainty`]); NaN when it cannot be measured.
     /// `bands`: how far outside the template the object's outline runs, and
-    /// the smoothing the frames had.
+    /// the smoothing the frames had. Sets `fit.axis_std_px` (with the masked
+    /// runs' shift in quadrature) and `fit.weakest_factor`.
     fn measure_std(
         &self,
         frame: &GrayFrame,
@@ -1351,6 +1340,22 @@ impl StereoTracker {
         fit
     }
 
+    /// Rigid fit in one view from a predicted pose, ignoring occluded
+    /// sectors: when the prediction is roughly right (median sector contrast
+    /// ratio >= 0.6) occlusion is judged there, before anything can slide
+    /// onto the occluder; otherwise (large motion), or when the full fit
+    /// moved 1 px or more from a clear prediction, after a full fit. Sectors
+    /// that look occluded at the prediction are masked only when a full fit
+    /// does not find every sector as it was (a slender object that moved
+    /// along its axis shows its ends "occluded" at the prediction). The
+    /// full fit skips its coarse stage when the judgement at the prediction
+    /// confirms it ([`crate::occlusion::SectorJudgement::confirms_pose`]). A masked
+    /// fit re-derives the mask at its result and refits once if it changed.
+    /// When more than `max_occluded_fraction` of the sectors change, that is
+    /// a change of appearance (e.g. the outline of a 3-D object changing
+    /// with tilt), not an occluder: the full fit stands. `coarse_step_px`
+    /// sets the first step of the coarse stage (the right view is predicted
+    /// well from the left one and needs only a short search).
     fn fit_view_on<'f>(
         &self,
         frame: &'f GrayFrame,
@@ -1858,7 +1863,7 @@ impl StereoTracker {
         let found = self
             .search_template(left, templates, state.left_look(), state.left.theta)
             .and_then(|(left_fit, left_sums)| {
-                let last = [state.right.x - state.left.x, state.right.y - state.left.y];
+                let last = state.disparity();
                 let pose = self.search_right(right, template, left_fit.pose, Some(last))?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
                 let right_fit = ImageFit::full(pose, template.energy_at(&sums, pose, &self.params.energy));
@@ -2171,7 +2176,7 @@ impl StereoTracker {
                 occluded_fraction: fit.occluded_fraction(),
             }
         };
-        let disparity = [state.right.x - state.left.x, state.right.y - state.left.y];
+        let disparity = state.disparity();
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
         let std =
             (left.axis_std_px.powi(2) + right.axis_std_px.powi(2) + DISPARITY_STD_FLOOR_PX.powi(2)).sqrt();
