@@ -340,6 +340,44 @@ pub fn grown(marks: &[bool]) -> Vec<bool> {
         .collect()
 }
 
+/// A sector whose contrast rose above this multiple of its reference
+/// (relative to the median sector), in a run of at least
+/// [`MIN_RISEN_RUN`] such sectors, lies before something darker along that
+/// stretch: a new backdrop, or an occluder over the object's edge, which
+/// the contrast alone does not tell apart ([`SectorJudgement::risen`]).
+pub const RISEN_RATIO: f64 = 1.4;
+
+/// The shortest run of risen sectors ([`RISEN_RATIO`]): a relief substrate
+/// raises single sectors up to 2 times as the object moves over it.
+pub const MIN_RISEN_RUN: usize = 3;
+
+/// The marks that belong to a run of at least `min` consecutive marks
+/// (the sectors wrap round; all marked is one run).
+fn runs_at_least(marks: &[bool], min: usize) -> Vec<bool> {
+    let n = marks.len();
+    if marks.iter().all(|&m| m) {
+        return marks.to_vec();
+    }
+    let mut out = vec![false; n];
+    // Start just after an unmarked sector so that no run wraps past the start.
+    let start = (0..n).find(|&k| !marks[k]).map_or(0, |k| k + 1);
+    let mut run = Vec::new();
+    for i in 0..=n {
+        let k = (start + i) % n;
+        if i < n && marks[k] {
+            run.push(k);
+        } else {
+            if run.len() >= min {
+                for &j in &run {
+                    out[j] = true;
+                }
+            }
+            run.clear();
+        }
+    }
+    out
+}
+
 /// What [`judge_sectors`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SectorJudgement {
@@ -353,6 +391,11 @@ pub struct SectorJudgement {
     /// object is not hidden there. Equal to `occluded` when the reference
     /// has no inner band means.
     pub hidden: Vec<bool>,
+    /// Per sector: not marked, but in a run of sectors whose contrast rose
+    /// above [`RISEN_RATIO`] (grown like the marks). The edge shows there,
+    /// stronger; it may still lie inside the object's where a darker
+    /// occluder covers its rim.
+    pub risen: Vec<bool>,
     /// Median contrast ratio (current / reference) of the strong sectors:
     /// near 1 when the pose is right and the view unobstructed, low when the
     /// contour is misplaced. 1 when no sector is strong.
@@ -494,6 +537,7 @@ pub fn judge_look(
         return SectorJudgement {
             occluded: vec![false; reference.len()],
             hidden: vec![false; reference.len()],
+            risen: vec![false; reference.len()],
             median_ratio: 1.0,
             lowest_ratio: 1.0,
         };
@@ -505,14 +549,24 @@ pub fn judge_look(
         .map(|(r, s)| *s && median > 0.0 && !(min_ratio..=max_ratio).contains(&(r / median)))
         .collect();
     let hidden: Vec<bool> = marks.iter().zip(&holds).map(|(m, h)| *m && !h).collect();
+    let risen: Vec<bool> = (0..ratios.len())
+        .map(|k| strong[k] && !marks[k] && median > 0.0 && ratios[k] / median > RISEN_RATIO)
+        .collect();
     let seen_ratios = sorted(&|k| !(marks[k] && holds[k]));
     let lowest = seen_ratios.first().copied().unwrap_or(strong_ratios[0]);
     // An occluder covers a contiguous stretch of the outline, and the
     // sectors at its ends are only partly covered (their contrast changes
     // less than the threshold): each marked run grows by one sector per side.
+    let occluded = grown(&marks);
+    let risen = grown(&runs_at_least(&risen, MIN_RISEN_RUN))
+        .into_iter()
+        .zip(&occluded)
+        .map(|(r, o)| r && !o)
+        .collect();
     SectorJudgement {
-        occluded: grown(&marks),
+        occluded,
         hidden: grown(&hidden),
+        risen,
         median_ratio: median,
         lowest_ratio: lowest,
     }
@@ -538,6 +592,35 @@ mod tests {
         let marked: Vec<usize> = (0..24).filter(|&k| marks[k]).collect();
         // Runs 0..=5 and 10, each grown by one sector (wrapping round to 23).
         assert_eq!(marked, vec![0, 1, 2, 3, 4, 5, 6, 9, 10, 11, 23]);
+    }
+
+    #[test]
+    fn a_run_of_risen_contrasts_is_found_and_a_single_one_is_not() {
+        let reference = vec![0.4; 24];
+        let mut current = reference.clone();
+        // Something darker along sectors 22, 23, 0 and 1 (the run wraps
+        // round); sector 10 alone rises as much, as relief texture does.
+        for k in [22, 23, 0, 1, 10] {
+            current[k] = 0.4 * 1.7;
+        }
+        let judged = judge_sectors(&reference, &current, 0.35, 2.0);
+        assert!(!judged.occluded.contains(&true), "a rise is not occlusion");
+        let risen: Vec<usize> = (0..24).filter(|&k| judged.risen[k]).collect();
+        assert_eq!(risen, vec![0, 1, 2, 21, 22, 23]);
+        // Below the ratio, nothing.
+        let mut current = reference.clone();
+        for c in current.iter_mut().take(6) {
+            *c *= RISEN_RATIO - 0.05;
+        }
+        assert!(!judge_sectors(&reference, &current, 0.35, 2.0)
+            .risen
+            .contains(&true));
+        assert_eq!(runs_at_least(&[true; 5], 7), vec![true; 5]);
+        assert_eq!(
+            runs_at_least(&[true, false, false, true, true], 3),
+            vec![true, false, false, true, true]
+        );
+        assert!(!runs_at_least(&[true, false, true, true, false], 3).contains(&true));
     }
 
     #[test]

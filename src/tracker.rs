@@ -1325,7 +1325,8 @@ impl StereoTracker {
     }
 
     /// [`Self::fit_view_on`] with the standard error of the result along
-    /// the disparity axis ([`Self::axis_std`]).
+    /// the disparity axis ([`Self::axis_std`]), which for a full fit with a
+    /// run of risen sectors includes how far the pose moves without them.
     fn fit_view(
         &self,
         frame: &GrayFrame,
@@ -1335,7 +1336,46 @@ impl StereoTracker {
         search: ViewSearch,
         bands: uncertainty::NoiseBands,
     ) -> ImageFit {
-        let (mut fit, sums) = self.fit_view_on(frame, templates, reference, predicted, search);
+        let mut risen = Vec::new();
+        let (mut fit, sums) = self.fit_view_on(frame, templates, reference, predicted, search, &mut risen);
+        // Not for a template cut by the border: near the border its
+        // sectors change as the tool moves in and out, and without them
+        // too little is left to move the pose by (a disc cut by the border
+        // moved 1.8 px).
+        if risen.contains(&true) && !fit.occluded.contains(&true) && templates.0.cuts.is_empty() {
+            // A run of sectors before something darker: a new backdrop,
+            // where the full fit is right, or an occluder over the edge,
+            // whose visible edge lies inside the object's and pulls the
+            // full fit off (a dark bar over 1-2 px of a rod's long side
+            // moved it 1-3 px). Which it is does not show; how far the pose
+            // moves along the axis without those sectors is a bias the
+            // noise does not show, added to the disparity's standard error.
+            let (template, sectors) = templates;
+            let m_ref = sums.reference_mean();
+            let search = CompassSearch {
+                first_step: 1.0,
+                min_step: self.params.rigid.min_step_px,
+                radius: template.radius,
+                rotate: self.params.rigid.rotate && template.rotation_observable,
+                max_evaluations: self.params.rigid.max_evaluations,
+                settle_every_step: false,
+                along: template.search_axis(),
+                only: search.line,
+            };
+            let masked = |p: Pose| sectors.masked_energy(&sums, p, &risen, m_ref);
+            let (found, e, _) = search.run(fit.pose, masked);
+            let moved = match search.only {
+                Some(u) => line_polish(found, e, u, masked).0,
+                None => newton_polish(found, e, template.radius, search.rotate, masked).0,
+            };
+            let d = axis_component(
+                self.params.tilt_axis_deg,
+                [moved.x - fit.pose.x, moved.y - fit.pose.y],
+            );
+            if d.is_finite() {
+                fit.risen_shift_px = d.abs();
+            }
+        }
         self.measure_std(frame, &sums, (&templates.0, &templates.1), &mut fit, bands);
         fit
     }
@@ -1355,7 +1395,9 @@ impl StereoTracker {
     /// a change of appearance (e.g. the outline of a 3-D object changing
     /// with tilt), not an occluder: the full fit stands. `coarse_step_px`
     /// sets the first step of the coarse stage (the right view is predicted
-    /// well from the left one and needs only a short search).
+    /// well from the left one and needs only a short search). `risen` gets
+    /// the risen sectors judged at the prediction (empty when occlusion is
+    /// not judged).
     fn fit_view_on<'f>(
         &self,
         frame: &'f GrayFrame,
@@ -1368,6 +1410,7 @@ impl StereoTracker {
             line,
             last,
         }: ViewSearch,
+        risen: &mut Vec<bool>,
     ) -> (ImageFit, PrefixSums<'f>) {
         let (energy, occlusion) = (&self.params.energy, &self.params.occlusion);
         let rigid = &RigidParams {
@@ -1418,6 +1461,7 @@ impl StereoTracker {
         let mut sums = self.sums_around(frame, template, predicted, near_reach);
         let mut widened = near_reach == rigid.search_radius_px;
         let at_prediction = judge(&sums, predicted);
+        risen.clone_from(&at_prediction.risen);
         let confirmed = at_prediction.confirms_pose();
         let (mut mask, mut hidden, median) = (
             at_prediction.occluded,
@@ -1618,6 +1662,7 @@ impl StereoTracker {
             occluded: mask,
             hidden,
             mask_shift_px,
+            risen_shift_px: 0.0,
             weakest_factor: 1.0,
         };
         (fit, sums)
@@ -1848,8 +1893,9 @@ impl StereoTracker {
     /// A pair after a loss: the object sought by its own template in the
     /// left view ([`StereoTracker::search_template`]) and along the epipolar
     /// line in the right one, found where both views show the object as on
-    /// the first pair; tracked from there, with reason [`REACQUIRED`].
-    /// Otherwise lost; after [`REACQUIRE_PAIRS`] such pairs the next one
+    /// the first pair; the tracking step from there gives the pair, with
+    /// reason [`REACQUIRED`] (its judgement of the sectors leaves out what
+    /// changed, which the search's full fits do not). Otherwise lost; after [`REACQUIRE_PAIRS`] such pairs the next one
     /// initialises afresh.
     fn reacquire(
         &mut self,
@@ -1862,15 +1908,14 @@ impl StereoTracker {
         let (template, sectors) = templates;
         let found = self
             .search_template(left, templates, state.left_look(), state.left.theta)
-            .and_then(|(left_fit, left_sums)| {
+            .and_then(|(left_fit, _)| {
                 let last = state.disparity();
                 let pose = self.search_right(right, template, left_fit.pose, Some(last))?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-                let right_fit = ImageFit::full(pose, template.energy_at(&sums, pose, &self.params.energy));
                 self.shows_object(&sums, sectors, state.right_look(), pose)
-                    .then_some(((left_fit, left_sums), (right_fit, sums)))
+                    .then_some((left_fit.pose, pose))
             });
-        let Some(((mut left_fit, left_sums), (mut right_fit, right_sums))) = found else {
+        let Some((left_pose, right_pose)) = found else {
             state.missed_searches += 1;
             let reason = format!(
                 "lost; its template was not found in this pair ({} of {REACQUIRE_PAIRS} pairs searched; then the object is initialised afresh)",
@@ -1880,8 +1925,8 @@ impl StereoTracker {
             return lost_result(frame, reason);
         };
         let candidate = TrackerState {
-            left: left_fit.pose,
-            right: right_fit.pose,
+            left: left_pose,
+            right: right_pose,
             left_velocity: [0.0; 3],
             lost: false,
             missed_searches: 0,
@@ -1891,32 +1936,24 @@ impl StereoTracker {
             &candidate,
             template,
             sectors,
-            [(raw_left, left_fit.pose), (raw_right, right_fit.pose)],
+            [(raw_left, left_pose), (raw_right, right_pose)],
         );
-        self.measure_std(left, &left_sums, (template, sectors), &mut left_fit, left_bands);
-        self.measure_std(
-            right,
-            &right_sums,
-            (template, sectors),
-            &mut right_fit,
-            right_bands,
-        );
-        let mut result = self.pair_result(
+        // The tracking step from there, as from the last pair: it judges
+        // the sectors and leaves out those that changed (the search's full
+        // fits do not).
+        let mut result = self.track(
             frame,
-            Status::Tracked,
-            &candidate,
-            template,
-            &left_fit,
-            &right_fit,
+            (left, right),
+            [left_bands, right_bands],
+            candidate,
+            templates,
         );
-        if let Some(reason) = self.loss_reason(&candidate, template, &left_fit, &right_fit) {
+        if self.state.as_ref().is_none_or(|s| s.lost) {
             state.missed_searches += 1;
-            result.mark_lost(reason);
             self.state = Some(state);
-            return result;
+        } else if result.status == Status::Tracked && result.reason.is_none() {
+            result.reason = Some(REACQUIRED.into());
         }
-        result.reason = Some(REACQUIRED.into());
-        self.state = Some(candidate);
         result
     }
 
@@ -2178,8 +2215,17 @@ impl StereoTracker {
         };
         let disparity = state.disparity();
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
-        let std =
-            (left.axis_std_px.powi(2) + right.axis_std_px.powi(2) + DISPARITY_STD_FLOOR_PX.powi(2)).sqrt();
+        let std = [
+            left.axis_std_px,
+            right.axis_std_px,
+            left.risen_shift_px,
+            right.risen_shift_px,
+            DISPARITY_STD_FLOOR_PX,
+        ]
+        .iter()
+        .map(|s| s * s)
+        .sum::<f64>()
+        .sqrt();
         PairResult {
             frame,
             status,
@@ -2236,6 +2282,12 @@ struct ImageFit {
     /// runs grown by a sector, pixels (0 without a mask): a bias the
     /// noise-based standard error does not include, added to it.
     mask_shift_px: f64,
+    /// For a full fit with a run of sectors whose contrast rose
+    /// ([`crate::occlusion::SectorJudgement::risen`]): how far the pose
+    /// moves along the disparity axis without them, pixels (0 otherwise).
+    /// Added to the disparity's standard error; the position's is the
+    /// noise's.
+    risen_shift_px: f64,
     /// How much less well the visible outline fixes the pose in its
     /// weakest direction than along the disparity axis
     /// ([`uncertainty::weakest_direction_factor`]; 1 until measured).
@@ -2271,6 +2323,7 @@ impl ImageFit {
             occluded: Vec::new(),
             hidden: Vec::new(),
             mask_shift_px: 0.0,
+            risen_shift_px: 0.0,
             weakest_factor: 1.0,
         }
     }
