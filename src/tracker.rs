@@ -1350,34 +1350,50 @@ impl StereoTracker {
             // moved it 1-3 px). Which it is does not show; how far the pose
             // moves along the axis without those sectors is a bias the
             // noise does not show, added to the disparity's standard error.
-            let (template, sectors) = templates;
-            let m_ref = sums.reference_mean();
-            let search = CompassSearch {
-                first_step: 1.0,
-                min_step: self.params.rigid.min_step_px,
-                radius: template.radius,
-                rotate: self.params.rigid.rotate && template.rotation_observable,
-                max_evaluations: self.params.rigid.max_evaluations,
-                settle_every_step: false,
-                along: template.search_axis(),
-                only: search.line,
-            };
-            let masked = |p: Pose| sectors.masked_energy(&sums, p, &risen, m_ref);
-            let (found, e, _) = search.run(fit.pose, masked);
-            let moved = match search.only {
-                Some(u) => line_polish(found, e, u, masked).0,
-                None => newton_polish(found, e, template.radius, search.rotate, masked).0,
-            };
-            let d = axis_component(
-                self.params.tilt_axis_deg,
-                [moved.x - fit.pose.x, moved.y - fit.pose.y],
-            );
-            if d.is_finite() {
-                fit.risen_shift_px = d.abs();
-            }
+            let near = self.masked_search(&templates.0, 1.0, search.rotate, search.line);
+            let moved = masked_fit(&sums, (&templates.0, &templates.1), fit.pose, &risen, &near);
+            fit.risen_shift_px = self.axis_shift(fit.pose, moved);
         }
         self.measure_std(frame, &sums, (&templates.0, &templates.1), &mut fit, bands);
         fit
+    }
+
+    /// The compass search of the masked (band energy) fits: steps from
+    /// `first_step` down to the rigid fit's smallest, turning where the
+    /// view's search `rotate`s and the template shows its rotation, along
+    /// `line` when given.
+    fn masked_search(
+        &self,
+        template: &RigidTemplate,
+        first_step: f64,
+        rotate: bool,
+        line: Option<Point>,
+    ) -> CompassSearch {
+        let rigid = &self.params.rigid;
+        CompassSearch {
+            first_step,
+            min_step: rigid.min_step_px,
+            radius: template.radius,
+            rotate: rotate && template.rotation_observable,
+            max_evaluations: rigid.max_evaluations,
+            // One round per step above the smallest, as in the rigid fit:
+            // settling every step gave the same occluded-suite figures
+            // (seeds 100-119: 0.492 against 0.493 px disparity RMS).
+            settle_every_step: false,
+            along: template.search_axis(),
+            only: line,
+        }
+    }
+
+    /// How far `to` lies from `from` along the disparity axis, pixels (0
+    /// when not finite).
+    fn axis_shift(&self, from: Pose, to: Pose) -> f64 {
+        let d = axis_component(self.params.tilt_axis_deg, [to.x - from.x, to.y - from.y]);
+        if d.is_finite() {
+            d.abs()
+        } else {
+            0.0
+        }
     }
 
     /// Rigid fit in one view from a predicted pose, ignoring occluded
@@ -1595,32 +1611,10 @@ impl StereoTracker {
         }
         // The masked search starts with 4-px steps.
         widen(&mut sums, &mut widened);
-        let m_ref = sums.reference_mean();
-        let search = CompassSearch {
-            first_step: 4.0,
-            min_step: rigid.min_step_px,
-            radius: template.radius,
-            rotate: rigid.rotate && template.rotation_observable,
-            max_evaluations: rigid.max_evaluations,
-            // One round per step above the smallest, as in the rigid fit:
-            // settling every step gave the same occluded-suite figures
-            // (seeds 100-119: 0.492 against 0.493 px disparity RMS).
-            settle_every_step: false,
-            along: template.search_axis(),
-            only: line,
-        };
-        // The band energy over the sectors not in `marks`, minimised from
-        // `start`.
-        let masked_fit = |start: Pose, marks: &[bool], search: &CompassSearch| {
-            let masked = |p: Pose| sectors.masked_energy(&sums, p, marks, m_ref);
-            let (found, e, _) = search.run(start, masked);
-            match line {
-                Some(u) => line_polish(found, e, u, masked).0,
-                None => newton_polish(found, e, template.radius, search.rotate, masked).0,
-            }
-        };
+        let search = self.masked_search(template, 4.0, rigid.rotate, line);
+        let templates = (template, sectors);
         for _ in 0..2 {
-            pose = masked_fit(pose, &mask, &search);
+            pose = masked_fit(&sums, templates, pose, &mask, &search);
             let judged = judge(&sums, pose);
             if judged.occluded == mask || widespread(&judged.occluded, &judged.hidden) {
                 break;
@@ -1639,13 +1633,7 @@ impl StereoTracker {
                 first_step: 1.0,
                 ..search
             };
-            let moved = masked_fit(pose, &wider, &near);
-            let d = axis_component(self.params.tilt_axis_deg, [moved.x - pose.x, moved.y - pose.y]);
-            if d.is_finite() {
-                d.abs()
-            } else {
-                0.0
-            }
+            self.axis_shift(pose, masked_fit(&sums, templates, pose, &wider, &near))
         } else {
             0.0
         };
@@ -1841,13 +1829,13 @@ impl StereoTracker {
     /// the last rotation, each fitted rigidly within two steps; the lowest
     /// energy among the fits whose sectors show the object as on the first
     /// pair stands.
-    fn search_template<'f>(
+    fn search_template(
         &self,
-        frame: &'f GrayFrame,
+        frame: &GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
         reference: SectorReference,
         theta: f64,
-    ) -> Option<(ImageFit, PrefixSums<'f>)> {
+    ) -> Option<Pose> {
         let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
         let (x0, y0, x1, y1) = (x as f64, y as f64, (x + w) as f64, (y + h) as f64);
         let reach = template.radius + template.margin + 2.0;
@@ -1887,7 +1875,7 @@ impl StereoTracker {
                 fit.terms.energy.is_finite() && self.shows_object(&sums, sectors, reference, fit.pose)
             })
             .min_by(|a, b| a.terms.energy.total_cmp(&b.terms.energy))
-            .map(|fit| (fit, sums))
+            .map(|fit| fit.pose)
     }
 
     /// A pair after a loss: the object sought by its own template in the
@@ -1895,8 +1883,8 @@ impl StereoTracker {
     /// line in the right one, found where both views show the object as on
     /// the first pair; the tracking step from there gives the pair, with
     /// reason [`REACQUIRED`] (its judgement of the sectors leaves out what
-    /// changed, which the search's full fits do not). Otherwise lost; after [`REACQUIRE_PAIRS`] such pairs the next one
-    /// initialises afresh.
+    /// changed, which the search's full fits do not). Otherwise lost; after
+    /// [`REACQUIRE_PAIRS`] such pairs the next one initialises afresh.
     fn reacquire(
         &mut self,
         frame: u64,
@@ -1908,12 +1896,12 @@ impl StereoTracker {
         let (template, sectors) = templates;
         let found = self
             .search_template(left, templates, state.left_look(), state.left.theta)
-            .and_then(|(left_fit, _)| {
+            .and_then(|left_pose| {
                 let last = state.disparity();
-                let pose = self.search_right(right, template, left_fit.pose, Some(last))?;
+                let pose = self.search_right(right, template, left_pose, Some(last))?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
                 self.shows_object(&sums, sectors, state.right_look(), pose)
-                    .then_some((left_fit.pose, pose))
+                    .then_some((left_pose, pose))
             });
         let Some((left_pose, right_pose)) = found else {
             state.missed_searches += 1;
@@ -2357,6 +2345,24 @@ const MAX_POSITION_STD_PX: f64 = 1.5;
 /// Largest occluded share of the left outline at which a disparity that
 /// jumped by more than [`DISPARITY_JUMP_PX`] is still trusted.
 const OCCLUDED_JUMP_FRACTION: f64 = 0.25;
+
+/// The band energy over the sectors not in `marks`, minimised by `search`
+/// from `start` and polished (along the search's line, or by Newton steps).
+fn masked_fit(
+    sums: &PrefixSums,
+    (template, sectors): (&RigidTemplate, &SectorTemplate),
+    start: Pose,
+    marks: &[bool],
+    search: &CompassSearch,
+) -> Pose {
+    let m_ref = sums.reference_mean();
+    let masked = |p: Pose| sectors.masked_energy(sums, p, marks, m_ref);
+    let (found, e, _) = search.run(start, masked);
+    match search.only {
+        Some(u) => line_polish(found, e, u, masked).0,
+        None => newton_polish(found, e, template.radius, search.rotate, masked).0,
+    }
+}
 
 /// Fraction of true marks.
 fn fraction(marks: &[bool]) -> f64 {
