@@ -288,41 +288,73 @@ pub fn evaluate_cut(
     margin: f64,
     [length, area]: [f64; 2],
 ) -> EnergyTerms {
-    let extent = sums.image_extent();
-    let image = HalfPlane::sides_of_box(extent);
-    // Points cut on an image side land there up to rounding: put them on it.
-    let onto_image = |p: Vec<Point>| -> Vec<Point> {
-        p.into_iter()
-            .map(|[x, y]| [x.clamp(extent[0], extent[2]), y.clamp(extent[1], extent[3])])
-            .collect()
+    let Some(visible) = within_image(sums, points, cuts) else {
+        return EnergyTerms::INVALID;
     };
-    let visible = onto_image(
-        image
-            .iter()
-            .chain(cuts)
-            .fold(points.to_vec(), |p, side| side.clip(&p)),
-    );
-    if visible.len() < 3 || !sums.contains(&visible) {
+    let Some(window) = within_image(sums, &box_polygon(window_of(&visible, margin)), cuts) else {
         return EnergyTerms::INVALID;
-    }
-    let [x0, y0, x1, y1] = window_of(&visible, margin);
-    let window = onto_image(
-        image
-            .iter()
-            .chain(cuts)
-            .fold(vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]], |p, side| {
-                side.clip(&p)
-            }),
-    );
-    if window.len() < 3 || !sums.contains(&window) {
-        return EnergyTerms::INVALID;
-    }
+    };
     combine_with_internal(
         sums.polygon(&visible),
         sums.polygon(&window),
         internal_term(params, length, area),
         sums.reference_mean(),
     )
+}
+
+/// Energy of a rigidly moved contour cut by the image border in a domain
+/// fixed for one fit: the `sides` (image coordinates: the template's cuts
+/// where the fit started, and any limits) and the `window` box do not move
+/// with the contour, so the energy only trades pixels between the two
+/// regions. Region a is the contour's part within the image, the sides and
+/// the window; `points` must run on beyond the cuts (the object goes on
+/// unseen there), so that a contour that moved away from the border still
+/// reaches them. With the window and cuts moving with the contour instead
+/// ([`evaluate_cut`]), a slide along a tool's axis swapped background at one
+/// end of the window for more of the tool at the other: the energy along a
+/// rod's axis was flat to 0.1% over 24 px, and shading along the rod tilted
+/// it (border_tool seed 207 settled 20 px from its tip).
+pub fn evaluate_fixed(
+    sums: &PrefixSums,
+    points: &[Point],
+    sides: &[HalfPlane],
+    window: [f64; 4],
+    params: &EnergyParams,
+    [length, area]: [f64; 2],
+) -> EnergyTerms {
+    let walls = HalfPlane::sides_of_box(window);
+    let Some(visible) = within_image(sums, points, &[sides, &walls].concat()) else {
+        return EnergyTerms::INVALID;
+    };
+    let Some(window) = within_image(sums, &box_polygon(window), sides) else {
+        return EnergyTerms::INVALID;
+    };
+    combine_with_internal(
+        sums.polygon(&visible),
+        sums.polygon(&window),
+        internal_term(params, length, area),
+        sums.reference_mean(),
+    )
+}
+
+/// The corners of the box `[x0, y0, x1, y1]`.
+fn box_polygon([x0, y0, x1, y1]: [f64; 4]) -> Vec<Point> {
+    vec![[x0, y0], [x1, y0], [x1, y1], [x0, y1]]
+}
+
+/// The part of the polygon `points` inside the image and the half-planes
+/// `sides`; `None` when nothing is left or it leaves the covered area.
+fn within_image(sums: &PrefixSums, points: &[Point], sides: &[HalfPlane]) -> Option<Vec<Point>> {
+    let extent = sums.image_extent();
+    let clipped: Vec<Point> = HalfPlane::sides_of_box(extent)
+        .iter()
+        .chain(sides)
+        .fold(points.to_vec(), |p, side| side.clip(&p))
+        .into_iter()
+        // Points cut on an image side land there up to rounding: put them on it.
+        .map(|[x, y]| [x.clamp(extent[0], extent[2]), y.clamp(extent[1], extent[3])])
+        .collect();
+    (clipped.len() >= 3 && sums.contains(&clipped)).then_some(clipped)
 }
 
 /// The energy of a contour inside the covered area, given its window and

@@ -6,8 +6,8 @@
 use serde::{Deserialize, Serialize};
 
 use crate::energy::{
-    combine, evaluate, evaluate_cut, evaluate_with_length, window_of, EnergyParams, EnergyTerms,
-    INTENSITY_OFFSET,
+    combine, evaluate, evaluate_cut, evaluate_fixed, evaluate_with_length, window_of, EnergyParams,
+    EnergyTerms, INTENSITY_OFFSET,
 };
 use crate::geometry::{dist, segment_distance, segments_distance, HalfPlane, Point, Polygon};
 use crate::imageio::GrayFrame;
@@ -490,6 +490,24 @@ pub struct RigidTemplate {
     pub limits: Vec<HalfPlane>,
     /// Unit vector along the principal axis of `points`.
     pub axis: Point,
+    /// For a template cut by the border, the domain one fit looks in, fixed
+    /// in the image ([`RigidTemplate::fixed_at`]); `None` outside a tracking
+    /// step's fits.
+    pub fixed: Option<FixedDomain>,
+}
+
+/// Where the fits of one tracking step see a template cut by the border:
+/// its cuts and window placed where the step started, fixed in the image
+/// ([`crate::energy::evaluate_fixed`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FixedDomain {
+    /// The template's cuts at the start (image coordinates).
+    pub cuts: Vec<HalfPlane>,
+    /// The window box `[x0, y0, x1, y1]` (image coordinates).
+    pub window: [f64; 4],
+    /// How far the outline is continued beyond its cuts, pixels: as far as
+    /// a fit may move it, plus the window margin.
+    pub continued_px: f64,
 }
 
 impl RigidTemplate {
@@ -533,6 +551,7 @@ impl RigidTemplate {
             cuts: Vec::new(),
             limits: Vec::new(),
             axis: [angle.cos(), angle.sin()],
+            fixed: None,
         };
         (
             template,
@@ -568,7 +587,94 @@ impl RigidTemplate {
                 HalfPlane::new(turned.normal, -side.depth([pose.x, pose.y]) + Self::CUT_INSET_PX)
             })
             .collect();
+        // The outline along a cut is no edge: a disc cut by the border
+        // shows an arc, which looks the same turned about its centre.
+        if !self.cuts.is_empty() && self.rotation_observable {
+            let edge: Vec<Point> = self
+                .points
+                .iter()
+                .copied()
+                .filter(|&p| self.cuts.iter().all(|c| c.depth(p) >= 0.0))
+                .collect();
+            self.rotation_observable = circle_rms_residual(&edge).is_none_or(|r| r > ARC_RESIDUAL_PX);
+        }
         self
+    }
+
+    /// This template with its cuts and window fixed in the image where they
+    /// lie at `pose` (nothing changes for a template without cuts), for fits
+    /// that move it up to `reach` pixels.
+    pub fn fixed_at(&self, image: [f64; 4], pose: Pose, reach: f64) -> Self {
+        if self.cuts.is_empty() {
+            return self.clone();
+        }
+        let cuts: Vec<HalfPlane> = self
+            .cuts
+            .iter()
+            .map(|c| c.moved(pose.theta, [pose.x, pose.y]))
+            .collect();
+        let visible = HalfPlane::sides_of_box(image)
+            .iter()
+            .chain(&cuts)
+            .chain(&self.limits)
+            .fold(place(&self.points, pose), |p, side| side.clip(&p));
+        let window = if visible.len() >= 3 {
+            window_of(&visible, self.margin)
+        } else {
+            window_of(&place(&self.points, pose), self.margin)
+        };
+        Self {
+            fixed: Some(FixedDomain {
+                cuts,
+                window,
+                continued_px: reach + self.margin,
+            }),
+            ..self.clone()
+        }
+    }
+
+    /// This template with its fixed domain moved by `by` (the other view of
+    /// a stereo pair, `by` the disparity).
+    pub fn fixed_moved(&self, by: Point) -> Self {
+        let fixed = self.fixed.as_ref().map(|f| {
+            let [x0, y0, x1, y1] = f.window;
+            FixedDomain {
+                cuts: f.cuts.iter().map(|c| c.moved(0.0, by)).collect(),
+                window: [x0 + by[0], y0 + by[1], x1 + by[0], y1 + by[1]],
+                continued_px: f.continued_px,
+            }
+        });
+        Self {
+            fixed,
+            ..self.clone()
+        }
+    }
+
+    /// The outline placed at `pose` (in `placed`) continued beyond the cuts:
+    /// each vertex outside a cut moves `by` pixels away from the object,
+    /// along the axis for a slender object entering along it, else along
+    /// the cut's normal.
+    fn continued(&self, placed: &mut [Point], pose: Pose, by: f64) {
+        let (s, c) = pose.theta.sin_cos();
+        let axis = [
+            c * self.axis[0] - s * self.axis[1],
+            s * self.axis[0] + c * self.axis[1],
+        ];
+        for cut in self
+            .cuts
+            .iter()
+            .map(|cut| cut.moved(pose.theta, [pose.x, pose.y]))
+        {
+            let along = cut.normal[0] * axis[0] + cut.normal[1] * axis[1];
+            let inward = if along.abs() >= 0.5 {
+                [axis[0] * along.signum(), axis[1] * along.signum()]
+            } else {
+                cut.normal
+            };
+            for p in placed.iter_mut().filter(|p| cut.depth(**p) < 0.0) {
+                *p = [p[0] - by * inward[0], p[1] - by * inward[1]];
+            }
+        }
     }
 
     /// A vertex this close to an image side (pixels) lies on it.
@@ -622,6 +728,18 @@ impl RigidTemplate {
     ) -> EnergyTerms {
         if self.cuts.is_empty() {
             evaluate_with_length(sums, placed, energy, self.margin, length)
+        } else if let Some(fixed) = &self.fixed {
+            let mut continued = placed.to_vec();
+            self.continued(&mut continued, pose, fixed.continued_px);
+            let sides: Vec<HalfPlane> = fixed.cuts.iter().chain(&self.limits).copied().collect();
+            evaluate_fixed(
+                sums,
+                &continued,
+                &sides,
+                fixed.window,
+                energy,
+                [length, self.area],
+            )
         } else {
             evaluate_cut(
                 sums,
@@ -1009,6 +1127,56 @@ fn rotation_is_observable(points: &[Point]) -> bool {
     differing > 0.12 * polygon.length()
 }
 
+/// Largest RMS distance (pixels) of a cut template's edge from its
+/// best-fitting circle for its rotation to count as unobservable.
+const ARC_RESIDUAL_PX: f64 = 0.6;
+
+/// RMS distance of `points` from the circle fitted to them (algebraic
+/// least squares, Kasa 1976); `None` for fewer than 8 points or a
+/// degenerate fit.
+fn circle_rms_residual(points: &[Point]) -> Option<f64> {
+    if points.len() < 8 {
+        return None;
+    }
+    // Minimise sum (x^2 + y^2 + d x + e y + f)^2 over (d, e, f).
+    let (mut m, mut v) = ([[0.0f64; 3]; 3], [0.0f64; 3]);
+    for &[x, y] in points {
+        let row = [x, y, 1.0];
+        let z = -(x * x + y * y);
+        for i in 0..3 {
+            for j in 0..3 {
+                m[i][j] += row[i] * row[j];
+            }
+            v[i] += row[i] * z;
+        }
+    }
+    let det = |a: [[f64; 3]; 3]| {
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    };
+    let d0 = det(m);
+    if d0.abs() < 1e-9 {
+        return None;
+    }
+    // Cramer's rule.
+    let solve = |k: usize| {
+        let mut a = m;
+        for (row, value) in a.iter_mut().zip(v) {
+            row[k] = value;
+        }
+        det(a) / d0
+    };
+    let (d, e, f) = (solve(0), solve(1), solve(2));
+    let centre = [-d / 2.0, -e / 2.0];
+    let r2 = centre[0] * centre[0] + centre[1] * centre[1] - f;
+    if !(r2.is_finite() && r2 > 0.0) {
+        return None;
+    }
+    let r = r2.sqrt();
+    let sum: f64 = points.iter().map(|&p| (dist(p, centre) - r).powi(2)).sum();
+    Some((sum / points.len() as f64).sqrt())
+}
+
 /// The outline resampled at about 1 px and low-passed along its length:
 /// three passes of a 7-vertex moving average (sigma about 3.5 px).
 fn smoothed(outline: &Polygon) -> Polygon {
@@ -1267,6 +1435,13 @@ mod tests {
             .count();
         assert!(on_line >= 2, "{on_line} vertices on the moved border side");
         assert!(placed.iter().all(|p| cut.depth(*p) > -inset - 1e-9));
+        // The bar shows its rotation; a disc cut by the border shows an arc,
+        // which does not.
+        assert!(template.rotation_observable);
+        let disc = Polygon::circle([10.0, 50.0], 30.0, 120).clipped_to_box(image);
+        let (d, p) = RigidTemplate::new(&disc, 32, &energy);
+        assert!(d.rotation_observable, "uncut, the half disc's turn shows");
+        assert!(!d.cut_by(image, p).rotation_observable);
         // An outline that only touches a side (less than MIN_CUT_PX) is not cut.
         let touching = Polygon::new(vec![[-0.5, 30.0], [60.0, 10.0], [60.0, 50.0], [-0.5, 32.0]]);
         let (t, p) = RigidTemplate::new(&touching, 32, &energy);
@@ -1323,5 +1498,75 @@ mod tests {
                 "shift {shift}: {e} against {best}"
             );
         }
+    }
+    #[test]
+    fn a_fixed_domain_holds_a_shaded_bar_at_its_tip() {
+        // A bar 30 px wide with a round tip entering a 400x300 image from
+        // its right side at 0.5 rad, brighter towards its base (150 at the
+        // tip, 190 at its unseen end), moved 15 px further in since its
+        // template was made.
+        let (w, h) = (400usize, 300usize);
+        let image = [-0.5, -0.5, w as f64 - 0.5, h as f64 - 0.5];
+        let u = [-0.5f64.cos(), -0.5f64.sin()];
+        let n = [-u[1], u[0]];
+        let (base, half, length, shift) = ([420.0, 200.0], 15.0, 200.0, 15.0);
+        let frame = {
+            let length = length + shift;
+            let data = (0..w * h)
+                .map(|i| {
+                    let d = [(i % w) as f64 - base[0], (i / w) as f64 - base[1]];
+                    let (t, across) = (d[0] * u[0] + d[1] * u[1], (d[0] * n[0] + d[1] * n[1]).abs());
+                    let bar = (0.0..=length).contains(&t) && across <= half;
+                    if bar || (t - length).hypot(across) <= half {
+                        (150.0 + 40.0 * (1.0 - t / length)).round() as u16
+                    } else {
+                        60
+                    }
+                })
+                .collect();
+            GrayFrame::new(w as u32, h as u32, 8, data).unwrap()
+        };
+        let tip = [base[0] + length * u[0], base[1] + length * u[1]];
+        let mut outline: Vec<Point> = (0..=20)
+            .map(|k| {
+                let (s, c) = (std::f64::consts::PI * (k as f64 / 20.0 - 0.5)).sin_cos();
+                [
+                    tip[0] + half * (c * u[0] + s * n[0]),
+                    tip[1] + half * (c * u[1] + s * n[1]),
+                ]
+            })
+            .collect();
+        outline.push([base[0] + half * n[0], base[1] + half * n[1]]);
+        outline.push([base[0] - half * n[0], base[1] - half * n[1]]);
+        let energy = EnergyParams::default();
+        let (template, pose) = RigidTemplate::new(&Polygon::new(outline).clipped_to_box(image), 32, &energy);
+        let template = template.cut_by(image, pose);
+        assert_eq!(template.cuts.len(), 1);
+        let sums = PrefixSums::new(&frame, PixelRect::full(&frame), 1);
+        // Where along the axis (positive towards the tip) the energy is
+        // lowest, within 20 px of the truth.
+        let lowest = |template: &RigidTemplate| {
+            (-80..=80)
+                .map(|i| 0.25 * i as f64)
+                .map(|s| {
+                    let at = Pose {
+                        x: pose.x + (shift + s) * u[0],
+                        y: pose.y + (shift + s) * u[1],
+                        ..pose
+                    };
+                    (s, template.energy_at(&sums, at, &energy).energy)
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap()
+                .0
+        };
+        // Cuts and window moving with the template: it slides back towards
+        // the brighter base.
+        let moving = lowest(&template);
+        assert!(moving < -3.0, "moving cut: {moving:+.2} px");
+        // In a domain fixed where the template was, only the tip moves
+        // pixels between the regions.
+        let fixed = lowest(&template.fixed_at(image, pose, 24.0));
+        assert!(fixed.abs() <= 0.5, "fixed domain: {fixed:+.2} px");
     }
 }

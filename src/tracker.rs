@@ -9,6 +9,8 @@
 //! and the angle difference, or a "lost" status with a reason instead of a
 //! confident wrong answer.
 
+use std::borrow::Cow;
+
 use serde::{Deserialize, Serialize};
 
 use crate::calib::{axis_component, Calibration, MetaWatch, PairMeta};
@@ -834,10 +836,19 @@ impl StereoTracker {
                 rotate: false,
                 ..self.params.rigid.clone()
             };
-            let left_fit = fit_rigid(&left_sums, &template.limited_to(l), left_pose, energy, &settle);
+            let image = PixelRect::full(left).extent();
+            let left_fixed = template
+                .limited_to(l)
+                .fixed_at(image, left_pose, Self::NEAR_REACH_PX);
+            let left_fit = fit_rigid(&left_sums, &left_fixed, left_pose, energy, &settle);
             let limited = template.limited_to(r);
+            let right_fixed = RigidTemplate {
+                fixed: left_fixed.fixed.clone(),
+                ..limited.clone()
+            }
+            .fixed_moved(disparity);
             let right_sums = self.sums_around(right, &limited, right_pose, Self::NEAR_REACH_PX);
-            let right_fit = fit_rigid(&right_sums, &limited, right_pose, energy, &settle);
+            let right_fit = fit_rigid(&right_sums, &right_fixed, right_pose, energy, &settle);
             if left_fit.terms.energy.is_finite() && right_fit.terms.energy.is_finite() {
                 let right_pose =
                     self.mirrored_right_pose((left, right), &limited, left_fit.pose, right_fit.pose);
@@ -891,13 +902,22 @@ impl StereoTracker {
             &sectors,
             [(raw_left, left_pose), (raw_right, right_pose)],
         );
+        // The standard errors on the energy the poses were fitted with.
+        let left_fixed = template.fixed_at(PixelRect::full(left).extent(), left_pose, Self::NEAR_REACH_PX);
+        let right_fixed = left_fixed.fixed_moved(disparity);
         let mut left_fit = ImageFit::full(left_pose, left_terms);
-        self.measure_std(left, &left_sums, (&template, &sectors), &mut left_fit, left_bands);
+        self.measure_std(
+            left,
+            &left_sums,
+            (&left_fixed, &sectors),
+            &mut left_fit,
+            left_bands,
+        );
         let mut right_fit = ImageFit::full(right_pose, right_terms);
         self.measure_std(
             right,
             &right_sums,
-            (&template, &sectors),
+            (&right_fixed, &sectors),
             &mut right_fit,
             right_bands,
         );
@@ -986,7 +1006,8 @@ impl StereoTracker {
             rotate: false,
             ..self.params.rigid.clone()
         };
-        let settled = fit_rigid(&sums, &template, fitted_pose, energy, &settle);
+        let fixed = template.fixed_at(image, fitted_pose, Self::NEAR_REACH_PX);
+        let settled = fit_rigid(&sums, &fixed, fitted_pose, energy, &settle);
         Some((template, settled.pose, settled.terms, sums))
     }
 
@@ -1025,7 +1046,10 @@ impl StereoTracker {
         };
         let disparity = [right_pose.x - left_pose.x, right_pose.y - left_pose.y];
         let [l, _] = shared_view_limits(template, left_pose, disparity, [left.width, left.height]);
-        let mirror = mirror.limited_to(l);
+        let mirror =
+            mirror
+                .limited_to(l)
+                .fixed_at(PixelRect::full(left).extent(), start, Self::NEAR_REACH_PX);
         let sums = self.sums_around(left, &mirror, start, self.params.rigid.search_radius_px);
         let rigid = RigidParams {
             coarse_step_px: 1.0,
@@ -1074,25 +1098,74 @@ impl StereoTracker {
             Some([l, r]) => (l, r),
             None => (templates, templates),
         };
-        let mut left_fit = self.fit_view(
-            left,
-            left_templates,
-            state.left_look(),
-            left_predicted,
-            left_search,
-            left_bands,
-        );
+        // A template cut by the border is fitted with its cuts and window
+        // fixed in the image where each fit starts (RigidTemplate::fixed_at);
+        // the right view's are the left view's at the left pose, moved by
+        // the last disparity, so that both views look at the same part of
+        // the object.
+        let image = PixelRect::full_size(left.width, left.height).extent();
+        let reach = self.params.rigid.search_radius_px;
+        let fixing = shared.is_some();
+        let left_at = |at: Pose| -> Cow<(RigidTemplate, SectorTemplate)> {
+            if fixing {
+                Cow::Owned((
+                    left_templates.0.fixed_at(image, at, reach),
+                    left_templates.1.clone(),
+                ))
+            } else {
+                Cow::Borrowed(left_templates)
+            }
+        };
+        let right_at = |left_pose: Pose| -> Cow<(RigidTemplate, SectorTemplate)> {
+            if fixing {
+                let domain = left_templates.0.fixed_at(image, left_pose, reach);
+                let right = RigidTemplate {
+                    fixed: domain.fixed,
+                    ..right_templates.0.clone()
+                };
+                Cow::Owned((right.fixed_moved(state.disparity()), right_templates.1.clone()))
+            } else {
+                Cow::Borrowed(right_templates)
+            }
+        };
+        // A left fit in a domain fixed where it started, fitted again in
+        // the domain at its own pose when it moved (the right view's domain
+        // is placed from the left pose).
+        let left_fit_from = |start: Pose, search: ViewSearch| {
+            let fit = self.fit_view(
+                left,
+                &left_at(start),
+                state.left_look(),
+                start,
+                search,
+                left_bands,
+            );
+            if fixing
+                && fit.terms.energy.is_finite()
+                && dist(fit.pose.center(), start.center()) > FIXED_REFIT_PX
+            {
+                let again = self.fit_view(
+                    left,
+                    &left_at(fit.pose),
+                    state.left_look(),
+                    fit.pose,
+                    ViewSearch {
+                        coarse_step_px: 1.0,
+                        ..search
+                    },
+                    left_bands,
+                );
+                if again.terms.energy.is_finite() {
+                    return again;
+                }
+            }
+            fit
+        };
+        let mut left_fit = left_fit_from(left_predicted, left_search);
         if !left_fit.terms.energy.is_finite() && v != [0.0; 3] {
             // The motion reversed (a tool moved in, then out): the last
             // pose is nearer than its continuation.
-            left_fit = self.fit_view(
-                left,
-                left_templates,
-                state.left_look(),
-                state.left,
-                left_search,
-                left_bands,
-            );
+            left_fit = left_fit_from(state.left, left_search);
         }
         let right_search = ViewSearch {
             // No coarse stage: the prediction (left pose plus the last
@@ -1122,7 +1195,7 @@ impl StereoTracker {
             };
             let fit = self.fit_view(
                 right,
-                right_templates,
+                &right_at(left_pose),
                 state.right_look(),
                 right_predicted,
                 right_search,
@@ -1169,16 +1242,12 @@ impl StereoTracker {
                 y: right_fit.pose.y - (state.right.y - state.left.y),
                 theta: right_fit.pose.theta - (state.right.theta - state.left.theta),
             };
-            let again = self.fit_view(
-                left,
-                left_templates,
-                state.left_look(),
+            let again = left_fit_from(
                 from_right,
                 ViewSearch {
                     coarse_step_px: 1.0,
                     ..left_search
                 },
-                left_bands,
             );
             if full(&again) && self.lower_energy(left, &left_templates.0, again.pose, left_fit.pose) {
                 left_fit = again;
@@ -1287,7 +1356,7 @@ impl StereoTracker {
         let pose = fit.pose;
         // The outline along the image border or a cut is no edge of the
         // object: its sectors count like occluded ones.
-        let left_out: std::borrow::Cow<[bool]> = if template.cuts.is_empty() {
+        let left_out: Cow<[bool]> = if template.cuts.is_empty() {
             (&fit.occluded[..]).into()
         } else {
             let unseen = sectors.band_sums(sums, pose).into_iter().map(|b| b.is_none());
@@ -2373,6 +2442,11 @@ fn fraction(marks: &[bool]) -> f64 {
     }
 }
 
+/// A left fit of a template cut by the border that moved further than this
+/// from where its domain was fixed is fitted again in the domain at its
+/// pose, pixels.
+const FIXED_REFIT_PX: f64 = 0.5;
+
 /// The limits ([`RigidTemplate::limits`]) of the left and right views of a
 /// template cut by the border, at `left` with `disparity` (right minus left):
 /// the image sides that cut it, each moved to where the other view's side
@@ -2441,9 +2515,11 @@ fn noise_bands(
 /// What the cuts of a template crossing the image border add to
 /// [`uncertainty::weighted_length`]'s `S` (see [`uncertainty::cut_length`]):
 /// each cut carries a strip of the object's pixels in or out of both the
-/// object's region and the window as the template moves along `u`.
+/// object's region and the window as the template moves along `u`. Nothing
+/// in a domain fixed in the image ([`RigidTemplate::fixed`]), where the
+/// cuts stay put.
 fn cut_length(template: &RigidTemplate, sums: &PrefixSums, pose: Pose, u: Point, means: [f64; 2]) -> f64 {
-    if template.cuts.is_empty() {
+    if template.cuts.is_empty() || template.fixed.is_some() {
         return 0.0;
     }
     let extent = sums.image_extent();

@@ -403,48 +403,72 @@ fn scratched_dark_blurred_and_relief_scenes() {
     }
 }
 
-/// No confident wrong disparity on tools entering from the border, seeds
+/// No confident wrong pair on tools entering from the border, seeds
 /// 900..910 (4 shapes, 10 pairs each): every tracked pair's disparity lies
-/// within 1 px of the truth after removing the sequence's median offset.
-/// A rod (seed 904, pair 6) had its left contour settle 7 px along its
-/// axis while the right one stayed on the object: 6.8 px off, `tracked`,
-/// until the left view was fitted again from the right view's result when
-/// both fits left their predictions by more than 1.5 px.
+/// within 1 px of the truth and its left contour within 3 px, after
+/// removing the sequence's median offsets. The contour's position is that
+/// of the point it carries where the object's centroid was in the first
+/// pair (the visible part's centroid is not the object's). A rod (seed
+/// 904, pair 6) had its left contour settle 7 px along its axis while the
+/// right one stayed on the object: 6.8 px off, `tracked`, until the left
+/// view was fitted again from the right view's result when both fits left
+/// their predictions by more than 1.5 px. Before the fits' domain was fixed
+/// in the image, 1 tool in 10 (seeds 100..120 and 200..210) slid along its
+/// axis, up to 20 px, with the disparity right.
 #[test]
-fn border_tools_have_no_confident_wrong_disparity() {
-    let mut worst = (0.0f64, String::new());
+fn border_tools_have_no_confident_wrong_pairs() {
+    let mut wrong = Vec::new();
+    let mut worst = (0.0f64, 0.0f64);
     for shape in Shape::ALL {
         for seed in 900..910 {
-            let mut errors = Vec::new();
+            let (mut errors, mut centroids, mut frames_seen) = (Vec::new(), Vec::new(), Vec::new());
+            let mut anchor = None;
             for (result, pair) in tracked_sequence(&border_tool_config(shape, seed)) {
-                if matches!(result.status, Status::Tracked | Status::Initialised) {
-                    let d = result.disparity_px.expect("a tracked pair has a disparity");
-                    errors.push((result.frame, d[0] - pair.truth.disparity_px[0]));
+                if !matches!(result.status, Status::Tracked | Status::Initialised) {
+                    continue;
                 }
+                let d = result.disparity_px.expect("a tracked pair has a disparity");
+                errors.push(d[0] - pair.truth.disparity_px[0]);
+                let left = result.left.expect("a tracked pair has a left view");
+                let truth = pair.truth.left.centroid;
+                // The object's centroid relative to the contour in the first pair.
+                let (offset, angle) = *anchor.get_or_insert((
+                    [truth[0] - left.centroid[0], truth[1] - left.centroid[1]],
+                    left.angle_rad,
+                ));
+                let (sin, cos) = (left.angle_rad - angle).sin_cos();
+                let carried = [
+                    left.centroid[0] + offset[0] * cos - offset[1] * sin,
+                    left.centroid[1] + offset[0] * sin + offset[1] * cos,
+                ];
+                centroids.push([carried[0] - truth[0], carried[1] - truth[1]]);
+                frames_seen.push(result.frame);
             }
-            let mut sorted: Vec<f64> = errors.iter().map(|e| e.1).collect();
-            sorted.sort_by(f64::total_cmp);
-            let median = sorted[sorted.len() / 2];
-            for (frame, e) in errors {
-                if (e - median).abs() > worst.0 {
-                    worst = (
-                        (e - median).abs(),
-                        format!("{}/{seed} pair {frame}", shape.name()),
-                    );
+            for (d, frame) in deviations_from_medians(&errors, &centroids)
+                .iter()
+                .zip(frames_seen)
+            {
+                worst = (
+                    worst.0.max(d.disparity_px.abs()),
+                    worst.1.max(d.centroid_px[0].hypot(d.centroid_px[1])),
+                );
+                if d.confident_wrong() {
+                    wrong.push(format!(
+                        "{}/{seed} pair {frame}: disparity {:+.2} px, centroid ({:+.1}, {:+.1}) px",
+                        shape.name(),
+                        d.disparity_px,
+                        d.centroid_px[0],
+                        d.centroid_px[1]
+                    ));
                 }
             }
         }
     }
     eprintln!(
-        "border tools, seeds 900..910: largest disparity error {:.3} px ({})",
+        "border tools, seeds 900..910: largest deviation from the medians {:.3} px in disparity, {:.2} px in position",
         worst.0, worst.1
     );
-    assert!(
-        worst.0 <= 1.0,
-        "{}: disparity {:.3} px off the truth, reported tracked",
-        worst.1,
-        worst.0
-    );
+    assert!(wrong.is_empty(), "confident wrong, reported tracked: {wrong:#?}");
 }
 
 /// A border-tool sequence of [`FRAMES`] pairs.
