@@ -482,7 +482,8 @@ pub struct RigidTemplate {
     /// (template coordinates; empty for an object inside the image): the
     /// object goes on unseen beyond these half-planes, wherever they are
     /// placed, so the outline along them is no edge and its energy leaves
-    /// out what lies beyond them ([`crate::energy::evaluate_cut`]).
+    /// out what lies beyond them ([`crate::energy::evaluate_cut`]; within a
+    /// tracking step, [`RigidTemplate::fixed_at`]).
     pub cuts: Vec<HalfPlane>,
     /// Half-planes fixed in the image (image coordinates) outside which a
     /// fit of this template does not look; empty unless set for one view

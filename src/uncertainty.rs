@@ -25,7 +25,9 @@
 //! texture where the fit looks counts as noise too; outside, with its
 //! integrated autocorrelation along the outline, since texture that varies
 //! slowly along it moves the fit as a whole. A template cut by the image
-//! border adds the strip its cut carries ([`cut_length`]).
+//! border adds the strip its cut carries ([`cut_length`]) where the cut
+//! moves with it; in a tracking step the cut stays put
+//! ([`crate::fit::RigidTemplate::fixed_at`]) and adds nothing.
 //!
 //! What this leaves out (the template not matching the outline exactly,
 //! sub-pixel discretisation) is the tracker's floor
