@@ -9,7 +9,7 @@ use crate::energy::{
     combine, evaluate, evaluate_cut, evaluate_fixed, evaluate_with_length, window_of, EnergyParams,
     EnergyTerms, INTENSITY_OFFSET,
 };
-use crate::geometry::{dist, segment_distance, segments_distance, HalfPlane, Point, Polygon};
+use crate::geometry::{dist, segment_distance, segments_distance, solve3, HalfPlane, Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::region::{PixelRect, PrefixSums};
 
@@ -511,6 +511,19 @@ pub struct FixedDomain {
     pub continued_px: f64,
 }
 
+impl FixedDomain {
+    /// This domain moved by `by` (the other view of a stereo pair, `by` the
+    /// disparity).
+    pub fn moved(&self, by: Point) -> Self {
+        let [x0, y0, x1, y1] = self.window;
+        Self {
+            cuts: self.cuts.iter().map(|c| c.moved(0.0, by)).collect(),
+            window: [x0 + by[0], y0 + by[1], x1 + by[0], y1 + by[1]],
+            continued_px: self.continued_px,
+        }
+    }
+}
+
 impl RigidTemplate {
     /// The direction the rigid fits translate along
     /// ([`CompassSearch::along`]): the principal axis for a template cut by
@@ -603,11 +616,18 @@ impl RigidTemplate {
     }
 
     /// This template with its cuts and window fixed in the image where they
-    /// lie at `pose` (nothing changes for a template without cuts), for fits
-    /// that move it up to `reach` pixels.
+    /// lie at `pose` ([`RigidTemplate::domain_at`]; nothing changes for a
+    /// template without cuts), for fits that move it up to `reach` pixels.
     pub fn fixed_at(&self, image: [f64; 4], pose: Pose, reach: f64) -> Self {
+        self.with_fixed(self.domain_at(image, pose, reach))
+    }
+
+    /// The domain fixed in the image where this template's cuts and window
+    /// lie at `pose` (within its limits), for fits that move it up to
+    /// `reach` pixels; `None` for a template without cuts.
+    pub fn domain_at(&self, image: [f64; 4], pose: Pose, reach: f64) -> Option<FixedDomain> {
         if self.cuts.is_empty() {
-            return self.clone();
+            return None;
         }
         let cuts: Vec<HalfPlane> = self
             .cuts
@@ -624,27 +644,15 @@ impl RigidTemplate {
         } else {
             window_of(&place(&self.points, pose), self.margin)
         };
-        Self {
-            fixed: Some(FixedDomain {
-                cuts,
-                window,
-                continued_px: reach + self.margin,
-            }),
-            ..self.clone()
-        }
+        Some(FixedDomain {
+            cuts,
+            window,
+            continued_px: reach + self.margin,
+        })
     }
 
-    /// This template with its fixed domain moved by `by` (the other view of
-    /// a stereo pair, `by` the disparity).
-    pub fn fixed_moved(&self, by: Point) -> Self {
-        let fixed = self.fixed.as_ref().map(|f| {
-            let [x0, y0, x1, y1] = f.window;
-            FixedDomain {
-                cuts: f.cuts.iter().map(|c| c.moved(0.0, by)).collect(),
-                window: [x0 + by[0], y0 + by[1], x1 + by[0], y1 + by[1]],
-                continued_px: f.continued_px,
-            }
-        });
+    /// This template with `fixed` as its fixed domain.
+    pub fn with_fixed(&self, fixed: Option<FixedDomain>) -> Self {
         Self {
             fixed,
             ..self.clone()
@@ -1151,23 +1159,7 @@ fn circle_rms_residual(points: &[Point]) -> Option<f64> {
             v[i] += row[i] * z;
         }
     }
-    let det = |a: [[f64; 3]; 3]| {
-        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
-    };
-    let d0 = det(m);
-    if d0.abs() < 1e-9 {
-        return None;
-    }
-    // Cramer's rule.
-    let solve = |k: usize| {
-        let mut a = m;
-        for (row, value) in a.iter_mut().zip(v) {
-            row[k] = value;
-        }
-        det(a) / d0
-    };
-    let (d, e, f) = (solve(0), solve(1), solve(2));
+    let [d, e, f] = solve3(&m, &v, 1e-9)?;
     let centre = [-d / 2.0, -e / 2.0];
     let r2 = centre[0] * centre[0] + centre[1] * centre[1] - f;
     if !(r2.is_finite() && r2 > 0.0) {

@@ -470,6 +470,30 @@ impl HalfPlane {
     }
 }
 
+/// The solution of the 3x3 linear system `m x = v` by Cramer's rule;
+/// `None` unless the determinant's magnitude exceeds `min_abs_det` (the
+/// caller's scale for a degenerate system). Used for small least-squares
+/// normal equations (an edge profile, a circle fit).
+pub fn solve3(m: &[[f64; 3]; 3], v: &[f64; 3], min_abs_det: f64) -> Option<[f64; 3]> {
+    let det3 = |a: &[[f64; 3]; 3]| {
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    };
+    let d = det3(m);
+    if d.is_nan() || d.abs() <= min_abs_det {
+        return None;
+    }
+    let mut x = [0.0; 3];
+    for (k, xk) in x.iter_mut().enumerate() {
+        let mut a = *m;
+        for r in 0..3 {
+            a[r][k] = v[r];
+        }
+        *xk = det3(&a) / d;
+    }
+    Some(x)
+}
+
 /// Euclidean distance between two points.
 #[inline]
 pub fn dist(a: Point, b: Point) -> f64 {

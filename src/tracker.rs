@@ -842,11 +842,7 @@ impl StereoTracker {
                 .fixed_at(image, left_pose, Self::NEAR_REACH_PX);
             let left_fit = fit_rigid(&left_sums, &left_fixed, left_pose, energy, &settle);
             let limited = template.limited_to(r);
-            let right_fixed = RigidTemplate {
-                fixed: left_fixed.fixed.clone(),
-                ..limited.clone()
-            }
-            .fixed_moved(disparity);
+            let right_fixed = limited.with_fixed(left_fixed.fixed.as_ref().map(|f| f.moved(disparity)));
             let right_sums = self.sums_around(right, &limited, right_pose, Self::NEAR_REACH_PX);
             let right_fit = fit_rigid(&right_sums, &right_fixed, right_pose, energy, &settle);
             if left_fit.terms.energy.is_finite() && right_fit.terms.energy.is_finite() {
@@ -904,7 +900,7 @@ impl StereoTracker {
         );
         // The standard errors on the energy the poses were fitted with.
         let left_fixed = template.fixed_at(PixelRect::full(left).extent(), left_pose, Self::NEAR_REACH_PX);
-        let right_fixed = left_fixed.fixed_moved(disparity);
+        let right_fixed = template.with_fixed(left_fixed.fixed.as_ref().map(|f| f.moved(disparity)));
         let mut left_fit = ImageFit::full(left_pose, left_terms);
         self.measure_std(
             left,
@@ -1118,12 +1114,11 @@ impl StereoTracker {
         };
         let right_at = |left_pose: Pose| -> Cow<(RigidTemplate, SectorTemplate)> {
             if fixing {
-                let domain = left_templates.0.fixed_at(image, left_pose, reach);
-                let right = RigidTemplate {
-                    fixed: domain.fixed,
-                    ..right_templates.0.clone()
-                };
-                Cow::Owned((right.fixed_moved(state.disparity()), right_templates.1.clone()))
+                let domain = left_templates.0.domain_at(image, left_pose, reach);
+                let right = right_templates
+                    .0
+                    .with_fixed(domain.map(|d| d.moved(state.disparity())));
+                Cow::Owned((right, right_templates.1.clone()))
             } else {
                 Cow::Borrowed(right_templates)
             }

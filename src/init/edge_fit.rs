@@ -29,7 +29,7 @@
 //! they are. Under a 2-px blur a rim and a shift look alike, and the edge is
 //! known to about 0.3 px only.
 
-use crate::geometry::Polygon;
+use crate::geometry::{solve3, Polygon};
 use crate::imageio::GrayFrame;
 
 /// Half-width of the band around the outline where the edge is sought, pixels.
@@ -495,21 +495,8 @@ fn least_squares(rows: impl Iterator<Item = (f64, [f64; 3], f64)>) -> (f64, f64)
         }
         yy += w * y * y;
     }
-    // Cramer's rule on the 3x3 normal equations.
-    let det3 = |a: &[[f64; 3]; 3]| {
-        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
-    };
-    let d = det3(&m);
-    if d.abs() > 1e-9 * (m[0][0] * m[1][1] * m[2][2]).abs().max(1e-300) {
-        let mut beta = [0.0; 3];
-        for (k, b) in beta.iter_mut().enumerate() {
-            let mut a = m;
-            for r in 0..3 {
-                a[r][k] = v[r];
-            }
-            *b = det3(&a) / d;
-        }
+    // The 3x3 normal equations.
+    if let Some(beta) = solve3(&m, &v, 1e-9 * (m[0][0] * m[1][1] * m[2][2]).abs().max(1e-300)) {
         if beta[2] >= 0.0 {
             let fitted: f64 = (0..3).map(|k| beta[k] * v[k]).sum();
             return ((yy - fitted).max(0.0), beta[1]);
