@@ -46,9 +46,10 @@ pub(super) struct Grown {
 /// exceeds the substrate's mean there (the band 3..9 px beyond `max_px`) by
 /// at least `min_excess` of the substrate-to-object contrast, that part of
 /// the outline moves to where the rim falls half way back to the substrate
-/// beyond its peak, elsewhere it stays. `None` when no sector has such a
-/// rim, when the bands leave the image, or when the outline is too small
-/// to offset.
+/// beyond its peak, elsewhere it stays. A sector whose bands leave the
+/// image takes the growth of the nearest measured sector on either side.
+/// `None` when no sector has such a rim, when every sector's bands leave
+/// the image, or when the outline is too small to offset.
 pub(super) fn grow_over_rim(
     frame: &GrayFrame,
     contour: &Polygon,
@@ -67,9 +68,6 @@ pub(super) fn grow_over_rim(
     // noise would turn offsets of 10-20 px along the vertex normals into
     // loops.
     let normals = contour.moving_average(4).outward_normals();
-    if !sums.contains(&contour.offset_along(&normals, reach - 2.0).points) {
-        return None;
-    }
     let at = |i: usize, d: f64| -> Point {
         let (p, q) = (contour.points[i % n], normals[i % n]);
         [p[0] + d * q[0], p[1] + d * q[1]]
@@ -85,6 +83,9 @@ pub(super) fn grow_over_rim(
         let s = sums.polygon(&points);
         [s.sum, s.count]
     };
+    if !sums.contains(&contour.points) {
+        return None;
+    }
     let object = sums.polygon(&contour.points).mean();
     // Rings from `inward` inside the outline, which may already lie on
     // the rim or beyond it in places, out to `max_px`.
@@ -92,9 +93,27 @@ pub(super) fn grow_over_rim(
     let rings = inward + (max_px / RING_PX).floor() as usize;
     let ring = |r: usize| (r as f64 - inward as f64) * RING_PX;
     let substrate_band = [max_px + SUBSTRATE_BAND_PX[0], max_px + SUBSTRATE_BAND_PX[1]];
-    // Per sector: the substrate band, then every ring, as [sum, area].
+    // A sector whose profile runs out of the image (an object near the
+    // border) is not measured; it takes its measured neighbours' growth.
+    let measured: Vec<bool> = (0..count)
+        .map(|k| {
+            let (a, b) = (starts[k], starts[k + 1]);
+            let ends: Vec<Point> = (a..=b)
+                .flat_map(|i| [at(i, ring(0)), at(i, substrate_band[1])])
+                .collect();
+            sums.contains(&ends)
+        })
+        .collect();
+    if !measured.contains(&true) {
+        return None;
+    }
+    // Per measured sector: the substrate band, then every ring, as [sum,
+    // area]; zeros elsewhere.
     let raw: Vec<Vec<[f64; 2]>> = (0..count)
         .map(|k| {
+            if !measured[k] {
+                return vec![[0.0, 0.0]; rings + 1];
+            }
             std::iter::once(strip(k, substrate_band[0], substrate_band[1]))
                 .chain((0..rings).map(|r| strip(k, ring(r), ring(r) + RING_PX)))
                 .collect()
@@ -115,6 +134,9 @@ pub(super) fn grow_over_rim(
     // Each sector's means, a quarter weight from each neighbour.
     let growth: Vec<Option<f64>> = (0..count)
         .map(|k| {
+            if !measured[k] {
+                return None;
+            }
             let means: Option<Vec<f64>> = (0..=rings)
                 .map(|r| {
                     let [s, a] = [(count + k - 1) % count, k, (k + 1) % count]
@@ -158,8 +180,21 @@ pub(super) fn grow_over_rim(
             Some(ring(r) + shift * RING_PX)
         })
         .collect();
-    // A sector whose rim does not fall back within reach keeps no growth.
-    let growth: Vec<f64> = growth.into_iter().map(|g| g.unwrap_or(0.0)).collect();
+    // A sector whose rim does not fall back within reach keeps no growth;
+    // one not measured takes the mean of the nearest measured sector on
+    // either side.
+    let nearest = |k: usize, step: usize| {
+        (1..count)
+            .map(|j| (k + j * step) % count)
+            .find(|&j| measured[j])
+            .map_or(0.0, |j| growth[j].unwrap_or(0.0))
+    };
+    let growth: Vec<f64> = (0..count)
+        .map(|k| match (measured[k], growth[k]) {
+            (true, g) => g.unwrap_or(0.0),
+            (false, _) => 0.5 * (nearest(k, 1) + nearest(k, count - 1)),
+        })
+        .collect();
     if growth.iter().all(|&g| g == 0.0) {
         return None;
     }
@@ -177,7 +212,12 @@ mod tests {
     /// of `rim` just inside the outline, `substrate` outside (anti-aliased
     /// by 4x4 supersampling).
     fn disc(radius: f64, core: f64, rim: f64, substrate: f64) -> GrayFrame {
-        let (w, h) = (200u32, 200u32);
+        disc_in(200, radius, core, rim, substrate)
+    }
+
+    /// [`disc`] in an image `w` pixels wide.
+    fn disc_in(w: u32, radius: f64, core: f64, rim: f64, substrate: f64) -> GrayFrame {
+        let h = 200u32;
         let data = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f64, (i / w) as f64);
@@ -222,6 +262,31 @@ mod tests {
     }
 
     #[test]
+    fn a_core_near_the_border_grows_where_its_bands_leave_the_image() {
+        // The disc's right side ends 6 px from the border: its substrate
+        // band (3..9 px beyond the 6-px reach) leaves the image there.
+        let frame = disc_in(146, 40.0, 60.0, 200.0, 140.0);
+        let start = Polygon::circle([100.0, 100.0], 37.5, 96);
+        let Grown { outline, .. } = grow_over_rim(&frame, &start, 6.0, 0.15).unwrap();
+        let radii: Vec<f64> = outline
+            .points
+            .iter()
+            .map(|q| (q[0] - 100.0).hypot(q[1] - 100.0))
+            .collect();
+        for (i, r) in radii.iter().enumerate() {
+            assert!(
+                (r - 40.0).abs() < 0.6,
+                "vertex {i}: grown to radius {r:.2}, expected 40 +- 0.6"
+            );
+        }
+        let c = outline.centroid();
+        assert!(
+            (c[0] - 100.0).hypot(c[1] - 100.0) < 0.2,
+            "centroid {c:?}, expected (100, 100) within 0.2 px"
+        );
+    }
+
+    #[test]
     fn outlines_without_a_bright_rim_stay() {
         // No rim: the ring outside the dark core is the substrate.
         let plain = disc(40.0, 60.0, 60.0, 140.0);
@@ -231,7 +296,7 @@ mod tests {
             let start = Polygon::circle([100.0, 100.0], 40.0, 96);
             assert_eq!(grow_over_rim(frame, &start, 6.0, 0.15), None);
         }
-        // Too close to the image border for the substrate band: unchanged.
+        // Near the image border, with no rim where its bands are measured.
         let near = Polygon::circle([12.0, 100.0], 8.0, 32);
         assert_eq!(grow_over_rim(&plain, &near, 6.0, 0.15), None);
     }
