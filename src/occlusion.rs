@@ -351,6 +351,30 @@ pub const RISEN_RATIO: f64 = 1.4;
 /// raises single sectors up to 2 times as the object moves over it.
 pub const MIN_RISEN_RUN: usize = 3;
 
+/// The runs of sectors whose contrast rose above [`RISEN_RATIO`] times
+/// their own reference (Michelson contrasts: a change of gain leaves them),
+/// at least [`MIN_RISEN_RUN`] long and grown by a sector on each side.
+/// Unlike [`SectorJudgement::risen`], not against the median sector, which
+/// falls when most of the outline loses its contrast (a tool over a
+/// particle), and including sectors risen beyond `max_ratio`. Sectors
+/// whose reference contrast is weak (below a quarter of the median) or not
+/// seen are never marked.
+pub fn risen_on_their_own(reference: &[f64], current: &SectorLook) -> Vec<bool> {
+    let mut magnitudes: Vec<f64> = reference
+        .iter()
+        .filter(|r| r.is_finite())
+        .map(|r| r.abs())
+        .collect();
+    magnitudes.sort_by(|a, b| a.total_cmp(b));
+    let typical = magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0);
+    let marks: Vec<bool> = reference
+        .iter()
+        .zip(&current.contrasts)
+        .map(|(r, c)| r.is_finite() && *r != 0.0 && r.abs() >= 0.25 * typical && c / r > RISEN_RATIO)
+        .collect();
+    grown(&runs_at_least(&marks, MIN_RISEN_RUN))
+}
+
 /// The marks that belong to a run of at least `min` consecutive marks
 /// (the sectors wrap round; all marked is one run).
 fn runs_at_least(marks: &[bool], min: usize) -> Vec<bool> {
@@ -592,6 +616,38 @@ mod tests {
         let marked: Vec<usize> = (0..24).filter(|&k| marks[k]).collect();
         // Runs 0..=5 and 10, each grown by one sector (wrapping round to 23).
         assert_eq!(marked, vec![0, 1, 2, 3, 4, 5, 6, 9, 10, 11, 23]);
+    }
+
+    #[test]
+    fn sectors_risen_on_their_own_are_found_whatever_the_median() {
+        let reference = vec![0.4; 24];
+        let look = |contrasts: Vec<f64>| SectorLook {
+            contrasts,
+            inner: Vec::new(),
+        };
+        // Half the outline against a dark bar (1.6 times its contrast,
+        // beyond the judgement's max_ratio against the median), the other
+        // half without contrast.
+        let mut half: Vec<f64> = (0..24).map(|k| if k < 12 { 0.64 } else { 0.0 }).collect();
+        half[11] = 0.36;
+        let marked: Vec<usize> = (0..24)
+            .filter(|&k| risen_on_their_own(&reference, &look(half.clone()))[k])
+            .collect();
+        assert_eq!(marked, (0..12).chain([23]).collect::<Vec<_>>());
+        // A tool over a particle: most of its outline without contrast,
+        // its base as it was. Against the median the base has risen; on
+        // its own it has not.
+        let tool: Vec<f64> = (0..24).map(|k| if k < 6 { 0.4 } else { 0.02 }).collect();
+        assert!(!risen_on_their_own(&reference, &look(tool)).contains(&true));
+        // A single risen sector is no run; a weak reference is not judged.
+        let mut single = vec![0.4; 24];
+        single[5] = 0.8;
+        assert!(!risen_on_their_own(&reference, &look(single)).contains(&true));
+        let mut weak = reference.clone();
+        weak[..4].fill(0.05);
+        let mut current = vec![0.4; 24];
+        current[..4].fill(0.2);
+        assert!(!risen_on_their_own(&weak, &look(current)).contains(&true));
     }
 
     #[test]

@@ -23,7 +23,9 @@ use crate::geometry::{dist, polygon_iou, HalfPlane, Point, Polygon};
 use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
-use crate::occlusion::{grown, judge_look, OcclusionParams, SectorReference, SectorTemplate};
+use crate::occlusion::{
+    grown, judge_look, risen_on_their_own, OcclusionParams, SectorReference, SectorTemplate,
+};
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
 use crate::uncertainty;
@@ -1389,8 +1391,10 @@ impl StereoTracker {
     }
 
     /// [`Self::fit_view_on`] with the standard error of the result along
-    /// the disparity axis ([`Self::axis_std`]), which for a full fit with a
-    /// run of risen sectors includes how far the pose moves without them.
+    /// the disparity axis ([`Self::axis_std`]), which for a fit with a run
+    /// of risen sectors includes how far the pose moves without them (and,
+    /// for a fit with hidden sectors, without its masked sectors too); NaN
+    /// when too little is left without them.
     fn fit_view(
         &self,
         frame: &GrayFrame,
@@ -1418,7 +1422,35 @@ impl StereoTracker {
             let moved = masked_fit(&sums, (&templates.0, &templates.1), fit.pose, &risen, &near);
             fit.risen_shift_px = self.axis_shift(fit.pose, moved);
         }
+        // A fit with hidden sectors whose visible outline shows a run of
+        // risen contrast where it settled: half of a rod's outline against
+        // a dark bar that covers its other half lengthwise, the rest
+        // without contrast. The visible edge may be the occluder's, and the
+        // hidden sectors merely where the contour left the object's edge.
+        // Without both, what is left must still place the contour.
+        let mut unplaced = false;
+        if fit.hidden.contains(&true) && templates.0.cuts.is_empty() {
+            let look = templates.1.look(&sums, fit.pose);
+            let risen_here = risen_on_their_own(reference.contrasts, &look);
+            if risen_here.iter().zip(&fit.occluded).any(|(r, o)| *r && !o) {
+                let doubt: Vec<bool> = risen_here
+                    .iter()
+                    .zip(&fit.occluded)
+                    .map(|(r, o)| *r || *o)
+                    .collect();
+                if fraction(&doubt) > MAX_MASKED_FRACTION {
+                    unplaced = true;
+                } else {
+                    let near = self.masked_search(&templates.0, 1.0, search.rotate, search.line);
+                    let moved = masked_fit(&sums, (&templates.0, &templates.1), fit.pose, &doubt, &near);
+                    fit.risen_shift_px = self.axis_shift(fit.pose, moved);
+                }
+            }
+        }
         self.measure_std(frame, &sums, (&templates.0, &templates.1), &mut fit, bands);
+        if unplaced {
+            fit.axis_std_px = f64::NAN;
+        }
         fit
     }
 
@@ -2334,9 +2366,10 @@ struct ImageFit {
     /// runs grown by a sector, pixels (0 without a mask): a bias the
     /// noise-based standard error does not include, added to it.
     mask_shift_px: f64,
-    /// For a full fit with a run of sectors whose contrast rose
+    /// For a fit with a run of sectors whose contrast rose
     /// ([`crate::occlusion::SectorJudgement::risen`]): how far the pose
-    /// moves along the disparity axis without them, pixels (0 otherwise).
+    /// moves along the disparity axis without them (and without the masked
+    /// sectors of a fit with hidden ones), pixels (0 otherwise).
     /// Added to the disparity's standard error; the position's is the
     /// noise's.
     risen_shift_px: f64,
