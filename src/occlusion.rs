@@ -360,19 +360,25 @@ pub const MIN_RISEN_RUN: usize = 3;
 /// whose reference contrast is weak (below a quarter of the median) or not
 /// seen are never marked.
 pub fn risen_on_their_own(reference: &[f64], current: &SectorLook) -> Vec<bool> {
-    let mut magnitudes: Vec<f64> = reference
-        .iter()
-        .filter(|r| r.is_finite())
-        .map(|r| r.abs())
-        .collect();
-    magnitudes.sort_by(|a, b| a.total_cmp(b));
-    let typical = magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0);
+    let typical = median_magnitude(reference);
     let marks: Vec<bool> = reference
         .iter()
         .zip(&current.contrasts)
         .map(|(r, c)| r.is_finite() && *r != 0.0 && r.abs() >= 0.25 * typical && c / r > RISEN_RATIO)
         .collect();
     grown(&runs_at_least(&marks, MIN_RISEN_RUN))
+}
+
+/// The median magnitude of the seen reference contrasts (0 when none is
+/// seen): a sector far below it carries too little signal to judge.
+fn median_magnitude(reference: &[f64]) -> f64 {
+    let mut magnitudes: Vec<f64> = reference
+        .iter()
+        .filter(|r| r.is_finite())
+        .map(|r| r.abs())
+        .collect();
+    magnitudes.sort_by(|a, b| a.total_cmp(b));
+    magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0)
 }
 
 /// The marks that belong to a run of at least `min` consecutive marks
@@ -494,13 +500,7 @@ pub fn judge_look(
     let (reference_inner, reference) = (reference.inner, reference.contrasts);
     let current_inner = &current.inner;
     let current = &current.contrasts[..];
-    let mut magnitudes: Vec<f64> = reference
-        .iter()
-        .filter(|r| r.is_finite())
-        .map(|r| r.abs())
-        .collect();
-    magnitudes.sort_by(|a, b| a.total_cmp(b));
-    let typical = magnitudes.get(magnitudes.len() / 2).copied().unwrap_or(0.0);
+    let typical = median_magnitude(reference);
     let strong: Vec<bool> = reference
         .iter()
         .zip(current)

@@ -481,6 +481,16 @@ fn border_tool_config(shape: Shape, seed: u64) -> SynthConfig {
 
 /// Every pair of `config`'s sequence with its result from one tracker on
 /// default parameters.
+/// Confident wrong pairs among tracked ones, from their disparity errors
+/// along x and left centroid errors (after the medians; see
+/// [`deviations_from_medians`]).
+fn confident_wrong(errors: &[f64], centroids: &[[f64; 2]]) -> usize {
+    deviations_from_medians(errors, centroids)
+        .iter()
+        .filter(|d| d.confident_wrong())
+        .count()
+}
+
 fn tracked_sequence(config: &SynthConfig) -> impl Iterator<Item = (PairResult, SynthPair)> {
     let mut tracker = StereoTracker::new(TrackerParams::default());
     frames(config).unwrap().map(move |pair| {
@@ -715,10 +725,7 @@ fn the_right_view_is_searched_on_its_epipolar_line() {
         errors.push(d[0] - pair.truth.disparity_px[0]);
         centroids.push([c[0] - t[0], c[1] - t[1]]);
     }
-    let wrong = deviations_from_medians(&errors, &centroids)
-        .iter()
-        .filter(|d| d.confident_wrong())
-        .count();
+    let wrong = confident_wrong(&errors, &centroids);
     assert_eq!(wrong, 0, "confident wrong pairs of {} tracked", errors.len());
     // Pairs 11-15, under the bar, are `uncertain` (standard errors of
     // 0.7-2 px, or the position fixed in one direction only).
@@ -752,10 +759,7 @@ fn a_bar_along_half_an_object_does_not_place_its_contour() {
             errors.push(d[0] - pair.truth.disparity_px[0]);
             centroids.push([c[0] - t[0], c[1] - t[1]]);
         }
-        let wrong = deviations_from_medians(&errors, &centroids)
-            .iter()
-            .filter(|d| d.confident_wrong())
-            .count();
+        let wrong = confident_wrong(&errors, &centroids);
         let name = format!("crossing/{}/{seed}", shape.name());
         assert_eq!(
             wrong,
