@@ -194,8 +194,6 @@ fn cluttered_background() {
 /// a pair and put one 1.3 px off here (seeds 0..10: 29 of 800 pairs lost,
 /// every other pair of a rod), and on crossing seeds 0..10 (20 pairs) a
 /// blob's contour was pulled 41 px onto the bar, 9 pairs confident wrong.
-/// Not yet held: over 20 pairs, the crossing rod of seed 103 slides 4-12 px
-/// along its axis under the bar (its disparity stays within 0.07 px).
 #[test]
 fn occluders_moving_on_their_own_and_fast_motion() {
     for (preset, frame_count) in [(Preset::Crossing, FRAMES), (Preset::Fast, 20)] {
@@ -225,12 +223,10 @@ fn occluders_moving_on_their_own_and_fast_motion() {
 /// Before, a rod half under a bright bar parallel to it was taken 24 px
 /// onto the bar, its median sector at 0.06 of its first contrast, and
 /// reported 0% occluded and `tracked` 1.5-3 px off: 0.293 px, 5 confident
-/// wrong. Not yet held on other seeds: a tip taken 13 px onto the occluder
-/// with the typical sector's contrast kept (seeds 200..205: 0.176 px, 3
-/// confident wrong, tip 203); a slender object whose end is hidden sliding
-/// along its axis while its disparity stays right (seeds 300..305: 3 pairs
-/// with the left centroid 5-19 px along a rod, disparity within 0.2 px;
-/// seeds 900..905: 1 such pair).
+/// wrong. Not yet held on other seeds: a slender object whose end is
+/// hidden sliding along its axis while its disparity stays right (seeds
+/// 300..305: 4 pairs of rod 302, disparity within 0.25 px; seeds 900..905:
+/// 1 pair of rod 902).
 #[test]
 fn noise_occlusion_and_flicker_together() {
     let a = measure(Preset::Combined, &Shape::ALL, SEEDS, FRAMES);
