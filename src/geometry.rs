@@ -144,6 +144,24 @@ impl Polygon {
         0.5 * (2.0 * mu11).atan2(mu20 - mu02)
     }
 
+    /// Standard deviations of the enclosed area along its principal axes,
+    /// long axis first (square roots of the central second moments'
+    /// eigenvalues): the shape's size along and across itself, whatever
+    /// its position and rotation. Zero for a degenerate polygon.
+    pub fn principal_spreads(&self) -> [f64; 2] {
+        let m = self.moments();
+        if m.area.abs() < 1e-12 {
+            return [0.0; 2];
+        }
+        let c = [m.mx / m.area, m.my / m.area];
+        let mu20 = m.mxx / m.area - c[0] * c[0];
+        let mu02 = m.myy / m.area - c[1] * c[1];
+        let mu11 = m.mxy / m.area - c[0] * c[1];
+        let mean = 0.5 * (mu20 + mu02);
+        let half = (0.25 * (mu20 - mu02).powi(2) + mu11 * mu11).sqrt();
+        [(mean + half).max(0.0).sqrt(), (mean - half).max(0.0).sqrt()]
+    }
+
     /// Bounding box as (min x, min y, max x, max y).
     pub fn bounds(&self) -> [f64; 4] {
         self.points.iter().fold(
@@ -594,6 +612,11 @@ mod tests {
         let rot = r.rotated_about(c, 0.3);
         assert!((rot.orientation() - 0.3).abs() < 1e-9);
         assert!((rot.area() - 40.0).abs() < 1e-9);
+        // A uniform strip of length L has standard deviation L / sqrt(12)
+        // along it, whatever its rotation.
+        let [long, short] = rot.principal_spreads();
+        assert!((long - 10.0 / 12f64.sqrt()).abs() < 1e-9, "{long}");
+        assert!((short - 4.0 / 12f64.sqrt()).abs() < 1e-9, "{short}");
     }
 
     #[test]

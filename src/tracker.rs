@@ -42,6 +42,22 @@ pub const DISPARITY_STD_FLOOR_PX: f64 = 0.02;
 /// afresh: a lost object is not replaced by whatever is largest.
 pub const REACQUIRE_PAIRS: u32 = 10;
 
+/// Least ratio of each principal spread (see
+/// [`Polygon::principal_spreads`]) of an object initialised afresh after a
+/// loss to the lost template's, and of the lost one's to it: an object
+/// found afresh beyond it is taken for part of the lost one (what an
+/// occluder leaves visible: half a rod's width beside a dark bar, whose
+/// disparity mixes the bar's in, 0.85-1.5 px off) or for another object,
+/// and the lost template is sought again. See [`REFUSED_INITS`].
+pub const MIN_SPREAD_RATIO: f64 = 0.85;
+
+/// Fresh initialisations after a loss refused as unlike the lost object
+/// (see [`MIN_SPREAD_RATIO`]) before the next one is taken as it is: an
+/// object changed beyond recognition for that long is the object as it is
+/// now. Each refusal is followed by [`REACQUIRE_PAIRS`] pairs that seek the
+/// lost template again.
+pub const REFUSED_INITS: u32 = 3;
+
 /// Reason of a tracked pair whose object was found again by its template
 /// after a loss.
 pub const REACQUIRED: &str = "reacquired";
@@ -470,6 +486,10 @@ pub struct TrackerState {
     /// nothing (see [`REACQUIRE_PAIRS`]).
     #[serde(default)]
     pub missed_searches: u32,
+    /// Fresh initialisations refused since the object was lost, as unlike
+    /// it (see [`REFUSED_INITS`]).
+    #[serde(default)]
+    pub refused_inits: u32,
     /// The disparity's standard error on the pair that initialised the
     /// object, pixels (0: not known, as in states stored before it was
     /// kept); see [`TrackerParams::max_disparity_std_px`].
@@ -783,6 +803,33 @@ impl StereoTracker {
         result
     }
 
+    /// After a loss, a fresh template unlike the lost one (a principal
+    /// spread off by more than [`MIN_SPREAD_RATIO`]) is refused, up to
+    /// [`REFUSED_INITS`] times: the reason of the lost pair, the state set
+    /// to seek the lost template again. Objects cut by the image border are
+    /// not compared (their visible part changes as they move).
+    fn refuse_unlike_lost(&mut self, template: &RigidTemplate) -> Option<String> {
+        let state = self.state.as_mut().filter(|s| s.lost)?;
+        if state.refused_inits >= REFUSED_INITS
+            || !state.template_cuts.is_empty()
+            || !template.cuts.is_empty()
+        {
+            return None;
+        }
+        let [new_long, new_short] = Polygon::new(template.points.clone()).principal_spreads();
+        let [old_long, old_short] = Polygon::new(state.template.clone()).principal_spreads();
+        let like = |a: f64, b: f64| a >= MIN_SPREAD_RATIO * b && b >= MIN_SPREAD_RATIO * a;
+        if like(new_long, old_long) && like(new_short, old_short) {
+            return None;
+        }
+        state.refused_inits += 1;
+        state.missed_searches = 0;
+        Some(format!(
+            "lost; the object found afresh is unlike the lost one (spread {new_long:.1} x {new_short:.1} px against {old_long:.1} x {old_short:.1} px; ratio limit {MIN_SPREAD_RATIO}): part of it, or another object; its template is sought again ({} of {REFUSED_INITS} such refusals before one is taken)",
+            state.refused_inits
+        ))
+    }
+
     /// The rest of [`Self::initialise`] once the object is `found` in
     /// `raw_left`: the fits on the (possibly smoothed) pair.
     fn initialise_on(
@@ -794,11 +841,14 @@ impl StereoTracker {
         prefilter_sigma_px: f64,
         previous_reference: Option<(f64, Option<Point>)>,
     ) -> PairResult {
-        let energy = &self.params.energy;
         let fitted = found.core.as_ref().unwrap_or(&found.contour);
         let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted) else {
             return lost_result(frame, "initial contour lies outside the image".into());
         };
+        if let Some(reason) = self.refuse_unlike_lost(&template) {
+            return lost_result(frame, reason);
+        }
+        let energy = &self.params.energy;
         // The reported outline: a dark object's runs over its rim; any
         // other's is the fitted template moved onto the object's edge,
         // where the region energy leaves it 0.2-1 px outside a blurred
@@ -892,6 +942,7 @@ impl StereoTracker {
             outline,
             prefilter_sigma_px,
             missed_searches: 0,
+            refused_inits: 0,
             first_disparity_std_px: 0.0,
         };
         let [left_bands, right_bands] = noise_bands(
@@ -1272,7 +1323,7 @@ impl StereoTracker {
                 )
             });
         let reach = self.params.rigid.search_radius_px;
-        let candidate = TrackerState {
+        let mut candidate = TrackerState {
             left: left_fit.pose,
             right: right_fit.pose,
             left_velocity: [
@@ -1299,18 +1350,43 @@ impl StereoTracker {
             state.lost = true;
             self.state = Some(state);
         } else {
-            self.state = Some(candidate);
             // The left contour's centroid is reported: a visible outline
             // that fixes it in one direction only (a slender object whose
             // ends and one side are hidden) gives a position the object
             // need not have, while the disparity, measured on the same edge
-            // in both views, may still be right. Tracking goes on from it.
+            // in both views, may still be right. Tracking goes on from the
+            // fit; but a move from the prediction along that direction,
+            // towards an end of the object whose sectors are hidden, of
+            // more than UNFOLLOWED_MOVE times the position's standard error
+            // is an occluder over that end pulling the contour onto itself,
+            // and tracking goes on from the prediction along it (a rod
+            // whose lower end went under a bright bar slid 5 px along its
+            // axis, its position fixed to 2 px; from there its upper end's
+            // sectors, inside the rod, looked like a new backdrop, and the
+            // next pairs were `tracked` 15-35 px off).
             let position_std = left_fit.axis_std_px * left_fit.weakest_factor;
             if position_std > MAX_POSITION_STD_PX {
                 result.mark_lost(format!(
                     "{UNCERTAIN}: what is visible of the left outline fixes the object's position only to {position_std:.1} px in one direction (limit {MAX_POSITION_STD_PX} px); tracking goes on"
                 ));
+                let w = left_fit.weakest_direction;
+                let along =
+                    (left_fit.pose.x - left_predicted.x) * w[0] + (left_fit.pose.y - left_predicted.y) * w[1];
+                let towards_hidden_end =
+                    hidden_end(&templates.1, &left_fit, w).is_some_and(|end| end.signum() == along.signum());
+                let along = if towards_hidden_end && along.abs() > UNFOLLOWED_MOVE * position_std {
+                    along
+                } else {
+                    0.0
+                };
+                for pose in [&mut candidate.left, &mut candidate.right] {
+                    pose.x -= along * w[0];
+                    pose.y -= along * w[1];
+                }
+                candidate.left_velocity[0] = (candidate.left.x - state.left.x).clamp(-reach, reach);
+                candidate.left_velocity[1] = (candidate.left.y - state.left.y).clamp(-reach, reach);
             }
+            self.state = Some(candidate);
         }
         result
     }
@@ -1331,9 +1407,10 @@ impl StereoTracker {
         fit: &mut ImageFit,
         bands: uncertainty::NoiseBands,
     ) {
-        let (std, weakest) = self.axis_std(frame, sums, template, sectors, fit, bands);
+        let (std, (factor, direction)) = self.axis_std(frame, sums, template, sectors, fit, bands);
         fit.axis_std_px = std.hypot(fit.mask_shift_px);
-        fit.weakest_factor = weakest;
+        fit.weakest_factor = factor;
+        fit.weakest_direction = direction;
     }
 
     /// [`Self::measure_std`]'s standard error along the axis, without the
@@ -1347,7 +1424,7 @@ impl StereoTracker {
         sectors: &SectorTemplate,
         fit: &ImageFit,
         bands: uncertainty::NoiseBands,
-    ) -> (f64, f64) {
+    ) -> (f64, (f64, Point)) {
         let t = self.params.tilt_axis_deg.to_radians();
         let u = [t.sin(), -t.cos()];
         let pose = fit.pose;
@@ -1364,7 +1441,10 @@ impl StereoTracker {
             marks.into()
         };
         let arcs = sectors.visible_arcs(pose, &left_out);
-        let weakest = uncertainty::weakest_direction_factor(&arcs, u);
+        let weakest = (
+            uncertainty::weakest_direction_factor(&arcs, u),
+            uncertainty::weakest_direction(&arcs),
+        );
         let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward(template), bands) else {
             return (f64::NAN, weakest);
         };
@@ -1748,6 +1828,7 @@ impl StereoTracker {
             mask_shift_px,
             risen_shift_px: 0.0,
             weakest_factor: 1.0,
+            weakest_direction: [1.0, 0.0],
         };
         (fit, sums)
     }
@@ -2377,6 +2458,9 @@ struct ImageFit {
     /// weakest direction than along the disparity axis
     /// ([`uncertainty::weakest_direction_factor`]; 1 until measured).
     weakest_factor: f64,
+    /// That direction, a unit vector ([`uncertainty::weakest_direction`];
+    /// along x until measured).
+    weakest_direction: Point,
 }
 
 impl TrackerState {
@@ -2410,6 +2494,7 @@ impl ImageFit {
             mask_shift_px: 0.0,
             risen_shift_px: 0.0,
             weakest_factor: 1.0,
+            weakest_direction: [1.0, 0.0],
         }
     }
 
@@ -2438,6 +2523,13 @@ const DISPARITY_JUMP_PX: f64 = 3.0;
 /// pixels, at which a pair is tracked: the left centroid is then within 3
 /// px of the truth at two standard errors.
 const MAX_POSITION_STD_PX: f64 = 1.5;
+
+/// On a pair whose position is fixed only to more than
+/// [`MAX_POSITION_STD_PX`] in one direction, a move of the left fit from its
+/// prediction along that direction, towards a hidden end of the object,
+/// of more than this many times the position's standard error is not
+/// followed (see `StereoTracker::track`).
+const UNFOLLOWED_MOVE: f64 = 2.0;
 
 /// Largest occluded share of the left outline at which a disparity that
 /// jumped by more than [`DISPARITY_JUMP_PX`] is still trusted.
@@ -2615,6 +2707,32 @@ fn templates(state: &TrackerState, params: &TrackerParams) -> (RigidTemplate, Se
     (rigid, sectors)
 }
 
+/// Where the left-out sectors of `fit` lie along the unit direction `w`,
+/// relative to its pose, when they lie towards one end of the object
+/// along it (their mean more than half-way from the pose to that end);
+/// None otherwise (none left out, or left out along its sides).
+fn hidden_end(sectors: &SectorTemplate, fit: &ImageFit, w: Point) -> Option<f64> {
+    if !fit.occluded.contains(&true) {
+        return None;
+    }
+    let along = |p: &Point| (p[0] - fit.pose.x) * w[0] + (p[1] - fit.pose.y) * w[1];
+    let reach = sectors
+        .visible_arcs(fit.pose, &[])
+        .iter()
+        .flatten()
+        .map(|p| along(p).abs())
+        .fold(0.0, f64::max);
+    let seen: Vec<bool> = fit.occluded.iter().map(|o| !o).collect();
+    let hidden: Vec<f64> = sectors
+        .visible_arcs(fit.pose, &seen)
+        .iter()
+        .flatten()
+        .map(along)
+        .collect();
+    let mean = hidden.iter().sum::<f64>() / hidden.len() as f64;
+    (mean.abs() > 0.5 * reach).then_some(mean)
+}
+
 fn lost_result(frame: u64, reason: String) -> PairResult {
     PairResult {
         frame,
@@ -2660,6 +2778,45 @@ mod tests {
             vec![Status::Initialised, Status::Tracked, Status::Tracked]
         );
         assert_eq!(tracker.frames(), 3);
+    }
+
+    /// A fresh initialisation after a loss whose object is unlike the lost
+    /// template is refused [`REFUSED_INITS`] times, each followed by
+    /// [`REACQUIRE_PAIRS`] template searches; the next is taken as it is.
+    #[test]
+    fn unlike_fresh_objects_are_refused_a_bounded_number_of_times() {
+        let pairs = sequence(Preset::Clean, Shape::Rod, 5, 2);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        let lose = |tracker: &mut StereoTracker, factor: f64| {
+            let state = tracker.state.as_mut().unwrap();
+            state.lost = true;
+            state.missed_searches = REACQUIRE_PAIRS;
+            state
+                .template
+                .iter_mut()
+                .for_each(|p| *p = [p[0] * factor, p[1] * factor]);
+        };
+        // The same object, its template 10% larger: alike, taken.
+        lose(&mut tracker, 1.1);
+        let r = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
+        assert_eq!(r.status, Status::Initialised, "{r:?}");
+        // Twice its size: refused, the template sought again.
+        lose(&mut tracker, 2.0);
+        for refusal in 1..=REFUSED_INITS {
+            let r = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
+            assert_eq!(r.status, Status::Lost, "{r:?}");
+            assert!(
+                r.reason.as_deref().unwrap().contains("unlike the lost one"),
+                "{r:?}"
+            );
+            let state = tracker.state.as_mut().unwrap();
+            assert_eq!((state.refused_inits, state.missed_searches), (refusal, 0));
+            state.missed_searches = REACQUIRE_PAIRS;
+        }
+        let r = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
+        assert_eq!(r.status, Status::Initialised, "{r:?}");
+        assert_eq!(tracker.state.as_ref().unwrap().refused_inits, 0);
     }
 
     #[test]

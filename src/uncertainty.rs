@@ -252,6 +252,32 @@ pub fn weighted_length(arcs: &[Vec<Point>], u: Point) -> f64 {
 /// as a slender object shows when a bar hides its other side and both
 /// ends). 1 for a circle.
 pub fn weakest_direction_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
+    let [xx, xy, yy] = information_matrix(arcs);
+    let half_trace = 0.5 * (xx + yy);
+    let lambda_min = half_trace - (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
+    let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
+    // Below a millionth of the total, the smallest eigenvalue is rounding.
+    if lambda_min <= 1e-6 * (xx + yy) {
+        f64::INFINITY
+    } else {
+        (j_uu / lambda_min).sqrt()
+    }
+}
+
+/// The direction in which the `arcs` fix a position least well: the unit
+/// eigenvector of the smallest eigenvalue of their geometric information
+/// matrix (see [`weakest_direction_factor`]).
+pub fn weakest_direction(arcs: &[Vec<Point>]) -> Point {
+    let [xx, xy, yy] = information_matrix(arcs);
+    // The principal axis of the larger eigenvalue is at angle
+    // 0.5 atan2(2 xy, xx - yy); the weakest direction is across it.
+    let a = 0.5 * (2.0 * xy).atan2(xx - yy) + std::f64::consts::FRAC_PI_2;
+    [a.cos(), a.sin()]
+}
+
+/// The geometric information matrix of the `arcs`, the integral of
+/// `n n^T` over them: `[xx, xy, yy]`.
+fn information_matrix(arcs: &[Vec<Point>]) -> [f64; 3] {
     let (mut xx, mut xy, mut yy) = (0.0, 0.0, 0.0);
     for w in arcs.iter().flat_map(|arc| arc.windows(2)) {
         let e = [w[1][0] - w[0][0], w[1][1] - w[0][1]];
@@ -263,15 +289,7 @@ pub fn weakest_direction_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
             yy += e[0] * e[0] / l;
         }
     }
-    let half_trace = 0.5 * (xx + yy);
-    let lambda_min = half_trace - (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
-    let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
-    // Below a millionth of the total, the smallest eigenvalue is rounding.
-    if lambda_min <= 1e-6 * (xx + yy) {
-        f64::INFINITY
-    } else {
-        (j_uu / lambda_min).sqrt()
-    }
+    [xx, xy, yy]
 }
 
 /// A cut's share of `S`: a template cut by the image border (a tool whose
@@ -340,6 +358,12 @@ mod tests {
         let across = weakest_direction_factor(std::slice::from_ref(&rod), [0.0, 1.0]);
         assert!((0.99..1.01).contains(&along), "along the rod: {along}");
         assert!((4.0..8.0).contains(&across), "across the rod: {across}");
+        // Its weakest direction is along it, a straight edge's along itself.
+        let w = weakest_direction(std::slice::from_ref(&rod));
+        assert!(w[0].abs() > 0.999, "rod: {w:?}");
+        let w = weakest_direction(std::slice::from_ref(&edge));
+        let cross = (w[0] * 1.0 - w[1] * 3.0).abs() / 10f64.sqrt();
+        assert!(cross < 1e-9, "edge: {w:?}");
     }
     use crate::energy::{EnergyParams, INTENSITY_OFFSET};
     use crate::fit::{Pose, RigidTemplate};

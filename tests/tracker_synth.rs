@@ -223,10 +223,12 @@ fn occluders_moving_on_their_own_and_fast_motion() {
 /// Before, a rod half under a bright bar parallel to it was taken 24 px
 /// onto the bar, its median sector at 0.06 of its first contrast, and
 /// reported 0% occluded and `tracked` 1.5-3 px off: 0.293 px, 5 confident
-/// wrong. Not yet held on other seeds: a slender object whose end is
-/// hidden sliding along its axis while its disparity stays right (seeds
-/// 300..305: 4 pairs of rod 302, disparity within 0.25 px; seeds 900..905:
-/// 1 pair of rod 902).
+/// wrong. Not yet held on other seeds: one pair of rod 902 (seeds
+/// 900..905) 1.1 px off in disparity at 2.5 standard errors, where an
+/// occluder first covers a third of it, and one pair each of tip 116 and
+/// rod 118 (seeds 100..119) at 2.5-3 standard errors. Seeds 300..305 no
+/// longer show rod 302 sliding along its axis (see
+/// `a_move_the_visible_outline_does_not_fix_is_not_followed`).
 #[test]
 fn noise_occlusion_and_flicker_together() {
     let a = measure(Preset::Combined, &Shape::ALL, SEEDS, FRAMES);
@@ -774,6 +776,87 @@ fn a_bar_along_half_an_object_does_not_place_its_contour() {
                 "{name}: {occluded} pairs lost as occluded or uncertain, expected 10 or more"
             );
         }
+    }
+}
+
+/// A fit that moved along the one direction its visible outline does not
+/// fix is not followed there: rod 302 (combined, 10 pairs), its lower end
+/// going under a bright bar, slid 5 px along its axis on pair 1 (its
+/// position fixed only to 2 px, `uncertain`), and from there, its upper
+/// end's sectors inside the rod looking like a new backdrop, pairs 2-4 were
+/// `tracked` 15-35 px off along the axis with the disparity right. Every
+/// pair with a number has its left centroid within 3 px of the truth and
+/// its disparity within 1 px, after the first pair's offsets, and at least
+/// 8 of the 10 pairs are tracked.
+#[test]
+fn a_move_the_visible_outline_does_not_fix_is_not_followed() {
+    let config = SynthConfig {
+        frames: 10,
+        ..SynthConfig::preset(Preset::Combined, Shape::Rod, 302)
+    };
+    let (mut first, mut tracked) = (None, 0);
+    for (result, pair) in tracked_sequence(&config) {
+        let Some(d) = result.disparity_px else {
+            continue;
+        };
+        tracked += 1;
+        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
+        let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
+        let (e0, c0) = *first.get_or_insert(error);
+        let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
+        assert!(
+            moved <= 3.0 && (error.0 - e0).abs() <= 1.0,
+            "pair {}: left centroid {moved:.2} px, disparity {:+.2} px off the first pair's offsets",
+            result.frame,
+            error.0 - e0
+        );
+    }
+    assert!(tracked >= 8, "only {tracked} of 10 pairs tracked");
+}
+
+/// After a loss, an object initialised afresh must look like the lost one
+/// (principal spreads within `MIN_SPREAD_RATIO` of its template's) or the
+/// lost template is sought on: rod 114 under a dark bar along its length
+/// (occluded and combined, 20 pairs) was initialised afresh on what the
+/// bar left visible (spreads 34.9 x 4.9 px against 34.6 x 6.6 px) or on the
+/// rod merged with the bar (40.4 x 12.0 px), then `tracked` 0.85-1.5 px off
+/// in disparity and 3-11 px off in position at every later pair. No pair
+/// with a number is more than 1 px off in disparity or 3 px in the left
+/// centroid after the first pair's offsets, and the fresh object is
+/// refused at least once.
+#[test]
+fn an_object_initialised_afresh_is_refused_unlike_the_lost_one() {
+    use semdepth::tracker::MIN_SPREAD_RATIO;
+    for preset in [Preset::Occluded, Preset::Combined] {
+        let config = SynthConfig {
+            frames: 20,
+            ..SynthConfig::preset(preset, Shape::Rod, 114)
+        };
+        let name = format!("{}/rod/114", preset.name());
+        let (mut refused, mut first) = (0, None);
+        for (result, pair) in tracked_sequence(&config) {
+            let Some(d) = result.disparity_px else {
+                let reason = result.reason.unwrap_or_default();
+                refused += usize::from(reason.contains(&format!("ratio limit {MIN_SPREAD_RATIO}")));
+                continue;
+            };
+            let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
+            let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
+            let (e0, c0) = *first.get_or_insert(error);
+            assert!(
+                (error.0 - e0).abs() <= 1.0,
+                "{name} pair {}: disparity {:+.2} px off the first pair's offset",
+                result.frame,
+                error.0 - e0
+            );
+            let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
+            assert!(
+                moved <= 3.0,
+                "{name} pair {}: left centroid {moved:.2} px off the first pair's offset",
+                result.frame
+            );
+        }
+        assert!(refused >= 1, "{name}: no fresh object was refused");
     }
 }
 

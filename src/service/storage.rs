@@ -1396,6 +1396,7 @@ mod tests {
             outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
             prefilter_sigma_px: 0.5 * f,
             missed_searches: (i % 3) as u32,
+            refused_inits: (i % 2) as u32,
             first_disparity_std_px: 0.25 * f,
         }
     }
