@@ -1561,6 +1561,45 @@ impl StereoTracker {
         }
     }
 
+    /// Whether a full fit that found every sector as it was at `full`,
+    /// from a prediction where the sectors `mask` looked occluded, is
+    /// contradicted by the masked fit from the prediction: the full fit
+    /// moved over [`SLIDE_PX`] from it, what the mask leaves visible fixes
+    /// the position in every direction (the smallest eigenvalue of its
+    /// information matrix at least [`MIN_ISOTROPY`] of the largest), and
+    /// the masked fit settled more than [`SLIDE_PX`] from the full fit
+    /// with a lower energy over the sectors both see (an object that moved
+    /// unlike its prediction leaves the masked fit stuck where the full
+    /// fit's pose is lower).
+    /// A slender object that moved along its axis shows both ends
+    /// "occluded" at the prediction, and what is left fixes nothing along
+    /// it; an occluder over one end leaves the other, and a full fit that
+    /// moved the outline's end onto the occluder's edge is the occluder's
+    /// (crossing rod 111: 4.2 px along its axis, every sector within its
+    /// thresholds).
+    fn masked_disagrees(
+        &self,
+        sums: &PrefixSums,
+        (template, sectors): (&RigidTemplate, &SectorTemplate),
+        predicted: Pose,
+        mask: &[bool],
+        full: Pose,
+        line: Option<Point>,
+    ) -> bool {
+        if dist(full.center(), predicted.center()) <= SLIDE_PX {
+            return false;
+        }
+        let arcs = sectors.visible_arcs(predicted, mask);
+        if uncertainty::isotropy(&arcs) < MIN_ISOTROPY {
+            return false;
+        }
+        let search = self.masked_search(template, 1.0, self.params.rigid.rotate, line);
+        let masked = masked_fit(sums, (template, sectors), predicted, mask, &search);
+        let m_ref = sums.reference_mean();
+        let energy = |pose: Pose| sectors.masked_energy(sums, pose, mask, m_ref);
+        dist(masked.center(), full.center()) > SLIDE_PX && energy(masked) < energy(full)
+    }
+
     /// How far `to` lies from `from` along the disparity axis, pixels (0
     /// when not finite).
     fn axis_shift(&self, from: Pose, to: Pose) -> f64 {
@@ -1673,7 +1712,10 @@ impl StereoTracker {
             // 24 px onto a bright occluder).
             widen(&mut sums, &mut widened);
             let fit = full_fit(&sums, predicted, rigid);
-            if !at_limit(&fit) && !judge(&sums, fit.pose).occluded.contains(&true) {
+            if !at_limit(&fit)
+                && !judge(&sums, fit.pose).occluded.contains(&true)
+                && !self.masked_disagrees(&sums, (template, sectors), predicted, &mask, fit.pose, line)
+            {
                 return (fit, sums);
             }
         } else {
@@ -2530,6 +2572,16 @@ const MAX_POSITION_STD_PX: f64 = 1.5;
 /// of more than this many times the position's standard error is not
 /// followed (see `StereoTracker::track`).
 const UNFOLLOWED_MOVE: f64 = 2.0;
+
+/// How far a full fit may move from a prediction that showed occluded
+/// sectors before the masked fit is consulted, pixels (see
+/// `StereoTracker::masked_disagrees`).
+const SLIDE_PX: f64 = 1.5;
+
+/// Least ratio of the smallest to the largest eigenvalue of the visible
+/// outline's information matrix for it to fix a position in every
+/// direction (see `StereoTracker::masked_disagrees`).
+const MIN_ISOTROPY: f64 = 0.05;
 
 /// Largest occluded share of the left outline at which a disparity that
 /// jumped by more than [`DISPARITY_JUMP_PX`] is still trusted.

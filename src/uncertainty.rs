@@ -275,6 +275,20 @@ pub fn weakest_direction(arcs: &[Vec<Point>]) -> Point {
     [a.cos(), a.sin()]
 }
 
+/// The smallest eigenvalue of the `arcs`' information matrix over the
+/// largest (see [`weakest_direction_factor`]): 1 for a circle, 0 for one
+/// straight edge or none.
+pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
+    let [xx, xy, yy] = information_matrix(arcs);
+    let half_trace = 0.5 * (xx + yy);
+    let root = (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
+    if half_trace + root <= 0.0 {
+        0.0
+    } else {
+        ((half_trace - root) / (half_trace + root)).max(0.0)
+    }
+}
+
 /// The geometric information matrix of the `arcs`, the integral of
 /// `n n^T` over them: `[xx, xy, yy]`.
 fn information_matrix(arcs: &[Vec<Point>]) -> [f64; 3] {
@@ -358,6 +372,10 @@ mod tests {
         let across = weakest_direction_factor(std::slice::from_ref(&rod), [0.0, 1.0]);
         assert!((0.99..1.01).contains(&along), "along the rod: {along}");
         assert!((4.0..8.0).contains(&across), "across the rod: {across}");
+        // A circle fixes every direction alike, one straight edge none.
+        assert!((isotropy(std::slice::from_ref(&circle)) - 1.0).abs() < 1e-9);
+        assert!(isotropy(std::slice::from_ref(&edge)) < 1e-12);
+        assert!((0.01..0.2).contains(&isotropy(std::slice::from_ref(&rod))));
         // Its weakest direction is along it, a straight edge's along itself.
         let w = weakest_direction(std::slice::from_ref(&rod));
         assert!(w[0].abs() > 0.999, "rod: {w:?}");
