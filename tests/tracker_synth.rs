@@ -489,6 +489,37 @@ fn confident_wrong(errors: &[f64], centroids: &[[f64; 2]]) -> usize {
         .count()
 }
 
+/// Tracks `config` (called `name`) and checks every pair with a number against the truth,
+/// after the first such pair's offsets: its left centroid within
+/// `max_moved_px` and its disparity within `max_disparity_px`. Returns how
+/// many pairs had numbers and the reasons of the others.
+fn assert_held(
+    name: &str,
+    config: &SynthConfig,
+    max_moved_px: f64,
+    max_disparity_px: f64,
+) -> (usize, Vec<String>) {
+    let (mut first, mut tracked, mut reasons) = (None, 0, Vec::new());
+    for (result, pair) in tracked_sequence(config) {
+        let Some(d) = result.disparity_px else {
+            reasons.push(result.reason.unwrap_or_default());
+            continue;
+        };
+        tracked += 1;
+        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
+        let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
+        let (e0, c0) = *first.get_or_insert(error);
+        let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
+        assert!(
+            moved <= max_moved_px && (error.0 - e0).abs() <= max_disparity_px,
+            "{name} pair {}: left centroid {moved:.2} px, disparity {:+.2} px off the first pair's offsets",
+            result.frame,
+            error.0 - e0
+        );
+    }
+    (tracked, reasons)
+}
+
 fn tracked_sequence(config: &SynthConfig) -> impl Iterator<Item = (PairResult, SynthPair)> {
     let mut tracker = StereoTracker::new(TrackerParams::default());
     frames(config).unwrap().map(move |pair| {
@@ -794,23 +825,7 @@ fn a_move_the_visible_outline_does_not_fix_is_not_followed() {
         frames: 10,
         ..SynthConfig::preset(Preset::Combined, Shape::Rod, 302)
     };
-    let (mut first, mut tracked) = (None, 0);
-    for (result, pair) in tracked_sequence(&config) {
-        let Some(d) = result.disparity_px else {
-            continue;
-        };
-        tracked += 1;
-        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-        let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
-        let (e0, c0) = *first.get_or_insert(error);
-        let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
-        assert!(
-            moved <= 3.0 && (error.0 - e0).abs() <= 1.0,
-            "pair {}: left centroid {moved:.2} px, disparity {:+.2} px off the first pair's offsets",
-            result.frame,
-            error.0 - e0
-        );
-    }
+    let (tracked, _) = assert_held("combined/rod/302", &config, 3.0, 1.0);
     assert!(tracked >= 8, "only {tracked} of 10 pairs tracked");
 }
 
@@ -828,23 +843,7 @@ fn a_full_fit_onto_an_occluders_edge_gives_way_to_the_masked_fit() {
         frames: 20,
         ..SynthConfig::preset(Preset::Crossing, Shape::Rod, 111)
     };
-    let (mut first, mut tracked) = (None, 0);
-    for (result, pair) in tracked_sequence(&config) {
-        let Some(d) = result.disparity_px else {
-            continue;
-        };
-        tracked += 1;
-        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-        let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
-        let (e0, c0) = *first.get_or_insert(error);
-        let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
-        assert!(
-            moved <= 2.0 && (error.0 - e0).abs() <= 0.5,
-            "pair {}: left centroid {moved:.2} px, disparity {:+.2} px off the first pair's offsets",
-            result.frame,
-            error.0 - e0
-        );
-    }
+    let (tracked, _) = assert_held("crossing/rod/111", &config, 2.0, 0.5);
     assert_eq!(tracked, 20, "pairs tracked");
 }
 
@@ -867,30 +866,12 @@ fn an_object_initialised_afresh_is_refused_unlike_the_lost_one() {
             ..SynthConfig::preset(preset, Shape::Rod, 114)
         };
         let name = format!("{}/rod/114", preset.name());
-        let (mut refused, mut first) = (0, None);
-        for (result, pair) in tracked_sequence(&config) {
-            let Some(d) = result.disparity_px else {
-                let reason = result.reason.unwrap_or_default();
-                refused += usize::from(reason.contains(&format!("ratio limit {MIN_SPREAD_RATIO}")));
-                continue;
-            };
-            let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-            let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
-            let (e0, c0) = *first.get_or_insert(error);
-            assert!(
-                (error.0 - e0).abs() <= 1.0,
-                "{name} pair {}: disparity {:+.2} px off the first pair's offset",
-                result.frame,
-                error.0 - e0
-            );
-            let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
-            assert!(
-                moved <= 3.0,
-                "{name} pair {}: left centroid {moved:.2} px off the first pair's offset",
-                result.frame
-            );
-        }
-        assert!(refused >= 1, "{name}: no fresh object was refused");
+        let (_, reasons) = assert_held(&name, &config, 3.0, 1.0);
+        let limit = format!("ratio limit {MIN_SPREAD_RATIO}");
+        assert!(
+            reasons.iter().any(|r| r.contains(&limit)),
+            "{name}: no fresh object was refused"
+        );
     }
 }
 
