@@ -133,15 +133,25 @@ impl Polygon {
     /// radians in (-pi/2, pi/2], measured from +x towards +y (clockwise on
     /// screen). Undefined (returns 0) for shapes without a long axis.
     pub fn orientation(&self) -> f64 {
+        match self.central_moments() {
+            Some([mu20, mu11, mu02]) => 0.5 * (2.0 * mu11).atan2(mu20 - mu02),
+            None => 0.0,
+        }
+    }
+
+    /// Central second moments of the enclosed area per unit area,
+    /// `[mu20, mu11, mu02]`; None for a degenerate polygon.
+    fn central_moments(&self) -> Option<[f64; 3]> {
         let m = self.moments();
         if m.area.abs() < 1e-12 {
-            return 0.0;
+            return None;
         }
         let c = [m.mx / m.area, m.my / m.area];
-        let mu20 = m.mxx / m.area - c[0] * c[0];
-        let mu02 = m.myy / m.area - c[1] * c[1];
-        let mu11 = m.mxy / m.area - c[0] * c[1];
-        0.5 * (2.0 * mu11).atan2(mu20 - mu02)
+        Some([
+            m.mxx / m.area - c[0] * c[0],
+            m.mxy / m.area - c[0] * c[1],
+            m.myy / m.area - c[1] * c[1],
+        ])
     }
 
     /// Standard deviations of the enclosed area along its principal axes,
@@ -149,17 +159,13 @@ impl Polygon {
     /// eigenvalues): the shape's size along and across itself, whatever
     /// its position and rotation. Zero for a degenerate polygon.
     pub fn principal_spreads(&self) -> [f64; 2] {
-        let m = self.moments();
-        if m.area.abs() < 1e-12 {
-            return [0.0; 2];
+        match self.central_moments() {
+            Some(mu) => {
+                let [small, large] = symmetric_eigenvalues(mu);
+                [large.max(0.0).sqrt(), small.max(0.0).sqrt()]
+            }
+            None => [0.0; 2],
         }
-        let c = [m.mx / m.area, m.my / m.area];
-        let mu20 = m.mxx / m.area - c[0] * c[0];
-        let mu02 = m.myy / m.area - c[1] * c[1];
-        let mu11 = m.mxy / m.area - c[0] * c[1];
-        let mean = 0.5 * (mu20 + mu02);
-        let half = (0.25 * (mu20 - mu02).powi(2) + mu11 * mu11).sqrt();
-        [(mean + half).max(0.0).sqrt(), (mean - half).max(0.0).sqrt()]
     }
 
     /// Bounding box as (min x, min y, max x, max y).
@@ -486,6 +492,14 @@ impl HalfPlane {
         }
         out
     }
+}
+
+/// Eigenvalues of the symmetric 2x2 matrix `[[a, b], [b, c]]` given as
+/// `[a, b, c]`, smallest first.
+pub fn symmetric_eigenvalues([a, b, c]: [f64; 3]) -> [f64; 2] {
+    let mean = 0.5 * (a + c);
+    let root = (0.25 * (a - c).powi(2) + b * b).sqrt();
+    [mean - root, mean + root]
 }
 
 /// The solution of the 3x3 linear system `m x = v` by Cramer's rule;

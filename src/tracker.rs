@@ -1323,14 +1323,18 @@ impl StereoTracker {
                 )
             });
         let reach = self.params.rigid.search_radius_px;
+        // The left pose's change over the pair, the next pair's prediction.
+        let velocity = |pose: Pose| {
+            [
+                (pose.x - state.left.x).clamp(-reach, reach),
+                (pose.y - state.left.y).clamp(-reach, reach),
+                pose.theta - state.left.theta,
+            ]
+        };
         let mut candidate = TrackerState {
             left: left_fit.pose,
             right: right_fit.pose,
-            left_velocity: [
-                (left_fit.pose.x - state.left.x).clamp(-reach, reach),
-                (left_fit.pose.y - state.left.y).clamp(-reach, reach),
-                left_fit.pose.theta - state.left.theta,
-            ],
+            left_velocity: velocity(left_fit.pose),
             ..state.clone()
         };
         let mut result = self.pair_result(
@@ -1383,8 +1387,7 @@ impl StereoTracker {
                     pose.x -= along * w[0];
                     pose.y -= along * w[1];
                 }
-                candidate.left_velocity[0] = (candidate.left.x - state.left.x).clamp(-reach, reach);
-                candidate.left_velocity[1] = (candidate.left.y - state.left.y).clamp(-reach, reach);
+                candidate.left_velocity = velocity(candidate.left);
             }
             self.state = Some(candidate);
         }
@@ -1486,6 +1489,15 @@ impl StereoTracker {
     ) -> ImageFit {
         let mut risen = Vec::new();
         let (mut fit, sums) = self.fit_view_on(frame, templates, reference, predicted, search, &mut risen);
+        // How far the pose moves along the disparity axis when `marks` are
+        // left out too.
+        let shift_without = |pose: Pose, marks: &[bool]| {
+            let near = self.masked_search(&templates.0, 1.0, search.rotate, search.line);
+            self.axis_shift(
+                pose,
+                masked_fit(&sums, (&templates.0, &templates.1), pose, marks, &near),
+            )
+        };
         // Not for a template cut by the border: near the border its
         // sectors change as the tool moves in and out, and without them
         // too little is left to move the pose by (a disc cut by the border
@@ -1498,9 +1510,7 @@ impl StereoTracker {
             // moved it 1-3 px). Which it is does not show; how far the pose
             // moves along the axis without those sectors is a bias the
             // noise does not show, added to the disparity's standard error.
-            let near = self.masked_search(&templates.0, 1.0, search.rotate, search.line);
-            let moved = masked_fit(&sums, (&templates.0, &templates.1), fit.pose, &risen, &near);
-            fit.risen_shift_px = self.axis_shift(fit.pose, moved);
+            fit.risen_shift_px = shift_without(fit.pose, &risen);
         }
         // A fit with hidden sectors whose visible outline shows a run of
         // risen contrast where it settled: half of a rod's outline against
@@ -1521,9 +1531,7 @@ impl StereoTracker {
                 if fraction(&doubt) > MAX_MASKED_FRACTION {
                     unplaced = true;
                 } else {
-                    let near = self.masked_search(&templates.0, 1.0, search.rotate, search.line);
-                    let moved = masked_fit(&sums, (&templates.0, &templates.1), fit.pose, &doubt, &near);
-                    fit.risen_shift_px = self.axis_shift(fit.pose, moved);
+                    fit.risen_shift_px = shift_without(fit.pose, &doubt);
                 }
             }
         }

@@ -38,7 +38,7 @@
 //! each left-out run grows by one sector. The calibration against the
 //! synthetic suites is in README.md.
 
-use crate::geometry::Point;
+use crate::geometry::{symmetric_eigenvalues, Point};
 use crate::imageio::GrayFrame;
 
 /// Step of the central difference that measures the curvature, pixels:
@@ -253,8 +253,7 @@ pub fn weighted_length(arcs: &[Vec<Point>], u: Point) -> f64 {
 /// ends). 1 for a circle.
 pub fn weakest_direction_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
     let [xx, xy, yy] = information_matrix(arcs);
-    let half_trace = 0.5 * (xx + yy);
-    let lambda_min = half_trace - (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
+    let [lambda_min, _] = symmetric_eigenvalues([xx, xy, yy]);
     let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
     // Below a millionth of the total, the smallest eigenvalue is rounding.
     if lambda_min <= 1e-6 * (xx + yy) {
@@ -279,13 +278,11 @@ pub fn weakest_direction(arcs: &[Vec<Point>]) -> Point {
 /// largest (see [`weakest_direction_factor`]): 1 for a circle, 0 for one
 /// straight edge or none.
 pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
-    let [xx, xy, yy] = information_matrix(arcs);
-    let half_trace = 0.5 * (xx + yy);
-    let root = (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
-    if half_trace + root <= 0.0 {
+    let [small, large] = symmetric_eigenvalues(information_matrix(arcs));
+    if large <= 0.0 {
         0.0
     } else {
-        ((half_trace - root) / (half_trace + root)).max(0.0)
+        (small / large).max(0.0)
     }
 }
 
