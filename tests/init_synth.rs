@@ -111,8 +111,9 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
         preset.name(),
         failures.len()
     );
+    // Compared with a tolerance: 38 of 40 is 0.95 to rounding.
     assert!(
-        rate >= required,
+        rate >= required - 1e-9,
         "{}: success rate {rate:.3} < {required}: {failures:#?}",
         preset.name()
     );
@@ -122,17 +123,19 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
 /// it, the first pair's left contour (the tracker's, as a user sees it) has
 /// IoU >= 0.95 with the frame-clipped truth in at least 95% of the cases on
 /// every scene class (4 shapes x 5 unseen seeds x 2 hints; failures are
-/// listed). Not reached yet, and held at what was measured (seeds 500-504
-/// and 600-604): dark objects 0.90-0.98, blurred ones 0.90-0.95 (0.80-0.90
-/// before the tracker smoothed blurred objects) and objects on a relief
-/// substrate 0.85-0.95; the misses are thin rods and tips at IoU 0.92-0.95
-/// (a part of the outline missing or, under a 2-px blur, 0.3-0.5 px
-/// outside) and grain boundaries joined to or cutting an outline.
+/// listed). Not reached for blurred objects, held at what was measured on
+/// seeds 500-504: 0.90 (rods under a 2-px blur at low dose, IoU 0.93-0.95,
+/// their outline 0.3-0.6 px outside or inside the edge, which the edge fit
+/// cannot measure there). The other classes reach it on these seeds (dark
+/// 0.95, 0.90 before its rim was grown from a finer core); on seeds
+/// 600-604, 700-704 and 800-804 relief gives 0.85, 0.85 and 1.00 (grain
+/// boundaries joined to or cutting an outline), blurred 0.95, 0.825 and
+/// 0.80, dark 0.975, 1.00 and 1.00.
 #[test]
 fn hinted_objects_are_found_on_every_scene_class() {
     for preset in Preset::ALL {
         let required = match preset {
-            Preset::Dark | Preset::Relief | Preset::Blurred => 0.85,
+            Preset::Blurred => 0.90,
             _ => 0.95,
         };
         let mut failures = Vec::new();

@@ -108,6 +108,11 @@ const RIM_REACH_WORKING_PX: f64 = 10.0;
 /// fraction of the substrate-to-object contrast (see [`rim`]).
 const RIM_MIN_EXCESS: f64 = 0.15;
 
+/// Vertex spacing of the free fit whose region the rim is grown from,
+/// pixels: at the tracker's 6 px its length term cut 3-4 px off the ends of
+/// thin rods and tips. The tracker's template (the core) keeps its own.
+const RIM_CORE_SPACING_PX: f64 = 3.0;
+
 /// Largest magnitude of a hint coordinate or size, pixels (2^31).
 pub const MAX_HINT_COORDINATE: i64 = 1 << 31;
 
@@ -569,10 +574,11 @@ fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
         return found;
     }
     let reach = RIM_REACH_WORKING_PX * found.diagnostics.scale as f64;
-    let Some(core) = fitted_core(frame, &found.contour) else {
+    let Some(core) = fitted_core(frame, &found.contour, FreeFitParams::default().spacing_px) else {
         return found;
     };
-    let Some(grown) = rim::grow_over_rim(frame, &core, reach, RIM_MIN_EXCESS) else {
+    let fine = fitted_core(frame, &found.contour, RIM_CORE_SPACING_PX).unwrap_or_else(|| core.clone());
+    let Some(grown) = rim::grow_over_rim(frame, &fine, reach, RIM_MIN_EXCESS) else {
         return found;
     };
     InitResult {
@@ -587,11 +593,16 @@ fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
 /// default energy (Dahmen et al., section 3): the edge pipeline's outline
 /// of a dark object carries spurs of substrate and runs out over its rim in
 /// places, and the rim is measured from the region inside it, which is
-/// what the fit settles on. `None` when the contour lies outside the image.
-fn fitted_core(frame: &GrayFrame, contour: &Polygon) -> Option<Polygon> {
+/// what the fit settles on. Its vertices are `spacing_px` apart. `None`
+/// when the contour lies outside the image.
+fn fitted_core(frame: &GrayFrame, contour: &Polygon, spacing_px: f64) -> Option<Polygon> {
     let energy = EnergyParams::default();
     let sums = free_fit_tables(frame, contour, &energy)?;
-    Some(fit_free(&sums, contour, &energy, &FreeFitParams::default()).polygon)
+    let params = FreeFitParams {
+        spacing_px,
+        ..FreeFitParams::default()
+    };
+    Some(fit_free(&sums, contour, &energy, &params).polygon)
 }
 
 /// [`initialise`] up to the rim.

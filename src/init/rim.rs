@@ -27,8 +27,9 @@ const SUBSTRATE_BAND_PX: [f64; 2] = [3.0, 9.0];
 const INWARD_SHARE: f64 = 0.6;
 
 /// Length of a sector along the outline, pixels (at least 8 sectors): a
-/// ring's strip then covers about 12 pixels.
-const SECTOR_PX: f64 = 24.0;
+/// ring's strip then covers about 8 pixels, short enough to follow a rod's
+/// rounded end.
+const SECTOR_PX: f64 = 16.0;
 
 /// A dark object's outline grown over its bright rim.
 #[derive(Clone, Debug, PartialEq)]
