@@ -13,6 +13,7 @@
 //! that crosses the image border, the left centroid is the point the
 //! tracked contour carries where the object's centroid was in the first
 //! pair.
+use semdepth::geometry::CarriedPoint;
 use semdepth::synth::{deviations_from_medians, frames, Preset, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
@@ -90,7 +91,7 @@ fn main() {
                 let mut errs = Vec::new();
                 let mut cents: Vec<[f64; 2]> = Vec::new();
                 let mut stds: Vec<f64> = Vec::new();
-                let mut anchor: Option<([f64; 2], [f64; 2], f64)> = None;
+                let mut anchor: Option<CarriedPoint> = None;
                 for pair in pairs {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
                     if r.status == Status::Lost {
@@ -138,20 +139,15 @@ fn main() {
                     // about its centre unseen.
                     let left = r.left.as_ref().unwrap();
                     let truth = &pair.truth.left;
-                    let (p0, c0, a0) = *anchor.get_or_insert(if truth.border.is_empty() {
-                        (truth.centroid, truth.centroid, left.angle_rad)
-                    } else {
-                        (left.centroid, truth.centroid, left.angle_rad)
+                    let carried = anchor.get_or_insert_with(|| {
+                        let centroid = if truth.border.is_empty() {
+                            truth.centroid
+                        } else {
+                            left.centroid
+                        };
+                        CarriedPoint::new(truth.centroid, centroid, left.angle_rad)
                     });
-                    let turn = (left.angle_rad - a0 + std::f64::consts::FRAC_PI_2)
-                        .rem_euclid(std::f64::consts::PI)
-                        - std::f64::consts::FRAC_PI_2;
-                    let (sin, cos) = turn.sin_cos();
-                    let (ax, ay) = (c0[0] - p0[0], c0[1] - p0[1]);
-                    let c = [
-                        left.centroid[0] + ax * cos - ay * sin,
-                        left.centroid[1] + ax * sin + ay * cos,
-                    ];
+                    let c = carried.at(left.centroid, left.angle_rad);
                     let tc = truth.centroid;
                     sq_c += (c[0] - tc[0]).powi(2) + (c[1] - tc[1]).powi(2);
                     cents.push([c[0] - tc[0], c[1] - tc[1]]);

@@ -526,6 +526,38 @@ pub fn solve3(m: &[[f64; 3]; 3], v: &[f64; 3], min_abs_det: f64) -> Option<[f64;
     Some(x)
 }
 
+/// A point carried rigidly with a tracked contour: fixed relative to the
+/// contour's centroid and orientation when it is made, placed again from a
+/// later centroid and orientation. It tells where a contour puts a point
+/// that its own centroid does not follow (an object's centroid, when only
+/// the part inside the image is tracked).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CarriedPoint {
+    offset: Point,
+    angle: f64,
+}
+
+impl CarriedPoint {
+    /// `point` relative to a contour with this `centroid` and orientation
+    /// `angle` (radians, as [`Polygon::orientation`]).
+    pub fn new(point: Point, centroid: Point, angle: f64) -> Self {
+        Self {
+            offset: [point[0] - centroid[0], point[1] - centroid[1]],
+            angle,
+        }
+    }
+
+    /// The point for the contour at `centroid` and orientation `angle`. The
+    /// turn is taken modulo pi, the period of an orientation.
+    pub fn at(&self, centroid: Point, angle: f64) -> Point {
+        let half = std::f64::consts::FRAC_PI_2;
+        let turn = (angle - self.angle + half).rem_euclid(std::f64::consts::PI) - half;
+        let (sin, cos) = turn.sin_cos();
+        let [x, y] = self.offset;
+        [centroid[0] + x * cos - y * sin, centroid[1] + x * sin + y * cos]
+    }
+}
+
 /// Euclidean distance between two points.
 #[inline]
 pub fn dist(a: Point, b: Point) -> f64 {
@@ -600,6 +632,17 @@ pub fn polygon_iou(a: &Polygon, b: &Polygon) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_carried_point_turns_and_moves_with_its_contour() {
+        let carried = CarriedPoint::new([12.0, 5.0], [10.0, 5.0], 0.3);
+        // Moved by (3, -1) and turned by a quarter turn.
+        let p = carried.at([13.0, 4.0], 0.3 + std::f64::consts::FRAC_PI_2 - 1e-9);
+        assert!((p[0] - 13.0).abs() < 1e-6 && (p[1] - 6.0).abs() < 1e-6, "{p:?}");
+        // An orientation that wrapped by pi is no turn.
+        let q = carried.at([10.0, 5.0], 0.3 - std::f64::consts::PI);
+        assert!((q[0] - 12.0).abs() < 1e-9 && (q[1] - 5.0).abs() < 1e-9, "{q:?}");
+    }
 
     #[test]
     fn polygon_iou_of_overlapping_squares() {

@@ -8,6 +8,7 @@
 //! all pairs of the condition. Left centroid error: Euclidean, no offset
 //! removed. Lost pairs count as failures.
 
+use semdepth::geometry::CarriedPoint;
 use semdepth::synth::{deviations_from_medians, frames, Preset, Shape, SynthConfig, SynthPair};
 use semdepth::tracker::{PairResult, Status, StereoTracker, TrackerParams};
 
@@ -430,15 +431,9 @@ fn border_tools_have_no_confident_wrong_pairs() {
                 let left = result.left.expect("a tracked pair has a left view");
                 let truth = pair.truth.left.centroid;
                 // The object's centroid relative to the contour in the first pair.
-                let (offset, angle) = *anchor.get_or_insert((
-                    [truth[0] - left.centroid[0], truth[1] - left.centroid[1]],
-                    left.angle_rad,
-                ));
-                let (sin, cos) = (left.angle_rad - angle).sin_cos();
-                let carried = [
-                    left.centroid[0] + offset[0] * cos - offset[1] * sin,
-                    left.centroid[1] + offset[0] * sin + offset[1] * cos,
-                ];
+                let carried = anchor
+                    .get_or_insert_with(|| CarriedPoint::new(truth, left.centroid, left.angle_rad))
+                    .at(left.centroid, left.angle_rad);
                 centroids.push([carried[0] - truth[0], carried[1] - truth[1]]);
                 frames_seen.push(result.frame);
             }
