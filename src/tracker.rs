@@ -1584,7 +1584,8 @@ impl StereoTracker {
     /// it; an occluder over one end leaves the other, and a full fit that
     /// moved the outline's end onto the occluder's edge is the occluder's
     /// (crossing rod 111: 4.2 px along its axis, every sector within its
-    /// thresholds).
+    /// thresholds). `rotate` and `line` are the view's search's: the right
+    /// view keeps the left one's rotation unless `right_rotation` is set.
     fn masked_disagrees(
         &self,
         sums: &PrefixSums,
@@ -1592,7 +1593,7 @@ impl StereoTracker {
         predicted: Pose,
         mask: &[bool],
         full: Pose,
-        line: Option<Point>,
+        (rotate, line): (bool, Option<Point>),
     ) -> bool {
         if dist(full.center(), predicted.center()) <= SLIDE_PX {
             return false;
@@ -1601,7 +1602,7 @@ impl StereoTracker {
         if uncertainty::isotropy(&arcs) < MIN_ISOTROPY {
             return false;
         }
-        let search = self.masked_search(template, 1.0, self.params.rigid.rotate, line);
+        let search = self.masked_search(template, 1.0, rotate, line);
         let masked = masked_fit(sums, (template, sectors), predicted, mask, &search);
         let m_ref = sums.reference_mean();
         let energy = |pose: Pose| sectors.masked_energy(sums, pose, mask, m_ref);
@@ -1722,7 +1723,14 @@ impl StereoTracker {
             let fit = full_fit(&sums, predicted, rigid);
             if !at_limit(&fit)
                 && !judge(&sums, fit.pose).occluded.contains(&true)
-                && !self.masked_disagrees(&sums, (template, sectors), predicted, &mask, fit.pose, line)
+                && !self.masked_disagrees(
+                    &sums,
+                    (template, sectors),
+                    predicted,
+                    &mask,
+                    fit.pose,
+                    (rigid.rotate, line),
+                )
             {
                 return (fit, sums);
             }
