@@ -574,10 +574,10 @@ fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
         return found;
     }
     let reach = RIM_REACH_WORKING_PX * found.diagnostics.scale as f64;
-    let Some(core) = fitted_core(frame, &found.contour, FreeFitParams::default().spacing_px) else {
+    let spacings = [FreeFitParams::default().spacing_px, RIM_CORE_SPACING_PX];
+    let Some([core, fine]) = fitted_cores(frame, &found.contour, spacings) else {
         return found;
     };
-    let fine = fitted_core(frame, &found.contour, RIM_CORE_SPACING_PX).unwrap_or_else(|| core.clone());
     let Some(grown) = rim::grow_over_rim(frame, &fine, reach, RIM_MIN_EXCESS) else {
         return found;
     };
@@ -593,16 +593,22 @@ fn grown_over_rim(frame: &GrayFrame, found: InitResult) -> InitResult {
 /// default energy (Dahmen et al., section 3): the edge pipeline's outline
 /// of a dark object carries spurs of substrate and runs out over its rim in
 /// places, and the rim is measured from the region inside it, which is
-/// what the fit settles on. Its vertices are `spacing_px` apart. `None`
-/// when the contour lies outside the image.
-fn fitted_core(frame: &GrayFrame, contour: &Polygon, spacing_px: f64) -> Option<Polygon> {
+/// what the fit settles on. One fit per vertex spacing in `spacings_px`,
+/// on one table. `None` when the contour lies outside the image.
+fn fitted_cores<const N: usize>(
+    frame: &GrayFrame,
+    contour: &Polygon,
+    spacings_px: [f64; N],
+) -> Option<[Polygon; N]> {
     let energy = EnergyParams::default();
     let sums = free_fit_tables(frame, contour, &energy)?;
-    let params = FreeFitParams {
-        spacing_px,
-        ..FreeFitParams::default()
-    };
-    Some(fit_free(&sums, contour, &energy, &params).polygon)
+    Some(spacings_px.map(|spacing_px| {
+        let params = FreeFitParams {
+            spacing_px,
+            ..FreeFitParams::default()
+        };
+        fit_free(&sums, contour, &energy, &params).polygon
+    }))
 }
 
 /// [`initialise`] up to the rim.
