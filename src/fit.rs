@@ -138,6 +138,20 @@ pub fn fit_free_within(
     params: &FreeFitParams,
     bounds: Option<[f64; 4]>,
 ) -> FreeFitOutcome {
+    fit_free_avoiding(sums, initial, energy, params, bounds, &|_| false)
+}
+
+/// [`fit_free_within`] with no vertex moved to a point where `forbidden`
+/// holds (strips of substrate cut out of an earlier fit, see
+/// [`crate::strips`]).
+pub fn fit_free_avoiding(
+    sums: &PrefixSums,
+    initial: &Polygon,
+    energy: &EnergyParams,
+    params: &FreeFitParams,
+    bounds: Option<[f64; 4]>,
+    forbidden: &dyn Fn(Point) -> bool,
+) -> FreeFitOutcome {
     let clipped;
     let initial = match bounds {
         Some(b) => {
@@ -198,7 +212,7 @@ pub fn fit_free_within(
             let old_int = sums.edge_integral(prev, p) + sums.edge_integral(p, next);
             for dir in [1.0, -1.0] {
                 let q = [p[0] + dir * step * normal[0], p[1] + dir * step * normal[1]];
-                if !sums.contains(&[q]) || !inside(q) {
+                if !sums.contains(&[q]) || !inside(q) || forbidden(q) {
                     continue;
                 }
                 let new_cross = cross(prev, q) + cross(q, next);

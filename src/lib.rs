@@ -15,6 +15,7 @@
 //! - [`energy`]: the region energy E = lambda L^k/A - D (two-region Poisson likelihood ratio).
 //! - [`fit`]: free (vertex-wise) and rigid (x, y, rotation) minimisation of the energy.
 //! - [`init`]: automatic initialisation (Gaussian, Canny, dilation, outer contours, size filter).
+//! - [`strips`]: strips of substrate a free fit keeps inside an outline, cut out and fitted again.
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
 //! - [`uncertainty`]: standard error of a fitted position along the disparity axis (sandwich estimate from the energy's curvature and the pixel noise).
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
@@ -41,6 +42,7 @@ pub mod region;
 pub mod report;
 pub mod service;
 pub mod session;
+pub mod strips;
 pub mod synth;
 pub mod tracker;
 pub mod uncertainty;

@@ -28,6 +28,7 @@ use crate::occlusion::{
 };
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
+use crate::strips::refit_without_strips;
 use crate::uncertainty;
 
 pub use crate::energy::INTENSITY_OFFSET;
@@ -1018,6 +1019,10 @@ impl StereoTracker {
             &self.params.free,
             within,
         );
+        // A strip of substrate held inside by a bright line that meets the
+        // object is cut out (see [`crate::strips`]).
+        let fitted = refit_without_strips(frame, &sums, &fitted.polygon, energy, &self.params.free, within)
+            .unwrap_or(fitted);
         // With a hint the initialisation chose the object by its edges
         // within it; a free fit that keeps less than FREE_FIT_MIN_IOU of that
         // region has left for what the two-region model prefers (the real

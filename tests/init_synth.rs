@@ -127,10 +127,11 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
 /// seeds 500-504: 0.90 (rods under a 2-px blur at low dose, IoU 0.93-0.95,
 /// their outline 0.3-0.6 px outside or inside the edge, which the edge fit
 /// cannot measure there). The other classes reach it on these seeds (dark
-/// 0.95, 0.90 before its rim was grown from a finer core); on seeds
-/// 600-604, 700-704 and 800-804 relief gives 0.85, 0.85 and 1.00 (grain
-/// boundaries joined to or cutting an outline), blurred 0.95, 0.825 and
-/// 0.80, dark 0.975, 1.00 and 1.00.
+/// 0.95, 0.90 before its rim was grown from a finer core; relief 0.975,
+/// 0.95 before its strips of substrate were cut out); on seeds 600-604,
+/// 700-704 and 800-804 relief gives 0.925, 0.875 and 1.00 (thin spikes
+/// along grain boundaries, a shaded side cut off), blurred 0.95, 0.825
+/// and 0.80, dark 0.975, 1.00 and 1.00.
 #[test]
 fn hinted_objects_are_found_on_every_scene_class() {
     for preset in Preset::ALL {
@@ -181,6 +182,46 @@ fn hinted_objects_are_found_on_every_scene_class() {
         }
         assert_success_rate(preset, &failures, total, 0.95, required);
     }
+}
+
+/// Issue #16, item 4: on a relief substrate, the substrate between a grain
+/// boundary and a rod that the boundary meets is not the rod. The free fit
+/// held such wedges inside the outline (spikes of 3-9 px) in 5 of 15 rods
+/// with a `roi` box (seeds 500-504, 600-604, 700-704: IoU 0.915-0.943);
+/// with the strips cut out ([`semdepth::strips`]) one is left (rod 704,
+/// IoU 0.943, where the boundary is as bright as the rod). Required: the
+/// first left contour's IoU >= 0.95 in 14 of the 15.
+#[test]
+fn relief_rods_leave_the_substrate_between_grain_boundaries_out() {
+    let mut failures = Vec::new();
+    let seeds: Vec<u64> = (500..505).chain(600..605).chain(700..705).collect();
+    for &seed in &seeds {
+        let (pair, w, h, truth) = first_frame(Preset::Relief, Shape::Rod, seed);
+        let mut tracker = StereoTracker::new(TrackerParams {
+            init: InitParams {
+                roi: Some(pair.truth.left.roi_hint(0.1)),
+                ..InitParams::default()
+            },
+            ..TrackerParams::default()
+        });
+        let first = tracker.process(&pair.left, &pair.right).expect("same-size pair");
+        let iou = first
+            .left
+            .filter(|_| first.status == Status::Initialised)
+            .map_or(0.0, |l| {
+                mask_iou(&Polygon::new(l.contour).rasterize(w, h), &truth)
+            });
+        if iou < 0.95 {
+            failures.push(format!("relief/rod/seed {seed}: IoU {iou:.3}"));
+        }
+    }
+    eprintln!("relief rods below IoU 0.95: {failures:?}");
+    assert!(
+        failures.len() <= 1,
+        "{} of {} below IoU 0.95: {failures:#?}",
+        failures.len(),
+        seeds.len()
+    );
 }
 
 /// Issue #16, without hints: tools entering from the image border, objects
