@@ -12,19 +12,26 @@
 //! [`cut_strips`] judges each pixel inside the outline against its
 //! surroundings instead. After a 3x3 mean it belongs to the object when it
 //! lies nearer the object's local level (the mean of the pixels at least
-//! [`CORE_DEPTH_PX`] inside, within [`OBJECT_REACH_PX`]) than the
-//! substrate's (the mean of the pixels outside the outline within
-//! [`SUBSTRATE_REACH_PX`]). The object's pixels, their holes filled, are
-//! opened with a disk of radius [`OPENING_RADIUS_PX`], which cuts the
-//! bright lines that hold a wedge. What the opening removes is a strip where
-//! it is at least 3 px wide and its mean lies at least
-//! [`MIN_STRIP_CONTRAST`] of the object's contrast away from the object's
-//! local level: a tool's thin point, cut by the opening, is as bright as the
-//! object, and where the object itself fades into the substrate's grey (a
-//! sphere's shaded side) the pixels are nearer the fade outside than the
-//! object's level but still close to the latter. [`refit_without_strips`]
-//! fits freely again from the opened region's outline, with no vertex
-//! allowed into a strip.
+//! [`CORE_DEPTH_PX`] inside, within [`OBJECT_REACH_PX`]; measured again
+//! without the pixels a first pass gave the substrate, so that a wide strip
+//! does not lower it) than the substrate's (the mean of the pixels outside
+//! the outline within [`SUBSTRATE_REACH_PX`]). The object's pixels, their
+//! holes filled, are opened with a disk of radius [`OPENING_RADIUS_PX`],
+//! which cuts the bright lines that hold a wedge. A part the opening
+//! removes is a strip when
+//! - it is at least 3 px wide somewhere ([`MIN_STRIP_PX`]);
+//! - at least [`MIN_LINE_SHARE`] of it is the line that held it (pixels as
+//!   bright as the object): the band inside a blurred edge, where the
+//!   outline lies outside the edge, has none;
+//! - its other pixels' mean lies at least [`MIN_STRIP_CONTRAST`] of the
+//!   object's contrast and [`MIN_STRIP_SCORE`] standard errors away from
+//!   the object's local level: a tool's thin point, cut by the opening, is
+//!   as bright as the object, and where the object itself fades into the
+//!   substrate's grey (a sphere's shaded side) its pixels are nearer the
+//!   fade outside than the object's level but still close to the latter.
+//!
+//! [`refit_without_strips`] fits freely again from the opened region's
+//! outline, with no vertex allowed into a strip.
 
 use image::{GrayImage, Luma};
 
