@@ -19,7 +19,7 @@
 //! holes filled, are opened with a disk of radius [`OPENING_RADIUS_PX`],
 //! which cuts the bright lines that hold a wedge. A part the opening
 //! removes is a strip when
-//! - it is at least 3 px wide somewhere ([`MIN_STRIP_PX`]);
+//! - it is at least 3 px wide somewhere (it survives a one-pixel erosion);
 //! - at least [`MIN_LINE_SHARE`] of it is the line that held it (pixels as
 //!   bright as the object): the band inside a blurred edge, where the
 //!   outline lies outside the edge, has none;
@@ -57,10 +57,6 @@ pub const OBJECT_REACH_PX: u32 = 10;
 /// Depth inside the outline from which a pixel gives the object's level,
 /// pixels: the blurred edge lies outside it.
 pub const CORE_DEPTH_PX: u8 = 3;
-
-/// Fewest pixels a removed strip keeps after a one-pixel erosion: a strip
-/// at least 3 px wide and about this long, not noisy pixels along the edge.
-pub const MIN_STRIP_PX: usize = 6;
 
 /// Smallest difference between a strip's mean and the object's local
 /// level, as a share of the object's contrast with its surroundings.
@@ -212,9 +208,6 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
         Luma([if gone { 255 } else { 0 }])
     });
     let wide = erode_disk(&removed, 1);
-    if wide.pixels().filter(|p| p[0] != 0).count() < MIN_STRIP_PX {
-        return None;
-    }
     let grown = dilate_disk(&wide, 1);
     let candidates = GrayImage::from_fn(w, h, |x, y| {
         Luma([
