@@ -179,11 +179,21 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
           "the session created over REST appears in the list")
     page.screenshot(path=str(shots / "01-sessions.png"))
 
-    # 2. Streaming updates the plot, the overlay and the numbers.
+    # 2. Streaming updates the plot, the overlay and the numbers. The page's
+    # event stream is held until two pairs are in, as when a viewer opens
+    # just as a stream starts: it hears of pair 1 first, and must fetch
+    # pair 0 itself (it once plotted 7 of 8 pairs then, now and again).
+    held = []
+    page.route("**/events", lambda route: held.append(route))
     page.click(f'tr[data-session="{sid}"] a')
     page.wait_for_selector("#view-left")
     messages = [encode_pair(i, left, right, encoding="png") for i, (left, right) in enumerate(pairs[:STREAMED])]
-    replies = stream(server.base, sid, messages)
+    replies = stream(server.base, sid, messages[:2])
+    page.wait_for_timeout(200)
+    check(len(held) == 1, "the page's event stream was held while two pairs went in")
+    held[0].continue_()
+    page.unroute("**/events")
+    replies += stream(server.base, sid, messages[2:])
     last = replies[-1]
     check([r["status"] for r in replies] == ["initialised"] + ["tracked"] * (STREAMED - 1),
           f"the stream's {STREAMED} pairs are tracked")

@@ -265,6 +265,9 @@ async function sessionPage(id, signal) {
     zPlot.node.hidden = !series.some((p) => p.z !== null && p.z !== undefined);
     dPlot.draw(series, "d", "ds");
   };
+  // The first frame the plot holds: the history's first, or 0. Events that
+  // came before the event stream was followed are fetched as a gap.
+  const floor = Math.max(0, session.frames - PLOT_POINTS);
   // Events are throttled: fill in the pairs between two events from the
   // stored results (one request at a time; the plot stays complete).
   let filling = false;
@@ -272,6 +275,14 @@ async function sessionPage(id, signal) {
     if (filling) return;
     filling = true;
     try {
+      if (series.length && series.length < PLOT_POINTS && series[0].frame > floor) {
+        const count = Math.min(series[0].frame - floor, PLOT_POINTS);
+        const from = series[0].frame - count;
+        const page = await api(`${path}/results?since=${from}&limit=${count}&contours=false`, { signal });
+        page.results.filter((r) => r.frame < series[0].frame).forEach((r) => series.push(point(r)));
+        series.sort((a, b) => a.frame - b.frame);
+        while (series.length > PLOT_POINTS) series.shift();
+      }
       for (let i = 1; i < series.length; i++) {
         if (series[i].frame > series[i - 1].frame + 1) {
           const from = series[i - 1].frame + 1, count = series[i].frame - from;
@@ -294,8 +305,7 @@ async function sessionPage(id, signal) {
 
   // The history first (the last PLOT_POINTS pairs), then live events.
   if (session.frames > 0) {
-    const since = Math.max(0, session.frames - PLOT_POINTS);
-    const page = await api(`${path}/results?since=${since}&limit=${PLOT_POINTS}&contours=false`, { signal });
+    const page = await api(`${path}/results?since=${floor}&limit=${PLOT_POINTS}&contours=false`, { signal });
     page.results.forEach(addToSeries);
     const last = page.results.at(-1);
     if (last) renderResult(last);
@@ -328,7 +338,9 @@ async function sessionPage(id, signal) {
     if (event !== "result") return;
     const r = JSON.parse(data);
     if (latest && r.frame < latest.frame) return;
-    const gap = series.length && r.frame > series.at(-1).frame + 1;
+    // A gap: pairs since the last one plotted (or, before any, since the
+    // history ended) that no event brought.
+    const gap = r.frame > (series.length ? series.at(-1).frame + 1 : floor);
     addToSeries(r);
     renderResult(r);
     if (gap) backfill();
