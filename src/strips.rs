@@ -34,12 +34,13 @@
 //! outline, with no vertex allowed into a strip.
 
 use image::{GrayImage, Luma};
+use imageproc::region_labelling::{connected_components, Connectivity};
 
 use crate::energy::EnergyParams;
 use crate::fit::{fit_free_avoiding, FreeFitOutcome, FreeFitParams};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
-use crate::init::{dilate_disk, erode_disk, fill_region, outer_regions};
+use crate::init::{dilate_disk, erode_disk, fill_region, mask_image, outer_regions, Region};
 use crate::region::PrefixSums;
 
 /// Radius of the opening that cuts lines and strips loose, pixels: lines up
@@ -160,13 +161,7 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
         let local = box_mean(w, h, OBJECT_REACH_PX, |x, y| {
             (mask.get_pixel(x, y)[0] != 0).then(|| at(x, y))
         });
-        let values: Vec<f64> = mask
-            .enumerate_pixels()
-            .filter(|(_, _, p)| p[0] != 0)
-            .map(|(x, y, _)| at(x, y))
-            .collect();
-        let whole = (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64);
-        (local, whole)
+        (local, mean_where(mask, true, at))
     };
     let classified = |(object, whole): &(Vec<Option<f64>>, Option<f64>)| {
         GrayImage::from_fn(w, h, |x, y| {
@@ -185,22 +180,14 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
     // Twice: a strip wide enough to have a core of its own lowers the
     // object's level around it in the first pass.
     let first = classified(&levels(&core));
-    let core = GrayImage::from_fn(w, h, |x, y| {
-        Luma(
-            [if core.get_pixel(x, y)[0] != 0 && first.get_pixel(x, y)[0] != 0 {
-                255
-            } else {
-                0
-            }],
-        )
-    });
+    let core = both(&core, &first);
     let levels = levels(&core);
     let like_object = classified(&levels);
     let (object, whole_object) = levels;
-    let filled = filled_largest(&like_object, w, h)?;
-    let opened = dilate_disk(&erode_disk(&filled, OPENING_RADIUS_PX), OPENING_RADIUS_PX);
+    let object_filled = filled(&outer_regions(&like_object).into_iter().next()?, w, h);
+    let opened = dilate_disk(&erode_disk(&object_filled, OPENING_RADIUS_PX), OPENING_RADIUS_PX);
     let region = outer_regions(&opened).into_iter().next()?;
-    let kept = filled_largest(&opened, w, h)?;
+    let kept = filled(&region, w, h);
     // What the cut removes, where it is at least 3 px wide (an opening by
     // one pixel): not the opening's rounding or the blurred edge's band.
     let removed = GrayImage::from_fn(w, h, |x, y| {
@@ -208,29 +195,13 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
         Luma([if gone { 255 } else { 0 }])
     });
     let wide = erode_disk(&removed, 1);
-    let grown = dilate_disk(&wide, 1);
-    let candidates = GrayImage::from_fn(w, h, |x, y| {
-        Luma([
-            if grown.get_pixel(x, y)[0] != 0 && removed.get_pixel(x, y)[0] != 0 {
-                255
-            } else {
-                0
-            },
-        ])
-    });
+    let candidates = both(&dilate_disk(&wide, 1), &removed);
     // A strip counts when it differs from the object's local level by at
     // least MIN_STRIP_CONTRAST of the object's contrast with the substrate
     // around it: where the object itself fades (a sphere's shaded side),
     // the substrate's local level is the fade's, and the pixels nearer it
     // are still nearly the object's.
-    let ring = {
-        let values: Vec<f64> = inside
-            .enumerate_pixels()
-            .filter(|(_, _, p)| p[0] == 0)
-            .map(|(x, y, _)| at(x, y))
-            .collect();
-        (!values.is_empty()).then(|| values.iter().sum::<f64>() / values.len() as f64)
-    };
+    let ring = mean_where(&inside, false, at);
     let contrast = (whole_object? - ring?).abs();
     // The pixel noise about the object's local level (median absolute
     // deviation, scaled to a standard deviation).
@@ -291,10 +262,25 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
     })
 }
 
-/// A `w x h` 255/0 image of a row-major boolean mask.
-fn mask_image(w: u32, h: u32, mask: &[bool]) -> GrayImage {
-    GrayImage::from_raw(w, h, mask.iter().map(|&b| if b { 255 } else { 0 }).collect())
-        .expect("length matches size")
+/// Mean of `value(x, y)` over the pixels of `mask` that are non-zero (or,
+/// with `set` false, zero); `None` when there is none.
+fn mean_where(mask: &GrayImage, set: bool, value: impl Fn(u32, u32) -> f64) -> Option<f64> {
+    let (sum, n) = mask
+        .enumerate_pixels()
+        .filter(|(_, _, p)| (p[0] != 0) == set)
+        .fold((0.0, 0usize), |(sum, n), (x, y, _)| (sum + value(x, y), n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+/// The pixels non-zero in both `a` and `b` (of one size), 255/0.
+fn both(a: &GrayImage, b: &GrayImage) -> GrayImage {
+    GrayImage::from_fn(a.width(), a.height(), |x, y| {
+        Luma([if a.get_pixel(x, y)[0] != 0 && b.get_pixel(x, y)[0] != 0 {
+            255
+        } else {
+            0
+        }])
+    })
 }
 
 /// Mean of `value(x, y)` over the pixels where it is `Some`, in the square
@@ -332,51 +318,27 @@ fn box_mean(w: u32, h: u32, r: u32, value: impl Fn(u32, u32) -> Option<f64>) -> 
         .collect()
 }
 
-/// The largest 8-connected part of `mask` with its holes filled, as a
-/// `w x h` mask; `None` when `mask` is empty.
-fn filled_largest(mask: &GrayImage, w: u32, h: u32) -> Option<GrayImage> {
-    let region = outer_regions(mask).into_iter().next()?;
+/// `region` filled (holes included), as a `w x h` mask.
+fn filled(region: &Region, w: u32, h: u32) -> GrayImage {
     let (part, px, py) = fill_region(&region.border);
     let mut out = GrayImage::new(w, h);
     image::imageops::replace(&mut out, &part, px as i64, py as i64);
-    Some(out)
+    out
 }
 
 /// The 8-connected parts of `mask` (non-zero pixels), as pixel lists.
 fn components(mask: &GrayImage) -> Vec<Vec<(u32, u32)>> {
-    let (w, h) = mask.dimensions();
-    let mut seen = vec![false; (w * h) as usize];
-    let mut parts = Vec::new();
-    for (sx, sy, p) in mask.enumerate_pixels() {
-        if p[0] == 0 || seen[(sy * w + sx) as usize] {
-            continue;
-        }
-        let mut part = Vec::new();
-        let mut stack = vec![(sx, sy)];
-        seen[(sy * w + sx) as usize] = true;
-        while let Some((x, y)) = stack.pop() {
-            part.push((x, y));
-            for (nx, ny) in neighbours(x, y, w, h) {
-                let j = (ny * w + nx) as usize;
-                if !seen[j] && mask.get_pixel(nx, ny)[0] != 0 {
-                    seen[j] = true;
-                    stack.push((nx, ny));
-                }
+    let labels = connected_components(mask, Connectivity::Eight, Luma([0u8]));
+    let mut parts: Vec<Vec<(u32, u32)>> = Vec::new();
+    for (x, y, label) in labels.enumerate_pixels() {
+        if let Some(k) = (label[0] as usize).checked_sub(1) {
+            if parts.len() <= k {
+                parts.resize_with(k + 1, Vec::new);
             }
+            parts[k].push((x, y));
         }
-        parts.push(part);
     }
     parts
-}
-
-/// The up to eight neighbours of pixel `(x, y)` in a `w x h` image.
-fn neighbours(x: u32, y: u32, w: u32, h: u32) -> impl Iterator<Item = (u32, u32)> {
-    (-1i64..=1)
-        .flat_map(|dy| (-1i64..=1).map(move |dx| (dx, dy)))
-        .filter(|&d| d != (0, 0))
-        .map(move |(dx, dy)| (x as i64 + dx, y as i64 + dy))
-        .filter(move |&(nx, ny)| nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64)
-        .map(|(nx, ny)| (nx as u32, ny as u32))
 }
 
 #[cfg(test)]

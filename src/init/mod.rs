@@ -47,7 +47,7 @@ pub use edge_fit::{edge_width, fitted_to_edge};
 pub use edges::{
     auto_thresholds, estimate_noise, hysteresis, non_maximum_suppression, sobel_noise_gain, Gradient,
 };
-pub use morphology::{dilate_disk, erode_disk, fill_region, outer_regions, Region};
+pub use morphology::{dilate_disk, erode_disk, fill_region, mask_image, outer_regions, Region};
 use morphology::{largest_component_border, shifted, without_tails};
 use prompted::Outcome;
 

@@ -113,6 +113,12 @@ pub fn outer_regions(mask: &GrayImage) -> Vec<Region> {
     regions
 }
 
+/// A `w x h` 255/0 image of a row-major boolean mask.
+pub fn mask_image(w: u32, h: u32, mask: &[bool]) -> GrayImage {
+    GrayImage::from_raw(w, h, mask.iter().map(|&b| if b { 255 } else { 0 }).collect())
+        .expect("length matches size")
+}
+
 /// Fills a traced border: all pixels inside or on it, as a mask over the
 /// border's bounding box. Returns (mask, x0, y0, width, height).
 pub fn fill_region(border: &[[i32; 2]]) -> (GrayImage, i32, i32) {
@@ -130,9 +136,7 @@ pub fn fill_region(border: &[[i32; 2]]) -> (GrayImage, i32, i32) {
             .map(|p| [(p[0] - x0) as f64, (p[1] - y0) as f64])
             .collect(),
     );
-    let inside = polygon.rasterize(bw, bh);
-    let mut mask = GrayImage::from_raw(bw, bh, inside.iter().map(|&b| if b { 255 } else { 0 }).collect())
-        .expect("length matches size");
+    let mut mask = mask_image(bw, bh, &polygon.rasterize(bw, bh));
     // The border pixels themselves belong to the region; the polygon through
     // their centres leaves them ambiguous.
     for p in border {
