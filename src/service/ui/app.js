@@ -271,28 +271,28 @@ async function sessionPage(id, signal) {
   // Events are throttled: fill in the pairs between two events from the
   // stored results (one request at a time; the plot stays complete).
   let filling = false;
+  // The stored results from frame `from` up to (not including) `until`
+  // merged into the plot; how many there were.
+  const fill = async (from, until) => {
+    const page = await api(`${path}/results?since=${from}&limit=${until - from}&contours=false`, { signal });
+    const add = page.results.filter((r) => r.frame < until);
+    add.forEach((r) => series.push(point(r)));
+    series.sort((a, b) => a.frame - b.frame);
+    while (series.length > PLOT_POINTS) series.shift();
+    return add.length;
+  };
   const backfill = async () => {
     if (filling) return;
     filling = true;
     try {
       if (series.length && series.length < PLOT_POINTS && series[0].frame > floor) {
-        const count = Math.min(series[0].frame - floor, PLOT_POINTS);
-        const from = series[0].frame - count;
-        const page = await api(`${path}/results?since=${from}&limit=${count}&contours=false`, { signal });
-        page.results.filter((r) => r.frame < series[0].frame).forEach((r) => series.push(point(r)));
-        series.sort((a, b) => a.frame - b.frame);
-        while (series.length > PLOT_POINTS) series.shift();
+        await fill(series[0].frame - Math.min(series[0].frame - floor, PLOT_POINTS), series[0].frame);
       }
       for (let i = 1; i < series.length; i++) {
         if (series[i].frame > series[i - 1].frame + 1) {
-          const from = series[i - 1].frame + 1, count = series[i].frame - from;
-          const page = await api(`${path}/results?since=${from}&limit=${count}&contours=false`, { signal });
-          const add = page.results.filter((r) => r.frame < series[i].frame);
-          add.forEach((r) => series.push(point(r)));
-          series.sort((a, b) => a.frame - b.frame);
-          while (series.length > PLOT_POINTS) series.shift();
+          const added = await fill(series[i - 1].frame + 1, series[i].frame);
           i = 0;
-          if (!add.length) break;
+          if (!added) break;
         }
       }
       if (latest) renderResult(latest);
