@@ -15,10 +15,11 @@
 //! [`CORE_DEPTH_PX`] inside, within [`OBJECT_REACH_PX`]; measured again
 //! without the pixels a first pass gave the substrate, so that a wide strip
 //! does not lower it) than the substrate's (the mean of the pixels outside
-//! the outline within [`SUBSTRATE_REACH_PX`]). The object's pixels, their
-//! holes filled, are opened with a disk of radius [`OPENING_RADIUS_PX`],
-//! which cuts the bright lines that hold a wedge. A part the opening
-//! removes is a strip when
+//! the outline within [`SUBSTRATE_REACH_PX`]). The object's pixels are
+//! opened with a disk of radius [`OPENING_RADIUS_PX`], which cuts the bright
+//! lines that hold a wedge, and the largest opened region's holes are then
+//! filled (filled first, a sliver that a line holds against the object
+//! would be a hole, and kept). A part the opening removes is a strip when
 //! - it is at least 3 px wide somewhere (it survives a one-pixel erosion);
 //! - at least [`MIN_LINE_SHARE`] of it is the line that held it (pixels as
 //!   bright as the object): the band inside a blurred edge, where the
@@ -184,8 +185,10 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
     let levels = levels(&core);
     let like_object = classified(&levels);
     let (object, whole_object) = levels;
-    let object_filled = filled(&outer_regions(&like_object).into_iter().next()?, w, h);
-    let opened = dilate_disk(&erode_disk(&object_filled, OPENING_RADIUS_PX), OPENING_RADIUS_PX);
+    // Opened before its holes are filled: a sliver of substrate that a
+    // line holds against the object is a hole until the opening cuts the
+    // line.
+    let opened = dilate_disk(&erode_disk(&like_object, OPENING_RADIUS_PX), OPENING_RADIUS_PX);
     let region = outer_regions(&opened).into_iter().next()?;
     let kept = filled(&region, w, h);
     // What the cut removes, where it is at least 3 px wide (an opening by

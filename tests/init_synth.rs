@@ -188,36 +188,68 @@ fn hinted_objects_are_found_on_every_scene_class() {
 /// boundary and a rod that the boundary meets is not the rod. The free fit
 /// held such wedges inside the outline (spikes of 3-9 px) in 5 of 15 rods
 /// with a `roi` box (seeds 500-504, 600-604, 700-704: IoU 0.915-0.943);
-/// with the strips cut out ([`semdepth::strips`]) none is. Required: the
-/// first left contour's IoU >= 0.95 in all 15.
+/// with the strips cut out ([`semdepth::strips`]) none is. With a `point`
+/// the first fit starts elsewhere and meets other boundaries: before the
+/// cut's opening came ahead of its hole filling, 3 of 20 rods (seeds
+/// 500-504, 600-604, 700-704, 800-804) stayed below 0.95, now 1 (seed 703,
+/// a spike along a boundary at 0.948). Required: the first left contour's
+/// IoU >= 0.95 in all 15 with a `roi`, and in at least 95% of the 20 with
+/// a `point` (the share).
 #[test]
 fn relief_rods_leave_the_substrate_between_grain_boundaries_out() {
-    let mut failures = Vec::new();
-    let seeds: Vec<u64> = (500..505).chain(600..605).chain(700..705).collect();
-    for &seed in &seeds {
+    let first_iou = |seed: u64, hint: &dyn Fn(&semdepth::synth::SynthPair, u32, u32) -> InitParams| {
         let (pair, w, h, truth) = first_frame(Preset::Relief, Shape::Rod, seed);
         let mut tracker = StereoTracker::new(TrackerParams {
-            init: InitParams {
-                roi: Some(pair.truth.left.roi_hint(0.1)),
-                ..InitParams::default()
-            },
+            init: hint(&pair, w, h),
             ..TrackerParams::default()
         });
         let first = tracker.process(&pair.left, &pair.right).expect("same-size pair");
-        let iou = first
+        first
             .left
             .filter(|_| first.status == Status::Initialised)
             .map_or(0.0, |l| {
                 mask_iou(&Polygon::new(l.contour).rasterize(w, h), &truth)
-            });
+            })
+    };
+    let roi = |pair: &semdepth::synth::SynthPair, _: u32, _: u32| InitParams {
+        roi: Some(pair.truth.left.roi_hint(0.1)),
+        ..InitParams::default()
+    };
+    let point = |pair: &semdepth::synth::SynthPair, w: u32, h: u32| InitParams {
+        point: pair.truth.left.point_hint(w, h),
+        ..InitParams::default()
+    };
+    let mut failures = Vec::new();
+    let seeds: Vec<u64> = (500..505).chain(600..605).chain(700..705).collect();
+    for &seed in &seeds {
+        let iou = first_iou(seed, &roi);
         if iou < 0.95 {
             failures.push(format!("relief/rod/seed {seed}: IoU {iou:.3}"));
         }
     }
-    eprintln!("relief rods below IoU 0.95: {failures:?}");
+    eprintln!("relief rods below IoU 0.95 with a roi: {failures:?}");
     assert!(
         failures.is_empty(),
-        "{} of {} below IoU 0.95: {failures:#?}",
+        "{} of {} below IoU 0.95 with a roi: {failures:#?}",
+        failures.len(),
+        seeds.len()
+    );
+    let mut failures = Vec::new();
+    let seeds: Vec<u64> = (500..505)
+        .chain(600..605)
+        .chain(700..705)
+        .chain(800..805)
+        .collect();
+    for &seed in &seeds {
+        let iou = first_iou(seed, &point);
+        if iou < 0.95 {
+            failures.push(format!("relief/rod/seed {seed}: IoU {iou:.3}"));
+        }
+    }
+    eprintln!("relief rods below IoU 0.95 with a point: {failures:?}");
+    assert!(
+        failures.len() as f64 <= 0.05 * seeds.len() as f64,
+        "{} of {} below IoU 0.95 with a point (at most 5% allowed): {failures:#?}",
         failures.len(),
         seeds.len()
     );
