@@ -758,14 +758,39 @@ impl StereoTracker {
 
     /// First pair (or after a loss): find, fit, search the right view.
     fn initialise(&mut self, frame: u64, left: &GrayFrame, right: &GrayFrame) -> PairResult {
+        match initialise(left, &self.params.init) {
+            Ok(found) => self.initialise_found(frame, left, right, found),
+            Err(e) => lost_result(frame, format!("initialisation failed: {e}")),
+        }
+    }
+
+    /// The left outline a first pair reports for the object `found` in
+    /// `left` by [`crate::init::initialise`] with `params.init`: fitted
+    /// freely, with the strips of substrate it holds cut out
+    /// ([`crate::strips`]), and moved onto the object's edge. `None` when
+    /// the fit leaves the image (the initialisation's outline is then the
+    /// best there is). Shows a person the contour tracking starts from.
+    pub fn first_outline(params: &TrackerParams, left: &GrayFrame, found: InitResult) -> Option<Polygon> {
+        let mut tracker = StereoTracker::new(params.clone());
+        let first = tracker.initialise_found(0, left, left, found);
+        first
+            .left
+            .filter(|_| first.status == Status::Initialised)
+            .map(|l| Polygon::new(l.contour))
+    }
+
+    /// [`Self::initialise`] once the object is found.
+    fn initialise_found(
+        &mut self,
+        frame: u64,
+        left: &GrayFrame,
+        right: &GrayFrame,
+        found: InitResult,
+    ) -> PairResult {
         let previous_reference = self
             .state
             .as_ref()
             .map(|s| (s.first_disparity_axis_px, s.first_disparity_px));
-        let found = match initialise(left, &self.params.init) {
-            Ok(found) => found,
-            Err(e) => return lost_result(frame, format!("initialisation failed: {e}")),
-        };
         // A dark object's template is the region inside its bright rim:
         // the two-region energy sees the rim as substrate.
         let fitted = found.core.as_ref().unwrap_or(&found.contour);

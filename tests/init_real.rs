@@ -7,6 +7,7 @@ use common::{mask_centroid, otsu_reference_mask, quartz_path};
 use semdepth::geometry::mask_iou;
 use semdepth::imageio::{read_file, DecodeLimits};
 use semdepth::init::{initialise, InitParams};
+use semdepth::tracker::{StereoTracker, TrackerParams};
 
 /// Required overlap of the found region with the reference (issue #2).
 const MIN_IOU: f64 = 0.95;
@@ -43,6 +44,11 @@ fn quartz_initial_region_matches_reference() {
         );
         assert!(iou >= MIN_IOU, "image {index}: IoU {iou:.4} < {MIN_IOU}");
         centroids.push((result.centroid, mask_centroid(&reference, w)));
+        let fitted = fitted_iou(&frame, &InitParams::default(), result, &reference);
+        assert!(
+            fitted >= MIN_IOU,
+            "image {index}: fitted outline's IoU {fitted:.4} < {MIN_IOU}"
+        );
     }
     // The particle moves about 27 px in x per tilt step (method note): both
     // the reference and the initialisation see that.
@@ -137,6 +143,30 @@ fn fibsem_needle_is_found_from_a_box_around_it() {
     );
     assert_eq!(found.border, vec!["left".to_string()]);
     assert!(iou >= 0.85, "IoU {iou:.3} with the reference needle (limit 0.85)");
+    // The outline tracking starts from (and `semdepth init` prints).
+    let fitted = fitted_iou(&frame, &params, found, &reference);
+    assert!(
+        fitted >= 0.85,
+        "fitted outline: IoU {fitted:.3} with the reference needle (limit 0.85)"
+    );
+}
+
+/// IoU with `reference` of the outline tracking starts from for the object
+/// `found` with `params` ([`StereoTracker::first_outline`]).
+fn fitted_iou(
+    frame: &semdepth::imageio::GrayFrame,
+    params: &InitParams,
+    found: semdepth::init::InitResult,
+    reference: &[bool],
+) -> f64 {
+    let tracker = TrackerParams {
+        init: params.clone(),
+        ..TrackerParams::default()
+    };
+    let outline = StereoTracker::first_outline(&tracker, frame, found).expect("the fit stays in the image");
+    let iou = mask_iou(&outline.rasterize(frame.width, frame.height), reference);
+    eprintln!("  fitted outline: area {:.0} px, IoU {iou:.3}", outline.area());
+    iou
 }
 
 /// Issue #16: a box drawn around the lamella on the real lift-out image
@@ -187,6 +217,11 @@ fn fibsem_lamella_is_found_from_a_box_around_it() {
         assert!(
             iou >= 0.85,
             "box {roi:?}: IoU {iou:.3} with the reference lamella (limit 0.85)"
+        );
+        let fitted = fitted_iou(&frame, &params, found, &reference);
+        assert!(
+            fitted >= 0.85,
+            "box {roi:?}: fitted outline's IoU {fitted:.3} with the reference lamella (limit 0.85)"
         );
     }
 }

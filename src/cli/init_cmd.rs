@@ -1,5 +1,5 @@
 //! `semdepth init IMAGE`: run the automatic initialisation on one image and
-//! print the found object as JSON.
+//! print the found object as JSON, with the outline tracking starts from.
 
 use std::path::PathBuf;
 
@@ -8,6 +8,7 @@ use clap::Args;
 use super::{exactly, CliError};
 use crate::imageio::{read_file, DecodeLimits};
 use crate::init::{initialise, InitParams, Polarity};
+use crate::tracker::{StereoTracker, TrackerParams};
 
 /// Arguments of `semdepth init`.
 #[derive(Debug, Args)]
@@ -56,6 +57,11 @@ pub struct InitArgs {
     /// Also write the image with the found contour drawn on it (PNG).
     #[arg(long, value_name = "PNG")]
     pub overlay: Option<PathBuf>,
+    /// Print the initialisation's own outline (the edge pipeline's or the
+    /// prompted segmentation's) instead of the one tracking starts from
+    /// (fitted freely, strips of substrate cut out, moved onto the edge).
+    #[arg(long)]
+    pub unfitted: bool,
 }
 
 /// Runs `semdepth init`; exit code 3 when no object is found.
@@ -86,6 +92,26 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
             ),
         ),
     })?;
+    // The outline tracking starts from, as `semdepth process` reports it
+    // for the first pair: what a person checks before tracking.
+    let fitted = (!args.unfitted)
+        .then(|| {
+            let tracker = TrackerParams {
+                init: params.clone(),
+                ..TrackerParams::default()
+            };
+            StereoTracker::first_outline(&tracker, &frame, result.clone())
+        })
+        .flatten()
+        .map(|outline| {
+            let n = ((outline.length() / params.contour_spacing_px).round() as usize).max(8);
+            outline.resampled(n)
+        });
+    let is_fitted = fitted.is_some();
+    let result = match fitted {
+        Some(outline) => result.with_contour(outline),
+        None => result,
+    };
     let mut json = serde_json::json!({
         "image": args.image.display().to_string(),
         "width": frame.width,
@@ -98,6 +124,7 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         "source": result.source,
         "border": result.border,
         "diagnostics": result.diagnostics,
+        "fitted": is_fitted,
     });
     if !args.no_contour {
         let rounded: Vec<[f64; 2]> = result
