@@ -29,7 +29,11 @@
 //!   the object's local level: a tool's thin point, cut by the opening, is
 //!   as bright as the object, and where the object itself fades into the
 //!   substrate's grey (a sphere's shaded side) its pixels are nearer the
-//!   fade outside than the object's level but still close to the latter.
+//!   fade outside than the object's level but still close to the latter;
+//!   when they were mostly a hole in the object's pixels, at least
+//!   [`MIN_HOLE_STRIP_CONTRAST`] of the contrast: such pixels were picked
+//!   for lying nearer the substrate, which noise alone achieves by up to
+//!   half the contrast where the object fades at its edge.
 //!
 //! [`refit_without_strips`] fits freely again from the opened region's
 //! outline, with no vertex allowed into a strip.
@@ -68,6 +72,13 @@ pub const MIN_STRIP_CONTRAST: f64 = 0.25;
 /// level, in standard errors of that mean under the pixel noise: a few
 /// pixels darker by chance are no strip.
 pub const MIN_STRIP_SCORE: f64 = 4.0;
+
+/// The share of the object's contrast by which a strip that was mostly a
+/// hole in the object's pixels lies off its level: noise picked for lying
+/// nearer the substrate reaches about half the contrast where the object
+/// fades at its edge (a shaded sphere under strong noise: 0.40), a sliver
+/// of substrate nearly all of it (relief rods: 0.73-0.79).
+pub const MIN_HOLE_STRIP_CONTRAST: f64 = 0.6;
 
 /// Smallest share of a cut part that is the line holding it (pixels as
 /// bright as the object that the opening cut off): a band along a blurred
@@ -217,6 +228,10 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
         let mid = dev.len() / 2;
         1.4826 * *dev.select_nth_unstable_by(mid, f64::total_cmp).1
     };
+    // The object's holes: pixels nearer the substrate that the object's
+    // pixels enclose.
+    let enclosing = filled(&outer_regions(&like_object).into_iter().next()?, w, h);
+    let hole = |x: u32, y: u32| enclosing.get_pixel(x, y)[0] != 0 && like_object.get_pixel(x, y)[0] == 0;
     let mut strips = GrayImage::new(w, h);
     for part in components(&candidates) {
         // Its pixels nearer the substrate; the rest is the line that held
@@ -236,11 +251,16 @@ pub fn cut_strips(frame: &GrayFrame, outline: &Polygon) -> Option<Cut> {
         }
         let off = (off / n.max(1.0)).abs();
         let held = line as f64 >= MIN_LINE_SHARE * part.len() as f64;
-        if held
-            && n > 0.0
-            && off >= MIN_STRIP_CONTRAST * contrast
-            && off >= MIN_STRIP_SCORE * sigma / n.sqrt()
-        {
+        // Mostly a hole's pixels: chosen for lying nearer the substrate,
+        // noise on a fading edge reaches up to half the contrast.
+        let from_hole =
+            2 * substrate_like.iter().filter(|&&(x, y)| hole(x, y)).count() > substrate_like.len();
+        let min_contrast = if from_hole {
+            MIN_HOLE_STRIP_CONTRAST
+        } else {
+            MIN_STRIP_CONTRAST
+        };
+        if held && n > 0.0 && off >= min_contrast * contrast && off >= MIN_STRIP_SCORE * sigma / n.sqrt() {
             for &(x, y) in &part {
                 strips.put_pixel(x, y, Luma([255]));
             }
@@ -445,5 +465,52 @@ mod tests {
         assert!(cut_strips(&scene(150.0, 20.0), &rod_with_wedge()).is_none());
         // Fainter, but nearer the object's level than the substrate's.
         assert!(cut_strips(&scene(130.0, 20.0), &rod_with_wedge()).is_none());
+    }
+
+    /// Deterministic noise in about -1..1 (a sum of three hashed uniforms,
+    /// roughly Gaussian with standard deviation 0.5).
+    fn hashed_noise(i: u64) -> f64 {
+        (1..=3u64)
+            .map(|k| {
+                let h = (i.wrapping_add(k << 32)).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 40;
+                h as f64 / (1u64 << 24) as f64 - 0.5
+            })
+            .sum::<f64>()
+    }
+
+    #[test]
+    fn a_sliver_of_substrate_a_line_holds_against_the_object_is_cut() {
+        // The rod at 150 on 60, and above its upper edge between x = 100
+        // and 130 a bright line 2 px wide that closes a 5-px sliver of
+        // substrate against it; the outline takes in the line and the
+        // sliver. The sliver is a hole in the object's pixels until the
+        // opening cuts the line.
+        let outline = Polygon::new(vec![
+            [40.0, 50.0],
+            [100.0, 50.0],
+            [100.0, 43.0],
+            [130.0, 43.0],
+            [130.0, 50.0],
+            [160.0, 50.0],
+            [160.0, 70.0],
+            [40.0, 70.0],
+        ]);
+        let (w, h) = (200u32, 120u32);
+        let rod = rod().rasterize(w, h);
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let line =
+                    (100..=130).contains(&x) && (43..=49).contains(&y) && (y <= 44 || x <= 101 || x >= 129);
+                let base = if rod[i as usize] || line { 150.0 } else { 60.0 };
+                (base + 20.0 * hashed_noise(i as u64)).round() as u16
+            })
+            .collect();
+        let frame = GrayFrame::new(w, h, 8, data).unwrap();
+        let cut = cut_strips(&frame, &outline).expect("the sliver is a strip");
+        assert!(cut.is_strip([115.0, 47.0]));
+        for q in [[100.0, 60.0], [115.0, 52.0], [150.0, 51.0]] {
+            assert!(!cut.is_strip(q), "{q:?} is not in the sliver");
+        }
     }
 }

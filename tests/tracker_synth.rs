@@ -965,3 +965,33 @@ fn an_uncertain_pair_is_not_reported() {
     assert_eq!(same.status, Status::Tracked, "{:?}", same.reason);
     assert!(same.disparity_std_px.unwrap() > TrackerParams::default().max_disparity_std_px);
 }
+
+/// The strips cut from the first free fit ([`semdepth::strips`]) are
+/// substrate, not noise: on a sphere whose shaded side fades towards the
+/// substrate's grey under strong noise (combined, seed 104, 20 pairs),
+/// noise near that edge forms holes in the object's pixels, which the cut's
+/// opening opens to the outline. When such a hole passed as a strip, the
+/// first template lost 103 px of the sphere's edge, the object was lost in
+/// pair 4 and 4 pairs were confident wrong. Required: no confident wrong
+/// pair and at most one pair without numbers.
+#[test]
+fn noise_at_a_shaded_edge_is_not_cut_from_the_first_outline() {
+    let config = SynthConfig {
+        frames: 20,
+        ..SynthConfig::preset(Preset::Combined, Shape::Sphere, 104)
+    };
+    let (mut errors, mut centroids, mut untracked) = (Vec::new(), Vec::new(), Vec::new());
+    for (result, pair) in tracked_sequence(&config) {
+        match (result.disparity_px, &result.left) {
+            (Some(d), Some(left)) => {
+                errors.push(d[0] - pair.truth.disparity_px[0]);
+                let t = pair.truth.left.centroid;
+                centroids.push([left.centroid[0] - t[0], left.centroid[1] - t[1]]);
+            }
+            _ => untracked.push(format!("pair {}: {:?}", result.frame, result.reason)),
+        }
+    }
+    let wrong = confident_wrong(&errors, &centroids);
+    assert_eq!(wrong, 0, "confident wrong pairs (untracked: {untracked:?})");
+    assert!(untracked.len() <= 1, "pairs without numbers: {untracked:#?}");
+}
