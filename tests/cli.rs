@@ -24,22 +24,34 @@ fn stdout_json(out: &Output) -> serde_json::Value {
     serde_json::from_slice(&out.stdout).expect("stdout is one JSON document")
 }
 
+/// `semdepth synth` writing `frames` pairs of `preset`/`shape`/`seed` into
+/// `out_dir`: its summary.
+fn synth(
+    out_dir: &std::path::Path,
+    preset: &str,
+    shape: &str,
+    seed: u64,
+    frames: usize,
+) -> serde_json::Value {
+    stdout_json(&semdepth(&[
+        "synth",
+        out_dir.to_str().unwrap(),
+        "--preset",
+        preset,
+        "--shape",
+        shape,
+        "--seed",
+        &seed.to_string(),
+        "--frames",
+        &frames.to_string(),
+    ]))
+}
+
 #[test]
 fn synth_then_init_finds_the_true_centroid() {
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("seq");
-    let summary = stdout_json(&semdepth(&[
-        "synth",
-        out_dir.to_str().unwrap(),
-        "--preset",
-        "cluttered",
-        "--shape",
-        "tip",
-        "--seed",
-        "3",
-        "--frames",
-        "2",
-    ]));
+    let summary = synth(&out_dir, "cluttered", "tip", 3, 2);
     assert_eq!(summary["frames"], 2);
     for name in [
         "0000_left.png",
@@ -283,18 +295,7 @@ fn init_prints_the_outline_tracking_starts_from() {
     use semdepth::geometry::{mask_iou, Polygon};
     let dir = tempfile::tempdir().unwrap();
     let out_dir = dir.path().join("seq");
-    let summary = stdout_json(&semdepth(&[
-        "synth",
-        out_dir.to_str().unwrap(),
-        "--preset",
-        "relief",
-        "--shape",
-        "rod",
-        "--seed",
-        "603",
-        "--frames",
-        "1",
-    ]));
+    let summary = synth(&out_dir, "relief", "rod", 603, 1);
     let (w, h) = (
         summary["width"].as_u64().unwrap() as u32,
         summary["height"].as_u64().unwrap() as u32,
