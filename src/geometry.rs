@@ -266,6 +266,12 @@ impl Polygon {
         Self::new(points)
     }
 
+    /// Resamples the outline to vertices about `spacing` apart along its
+    /// length (the nearest whole number of them), at least `min_vertices`.
+    pub fn resampled_every(&self, spacing: f64, min_vertices: usize) -> Self {
+        self.resampled(((self.length() / spacing).round() as usize).max(min_vertices))
+    }
+
     /// Resamples the outline to `n` vertices evenly spaced along its length,
     /// starting at the first vertex.
     pub fn resampled(&self, n: usize) -> Self {

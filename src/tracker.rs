@@ -1060,17 +1060,12 @@ impl StereoTracker {
                     Some(b) => contour.clipped_to_box(b),
                     None => contour.clone(),
                 };
-                let n =
-                    ((start.length() / self.params.free.spacing_px).round() as usize).max(MIN_FREE_VERTICES);
-                start.resampled(n)
+                start.resampled_every(self.params.free.spacing_px, MIN_FREE_VERTICES)
             }
             f => f,
         };
         let outline = match self.params.template_spacing_px {
-            Some(spacing) => {
-                let n = ((fitted.length() / spacing).round() as usize).max(16);
-                fitted.resampled(n)
-            }
+            Some(spacing) => fitted.resampled_every(spacing, 16),
             None => fitted,
         }
         .snapped_to_box(image, on_border);

@@ -103,10 +103,7 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
             StereoTracker::first_outline(&tracker, &frame, result.clone())
         })
         .flatten()
-        .map(|outline| {
-            let n = ((outline.length() / params.contour_spacing_px).round() as usize).max(8);
-            outline.resampled(n)
-        });
+        .map(|outline| outline.resampled_every(params.contour_spacing_px, 8));
     let is_fitted = fitted.is_some();
     let result = match fitted {
         Some(outline) => result.with_contour(outline),

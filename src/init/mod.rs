@@ -1009,8 +1009,7 @@ fn to_full_resolution(border: &[[i32; 2]], scale: u32, roi: [u32; 4], spacing: f
     // into a sub-pixel outline before resampling.
     let smooth = raw.moving_average(2);
     let full = smooth.scaled(s, offset);
-    let n = ((full.length() / spacing).round() as usize).max(8);
-    full.resampled(n)
+    full.resampled_every(spacing, 8)
 }
 
 /// Box-averages the `roi` of a frame by an integer `factor`, normalised to

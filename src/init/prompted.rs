@@ -465,8 +465,7 @@ fn to_full_resolution(
     let Some(first) = (0..n).find(|&i| on_border(i) && !on_border((i + n - 1) % n)) else {
         let raw = Polygon::new(border.iter().map(|p| [p[0] as f64, p[1] as f64]).collect());
         let full = raw.moving_average(2).scaled(s, offset);
-        let count = ((full.length() / spacing).round() as usize).max(8);
-        return full.resampled(count);
+        return full.resampled_every(spacing, 8);
     };
     let mut points = Vec::new();
     let mut k = 0;
