@@ -59,6 +59,14 @@ pub const MIN_SPREAD_RATIO: f64 = 0.85;
 /// lost template again.
 pub const REFUSED_INITS: u32 = 3;
 
+/// Farthest the left contour may move from its predictions, summed over a
+/// run of `uncertain` pairs, before the object counts as lost and the next
+/// pair seeks its template: no pair of the run verified those moves, and a
+/// left centroid 3 px off is a confident wrong answer once a pair is
+/// `tracked` again (a rod under a bright bar along it slid 4.3 px along its
+/// axis over five such pairs, the next one `tracked`).
+pub const MAX_UNVERIFIED_MOVE_PX: f64 = 3.0;
+
 /// Reason of a tracked pair whose object was found again by its template
 /// after a loss.
 pub const REACQUIRED: &str = "reacquired";
@@ -491,6 +499,11 @@ pub struct TrackerState {
     /// it (see [`REFUSED_INITS`]).
     #[serde(default)]
     pub refused_inits: u32,
+    /// How far the left contour moved from its predictions over the
+    /// current run of `uncertain` pairs, pixels (see
+    /// [`MAX_UNVERIFIED_MOVE_PX`]); 0 after a pair with numbers.
+    #[serde(default)]
+    pub unverified_move_px: f64,
     /// The disparity's standard error on the pair that initialised the
     /// object, pixels (0: not known, as in states stored before it was
     /// kept); see [`TrackerParams::max_disparity_std_px`].
@@ -674,6 +687,7 @@ impl StereoTracker {
         }
         let frame = self.frames;
         self.frames += 1;
+        let predicted = self.state.as_ref().filter(|s| !s.lost).map(|s| s.predicted()[0]);
         // The templates are lent to the step, not copied: tracking does not
         // change them, and initialising replaces them.
         let mut result = match (&self.state, self.template.take()) {
@@ -726,7 +740,41 @@ impl StereoTracker {
                 self.params.max_disparity_std_px
             ));
         }
+        self.bound_unverified_moves(&mut result, predicted);
         Ok(result)
+    }
+
+    /// Adds how far an `uncertain` pair moved the left contour from its
+    /// prediction (`predicted`, None after a loss) to the run's sum; past
+    /// [`MAX_UNVERIFIED_MOVE_PX`] the object counts as lost, which the
+    /// reason says, and the next pair seeks its template. A pair with
+    /// numbers ends the run.
+    fn bound_unverified_moves(&mut self, result: &mut PairResult, predicted: Option<Pose>) {
+        let Some(state) = self.state.as_mut().filter(|s| !s.lost) else {
+            return;
+        };
+        let uncertain = result.status == Status::Lost
+            && result.reason.as_deref().is_some_and(|r| r.starts_with(UNCERTAIN));
+        let Some(predicted) = predicted.filter(|_| uncertain) else {
+            state.unverified_move_px = 0.0;
+            return;
+        };
+        state.unverified_move_px += dist(predicted.center(), state.left.center());
+        if state.unverified_move_px > MAX_UNVERIFIED_MOVE_PX {
+            if let Some(reason) = result.reason.as_mut() {
+                reason.truncate(
+                    reason
+                        .strip_suffix("; tracking goes on")
+                        .map_or(reason.len(), str::len),
+                );
+                reason.push_str(&format!(
+                    "; over this run of uncertain pairs the contour moved {:.1} px from its predictions (limit {MAX_UNVERIFIED_MOVE_PX} px): the object counts as lost and its template is sought from the next pair",
+                    state.unverified_move_px
+                ));
+            }
+            state.lost = true;
+            state.unverified_move_px = 0.0;
+        }
     }
 
     /// Where a tracking step can read each image of the pair: the
@@ -987,6 +1035,7 @@ impl StereoTracker {
             prefilter_sigma_px,
             missed_searches: 0,
             refused_inits: 0,
+            unverified_move_px: 0.0,
             first_disparity_std_px: 0.0,
         };
         let [left_bands, right_bands] = noise_bands(

@@ -688,12 +688,14 @@ fn a_disparity_that_jumps_under_heavy_occlusion_is_not_trusted() {
 /// disparity axis, the pair is lost as occluded instead: a tip whose long
 /// side a dark bar covered (crossing, seed 203, 20 pairs) slid 14-20 px
 /// along its axis with the bar at pairs 10 and 11, reported `tracked`
-/// without a standard error.
+/// without a standard error. (That tip's runs of `uncertain` pairs now end
+/// earlier, at [`semdepth::tracker::MAX_UNVERIFIED_MOVE_PX`]; a rod half
+/// under a bar, crossing seed 114, pair 4, has such a pair.)
 #[test]
 fn a_fit_without_a_minimum_along_the_axis_is_not_tracked() {
     let config = SynthConfig {
         frames: 20,
-        ..SynthConfig::preset(Preset::Crossing, Shape::Tip, 203)
+        ..SynthConfig::preset(Preset::Crossing, Shape::Rod, 114)
     };
     let mut without_minimum = 0;
     for (result, _) in tracked_sequence(&config) {
@@ -725,8 +727,11 @@ fn a_fit_without_a_minimum_along_the_axis_is_not_tracked() {
 /// beside a bright bar (crossing, seed 118, 20 pairs) was found 22 px off
 /// that line on the bar at pairs 13-15, the disparity 15-18 px wrong and
 /// `tracked`. Every tracked pair's disparity across the line (y) stays
-/// within 1 px of the truth's, none is confidently wrong, and at least
-/// half the pairs are tracked.
+/// within 1 px of the truth's, none is confidently wrong, and at least 7
+/// pairs are tracked: pairs 0-2 and 7-10 (pair 13 ends a run of
+/// `uncertain` pairs over which the contour moved 4.5 px from its
+/// predictions, 4 px off the rod along its axis, and the rod's template is
+/// not found again beside the bar in the 6 pairs left).
 #[test]
 fn the_right_view_is_searched_on_its_epipolar_line() {
     let config = SynthConfig {
@@ -751,9 +756,9 @@ fn the_right_view_is_searched_on_its_epipolar_line() {
     }
     let wrong = confident_wrong(&errors, &centroids);
     assert_eq!(wrong, 0, "confident wrong pairs of {} tracked", errors.len());
-    // Pairs 11-15, under the bar, are `uncertain` (standard errors of
-    // 0.7-2 px, or the position fixed in one direction only).
-    assert!(errors.len() >= 10, "only {} of 20 pairs tracked", errors.len());
+    // Pairs 3-6 and 11-13, under the bar, are `uncertain` (standard errors
+    // of 0.7-2 px, or the position fixed in one direction only).
+    assert!(errors.len() >= 7, "only {} of 20 pairs tracked", errors.len());
 }
 
 /// A dark bar over half of a slender object's width, along it: the
@@ -994,4 +999,41 @@ fn noise_at_a_shaded_edge_is_not_cut_from_the_first_outline() {
     let wrong = confident_wrong(&errors, &centroids);
     assert_eq!(wrong, 0, "confident wrong pairs (untracked: {untracked:?})");
     assert!(untracked.len() <= 1, "pairs without numbers: {untracked:#?}");
+}
+
+/// Issue #17: a run of `uncertain` pairs does not walk the contour off the
+/// object unnoticed. A rod under a bright bar along it (combined, seed
+/// 118, 20 pairs; the bar hides 42% of its outline) slid 4.3 px along its
+/// axis over five `uncertain` pairs, and the next pair was `tracked` with
+/// its left centroid that far off. Past
+/// [`semdepth::tracker::MAX_UNVERIFIED_MOVE_PX`] of moves from the
+/// predictions the object counts as lost and its template is sought.
+/// Required: no confident wrong pair, and the reason of the pair that
+/// ended the run says so.
+#[test]
+fn a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed() {
+    let config = SynthConfig {
+        frames: 20,
+        ..SynthConfig::preset(Preset::Combined, Shape::Rod, 118)
+    };
+    let (mut errors, mut centroids, mut reasons) = (Vec::new(), Vec::new(), Vec::new());
+    for (result, pair) in tracked_sequence(&config) {
+        match (result.disparity_px, &result.left) {
+            (Some(d), Some(left)) => {
+                errors.push(d[0] - pair.truth.disparity_px[0]);
+                let t = pair.truth.left.centroid;
+                centroids.push([left.centroid[0] - t[0], left.centroid[1] - t[1]]);
+            }
+            _ => reasons.push(result.reason.unwrap_or_default()),
+        }
+    }
+    assert_eq!(
+        confident_wrong(&errors, &centroids),
+        0,
+        "confident wrong pairs (untracked: {reasons:#?})"
+    );
+    assert!(
+        reasons.iter().any(|r| r.contains("from its predictions")),
+        "no run of uncertain pairs ended: {reasons:#?}"
+    );
 }

@@ -1397,6 +1397,7 @@ mod tests {
             prefilter_sigma_px: 0.5 * f,
             missed_searches: (i % 3) as u32,
             refused_inits: (i % 2) as u32,
+            unverified_move_px: 0.5 * f,
             first_disparity_std_px: 0.25 * f,
         }
     }
