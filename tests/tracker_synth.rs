@@ -523,6 +523,28 @@ fn tracked_sequence(config: &SynthConfig) -> impl Iterator<Item = (PairResult, S
     })
 }
 
+/// A sequence tracked from its first pair: the disparity and left
+/// centroid errors of the pairs with numbers, and "pair N: reason" for the
+/// others.
+fn errors_and_reasons(config: &SynthConfig) -> (Vec<f64>, Vec<[f64; 2]>, Vec<String>) {
+    let (mut errors, mut centroids, mut reasons) = (Vec::new(), Vec::new(), Vec::new());
+    for (result, pair) in tracked_sequence(config) {
+        match (result.disparity_px, &result.left) {
+            (Some(d), Some(left)) => {
+                errors.push(d[0] - pair.truth.disparity_px[0]);
+                let t = pair.truth.left.centroid;
+                centroids.push([left.centroid[0] - t[0], left.centroid[1] - t[1]]);
+            }
+            _ => reasons.push(format!(
+                "pair {}: {}",
+                result.frame,
+                result.reason.unwrap_or_default()
+            )),
+        }
+    }
+    (errors, centroids, reasons)
+}
+
 /// Issue #17, item 4: after a loss the object is sought by its own
 /// template, not initialised afresh on whatever is largest. Fast sequences
 /// (15-20 px per pair), 4 shapes x seeds 100..103: pairs 0-4 are tracked,
@@ -985,17 +1007,7 @@ fn noise_at_a_shaded_edge_is_not_cut_from_the_first_outline() {
         frames: 20,
         ..SynthConfig::preset(Preset::Combined, Shape::Sphere, 104)
     };
-    let (mut errors, mut centroids, mut untracked) = (Vec::new(), Vec::new(), Vec::new());
-    for (result, pair) in tracked_sequence(&config) {
-        match (result.disparity_px, &result.left) {
-            (Some(d), Some(left)) => {
-                errors.push(d[0] - pair.truth.disparity_px[0]);
-                let t = pair.truth.left.centroid;
-                centroids.push([left.centroid[0] - t[0], left.centroid[1] - t[1]]);
-            }
-            _ => untracked.push(format!("pair {}: {:?}", result.frame, result.reason)),
-        }
-    }
+    let (errors, centroids, untracked) = errors_and_reasons(&config);
     let wrong = confident_wrong(&errors, &centroids);
     assert_eq!(wrong, 0, "confident wrong pairs (untracked: {untracked:?})");
     assert!(untracked.len() <= 1, "pairs without numbers: {untracked:#?}");
@@ -1016,17 +1028,7 @@ fn a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed() {
         frames: 20,
         ..SynthConfig::preset(Preset::Combined, Shape::Rod, 118)
     };
-    let (mut errors, mut centroids, mut reasons) = (Vec::new(), Vec::new(), Vec::new());
-    for (result, pair) in tracked_sequence(&config) {
-        match (result.disparity_px, &result.left) {
-            (Some(d), Some(left)) => {
-                errors.push(d[0] - pair.truth.disparity_px[0]);
-                let t = pair.truth.left.centroid;
-                centroids.push([left.centroid[0] - t[0], left.centroid[1] - t[1]]);
-            }
-            _ => reasons.push(result.reason.unwrap_or_default()),
-        }
-    }
+    let (errors, centroids, reasons) = errors_and_reasons(&config);
     assert_eq!(
         confident_wrong(&errors, &centroids),
         0,
