@@ -158,7 +158,8 @@ pub struct TrackerParams {
     pub prefilter_sigma_px: Option<f64>,
     /// A pair whose disparity standard error (`disparity_std_px`) exceeds
     /// this many pixels, and [`STD_GROWTH`] times that of the pair that
-    /// initialised the object, is reported `lost` with reason `uncertain`,
+    /// initialised the object (after a loss, the lower of the first
+    /// initialisation's and the fresh one's), is reported `lost` with reason `uncertain`,
     /// without numbers; tracking goes on from its poses. Default 0.5: a
     /// `tracked` disparity is then within 1 px of the truth at two standard
     /// errors. Such pairs are the ones where too little of an occluded
@@ -1077,7 +1078,18 @@ impl StereoTracker {
             self.template = None;
             return result;
         }
-        state.first_disparity_std_px = result.disparity_std_px.unwrap_or(0.0);
+        // After a loss the object's first initialisation stays the
+        // reference when its standard error was the lower: an object found
+        // afresh with too little of it visible sets no looser limit for
+        // itself (a rod half under a bar, re-initialised on the visible
+        // half with a standard error of 2.5 px, then `tracked` at 3.2 px
+        // against 4 times its own 2.5, 4.5 px off).
+        let own = result.disparity_std_px.unwrap_or(0.0);
+        state.first_disparity_std_px = match self.state.as_ref().map(|s| s.first_disparity_std_px) {
+            Some(previous) if previous > 0.0 && own > 0.0 => previous.min(own),
+            Some(previous) if previous > 0.0 => previous,
+            _ => own,
+        };
         self.state = Some(state);
         self.template = Some((template, sectors));
         result
