@@ -121,7 +121,8 @@ fn main() {
                 let mut anchor: Option<CarriedPoint> = None;
                 for pair in pairs {
                     let r = tracker.process(&pair.left, &pair.right).unwrap();
-                    let heavy = hidden_outline(&pair.truth) > HEAVY_OCCLUSION;
+                    let hidden = hidden_outline(&pair.truth);
+                    let heavy = hidden > HEAVY_OCCLUSION;
                     heavy_pairs += heavy as usize;
                     if r.status == Status::Lost {
                         lost += 1;
@@ -131,7 +132,7 @@ fn main() {
                             preset.name(),
                             shape.name(),
                             r.frame,
-                            hidden_outline(&pair.truth),
+                            hidden,
                             r.reason
                         );
                         continue;
@@ -156,7 +157,7 @@ fn main() {
                             rr.centroid[1] - pair.truth.right.visible_centroid[1],
                             l.occluded_fraction,
                             rr.occluded_fraction,
-                            hidden_outline(&pair.truth),
+                            hidden,
                             l.energy,
                             rr.energy
                         );

@@ -75,6 +75,11 @@ pub const REACQUIRED: &str = "reacquired";
 /// [`TrackerParams::max_disparity_std_px`]); the reason goes on after a colon.
 pub const UNCERTAIN: &str = "uncertain";
 
+/// How the reason of an `uncertain` pair ends: the tracker goes on from
+/// its poses (unless a run of such pairs moved too far, see
+/// [`MAX_UNVERIFIED_MOVE_PX`]).
+const GOES_ON: &str = "; tracking goes on";
+
 /// How many times its first pair's standard error an object's disparity
 /// may have before the pair is `uncertain`, when that is more than
 /// [`TrackerParams::max_disparity_std_px`]: an object whose own outline
@@ -737,7 +742,7 @@ impl StereoTracker {
             .filter(|&std| std > limit && result.status != Status::Lost)
         {
             result.mark_lost(format!(
-                "{UNCERTAIN}: the disparity's standard error is {std:.2} px (limit {limit:.2} px: max_disparity_std_px {:.2}, or {STD_GROWTH} times the first pair's {first:.2}); tracking goes on",
+                "{UNCERTAIN}: the disparity's standard error is {std:.2} px (limit {limit:.2} px: max_disparity_std_px {:.2}, or {STD_GROWTH} times the first pair's {first:.2}){GOES_ON}",
                 self.params.max_disparity_std_px
             ));
         }
@@ -763,11 +768,7 @@ impl StereoTracker {
         state.unverified_move_px += dist(predicted.center(), state.left.center());
         if state.unverified_move_px > MAX_UNVERIFIED_MOVE_PX {
             if let Some(reason) = result.reason.as_mut() {
-                reason.truncate(
-                    reason
-                        .strip_suffix("; tracking goes on")
-                        .map_or(reason.len(), str::len),
-                );
+                reason.truncate(reason.strip_suffix(GOES_ON).map_or(reason.len(), str::len));
                 reason.push_str(&format!(
                     "; over this run of uncertain pairs the contour moved {:.1} px from its predictions (limit {MAX_UNVERIFIED_MOVE_PX} px): the object counts as lost and its template is sought from the next pair",
                     state.unverified_move_px
@@ -897,26 +898,29 @@ impl StereoTracker {
         }
         let [new_long, new_short] = Polygon::new(template.points.clone()).principal_spreads();
         let [old_long, old_short] = Polygon::new(state.template.clone()).principal_spreads();
-        let like = |a: f64, b: f64| a >= MIN_SPREAD_RATIO * b && b >= MIN_SPREAD_RATIO * a;
+        // A fresh spread at most 1 / MIN_SPREAD_RATIO times the lost one's.
         let within = |a: f64, b: f64| MIN_SPREAD_RATIO * a <= b;
-        let fits = if template.cuts.is_empty() {
-            like(new_long, old_long) && like(new_short, old_short)
+        let (fits, what, why) = if template.cuts.is_empty() {
+            (
+                within(new_long, old_long)
+                    && within(old_long, new_long)
+                    && within(new_short, old_short)
+                    && within(old_short, new_short),
+                "unlike the lost one",
+                "part of it, or another object",
+            )
         } else {
-            within(new_long, old_long) && within(new_short, old_short)
+            (
+                within(new_long, old_long) && within(new_short, old_short),
+                "cut by the image border and larger than the lost one",
+                "another object, or the object merged with one",
+            )
         };
         if fits {
             return None;
         }
         state.refused_inits += 1;
         state.missed_searches = 0;
-        let (what, why) = if template.cuts.is_empty() {
-            ("unlike the lost one", "part of it, or another object")
-        } else {
-            (
-                "cut by the image border and larger than the lost one",
-                "another object, or the object merged with one",
-            )
-        };
         Some(format!(
             "lost; the object found afresh is {what} (spread {new_long:.1} x {new_short:.1} px against {old_long:.1} x {old_short:.1} px; ratio limit {MIN_SPREAD_RATIO}): {why}; its template is sought again ({} of {REFUSED_INITS} such refusals before one is taken)",
             state.refused_inits
@@ -1475,7 +1479,7 @@ impl StereoTracker {
             let position_std = left_fit.axis_std_px * left_fit.weakest_factor;
             if position_std > MAX_POSITION_STD_PX {
                 result.mark_lost(format!(
-                    "{UNCERTAIN}: what is visible of the left outline fixes the object's position only to {position_std:.1} px in one direction (limit {MAX_POSITION_STD_PX} px); tracking goes on"
+                    "{UNCERTAIN}: what is visible of the left outline fixes the object's position only to {position_std:.1} px in one direction (limit {MAX_POSITION_STD_PX} px){GOES_ON}"
                 ));
                 let w = left_fit.weakest_direction;
                 let along =
