@@ -129,9 +129,9 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
 /// cannot measure there). The other classes reach it on these seeds (dark
 /// 0.95, 0.90 before its rim was grown from a finer core; relief 0.975,
 /// 0.95 before its strips of substrate were cut out); on seeds 600-604,
-/// 700-704 and 800-804 relief gives 0.925, 0.90 and 1.00 (thin spikes
-/// along grain boundaries, a shaded side cut off), blurred 0.95, 0.825
-/// and 0.80, dark 0.975, 1.00 and 1.00.
+/// 700-704 and 800-804 relief gives 0.95, 0.975 and 1.00 (a sphere's
+/// shaded side cut off, a spike along a grain boundary), blurred 0.95,
+/// 0.825 and 0.80 (rods only), dark 0.975, 1.00 and 1.00.
 #[test]
 fn hinted_objects_are_found_on_every_scene_class() {
     for preset in Preset::ALL {
