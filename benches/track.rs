@@ -6,14 +6,17 @@
 //! reference measured in the same run, one pass summing every pixel of both
 //! images (`reference_sum`); at 1024x768 also the step on a defocus-blurred
 //! low-dose blob (`track_pair_blurred`), where both images are smoothed to
-//! the edge's width first (`semdepth::prefilter`).
+//! the edge's width first (`semdepth::prefilter`); and the pair after a
+//! loss (`reacquire_pair`: the lost template sought over the whole left
+//! image, then along the right view's epipolar line, and the tracking step
+//! from where it was found).
 //! Target (tracker issue): a 1024x768 pair under 1 ms on one core (goal 0.5 ms).
 //! `python3 tools/bench_report.py track` prints medians and ratios.
 
 use criterion::{black_box, criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion};
 use semdepth::imageio::GrayFrame;
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
-use semdepth::tracker::{Status, StereoTracker, TrackerParams};
+use semdepth::tracker::{Status, StereoTracker, TrackerParams, REACQUIRED};
 
 const SIZES: [(u32, u32); 3] = [(640, 480), (1024, 768), (2048, 2048)];
 
@@ -71,17 +74,45 @@ fn bench_track(c: &mut Criterion) {
                 sum(black_box(l)) + sum(black_box(r))
             })
         });
-        inputs.push((id, first));
+        inputs.push((id, first, tracker, second));
     }
     // The first pair costs far more (initialisation and free fit): fewer samples.
     group.sample_size(10);
-    for (id, first) in &inputs {
+    for (id, first, tracker, second) in &inputs {
         group.bench_with_input(BenchmarkId::new("initialise_pair", id), first, |b, (l, r)| {
             b.iter(|| {
                 StereoTracker::new(TrackerParams::default())
                     .process(black_box(l), black_box(r))
                     .unwrap()
             })
+        });
+        // Lost on a blank pair, then one search missed on another: the next
+        // pair seeks the template.
+        let mut lost = tracker.clone();
+        let blank = GrayFrame {
+            data: vec![90; first.0.data.len()],
+            ..first.0.clone()
+        };
+        for _ in 0..2 {
+            let r = lost.process(&blank, &blank).expect("same-size pair");
+            assert_eq!(r.status, Status::Lost, "{id}: a blank pair");
+        }
+        let found = lost
+            .clone()
+            .process(&second.0, &second.1)
+            .expect("same-size pair");
+        assert_eq!(
+            found.reason.as_deref(),
+            Some(REACQUIRED),
+            "{id}: {:?}",
+            found.status
+        );
+        group.bench_with_input(BenchmarkId::new("reacquire_pair", id), second, |b, (l, r)| {
+            b.iter_batched(
+                || lost.clone(),
+                |mut t| t.process(black_box(l), black_box(r)).unwrap(),
+                BatchSize::SmallInput,
+            )
         });
     }
     group.finish();
