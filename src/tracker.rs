@@ -2139,11 +2139,11 @@ impl StereoTracker {
     /// (`reference`: that pair's sector contrasts in this view): no sector
     /// hidden (its inside changed), at most [`REACQUIRE_OCCLUDED_FRACTION`]
     /// of them with a changed contrast, and the median sector within
-    /// 0.7-1.43 of its first contrast. With
-    /// more of it changed, a slender object slid along its axis, or
-    /// something like it, matches as well (a rod under a bar was taken
-    /// again 10 px along its axis in one view only, 1.3 px of disparity
-    /// off); the object is sought again on the next pair.
+    /// 0.7-1.43 of its first contrast. With more of it changed, a slender
+    /// object slid along its axis, or something like it, matches as well (a
+    /// rod under a bar was taken again 10 px along its axis in one view
+    /// only, 1.3 px of disparity off); the object is sought again on the
+    /// next pair.
     fn shows_object(
         &self,
         sums: &PrefixSums,

@@ -500,13 +500,11 @@ fn assert_held(
 ) -> (usize, Vec<String>) {
     let (mut first, mut tracked, mut reasons) = (None, 0, Vec::new());
     for (result, pair) in tracked_sequence(config) {
-        let Some(d) = result.disparity_px else {
+        let Some(error) = truth_errors(&result, &pair) else {
             reasons.push(result.reason.unwrap_or_default());
             continue;
         };
         tracked += 1;
-        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-        let error = (d[0] - pair.truth.disparity_px[0], [c[0] - t[0], c[1] - t[1]]);
         let (e0, c0) = *first.get_or_insert(error);
         let moved = (error.1[0] - c0[0]).hypot(error.1[1] - c0[1]);
         assert!(
@@ -534,19 +532,29 @@ fn tracked_with(
     })
 }
 
+/// A pair's errors against its truth (measured minus true): the disparity
+/// along x and the left centroid; `None` for a pair without numbers.
+fn truth_errors(result: &PairResult, pair: &SynthPair) -> Option<(f64, [f64; 2])> {
+    let (d, left) = (result.disparity_px?, result.left.as_ref()?);
+    let t = pair.truth.left.centroid;
+    Some((
+        d[0] - pair.truth.disparity_px[0],
+        [left.centroid[0] - t[0], left.centroid[1] - t[1]],
+    ))
+}
+
 /// A sequence tracked from its first pair: the disparity and left
 /// centroid errors of the pairs with numbers, and "pair N: reason" for the
 /// others.
 fn errors_and_reasons(config: &SynthConfig, params: TrackerParams) -> (Vec<f64>, Vec<[f64; 2]>, Vec<String>) {
     let (mut errors, mut centroids, mut reasons) = (Vec::new(), Vec::new(), Vec::new());
     for (result, pair) in tracked_with(config, params) {
-        match (result.disparity_px, &result.left) {
-            (Some(d), Some(left)) => {
-                errors.push(d[0] - pair.truth.disparity_px[0]);
-                let t = pair.truth.left.centroid;
-                centroids.push([left.centroid[0] - t[0], left.centroid[1] - t[1]]);
+        match truth_errors(&result, &pair) {
+            Some((d, c)) => {
+                errors.push(d);
+                centroids.push(c);
             }
-            _ => reasons.push(format!(
+            None => reasons.push(format!(
                 "pair {}: {}",
                 result.frame,
                 result.reason.unwrap_or_default()
@@ -659,14 +667,9 @@ fn a_rod_beside_a_bright_bar_is_found_again() {
     let mut offsets = None;
     let mut reacquired = None;
     for (result, pair) in tracked_sequence(&config).take(11) {
-        let (Some(d), Some(left)) = (result.disparity_px, &result.left) else {
+        let Some(errors) = truth_errors(&result, &pair) else {
             continue;
         };
-        let t = pair.truth.left.centroid;
-        let errors = (
-            d[0] - pair.truth.disparity_px[0],
-            [left.centroid[0] - t[0], left.centroid[1] - t[1]],
-        );
         let (d0, c0) = *offsets.get_or_insert(errors);
         if result.frame >= 8 && result.reason.as_deref() == Some(REACQUIRED) {
             assert_eq!(result.status, Status::Tracked);
@@ -827,9 +830,9 @@ fn the_right_view_is_searched_on_its_epipolar_line() {
             d[1],
             pair.truth.disparity_px[1]
         );
-        let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-        errors.push(d[0] - pair.truth.disparity_px[0]);
-        centroids.push([c[0] - t[0], c[1] - t[1]]);
+        let (e, c) = truth_errors(&result, &pair).expect("a pair with a disparity");
+        errors.push(e);
+        centroids.push(c);
     }
     let wrong = confident_wrong(&errors, &centroids);
     assert_eq!(wrong, 0, "confident wrong pairs of {} tracked", errors.len());
@@ -857,14 +860,13 @@ fn a_bar_along_half_an_object_does_not_place_its_contour() {
         };
         let (mut errors, mut centroids, mut occluded) = (Vec::new(), Vec::new(), 0);
         for (result, pair) in tracked_sequence(&config) {
-            let Some(d) = result.disparity_px else {
+            let Some((e, c)) = truth_errors(&result, &pair) else {
                 let reason = result.reason.unwrap_or_default();
                 occluded += usize::from(reason.starts_with("occluded") || reason.starts_with("uncertain"));
                 continue;
             };
-            let (c, t) = (result.left.unwrap().centroid, pair.truth.left.centroid);
-            errors.push(d[0] - pair.truth.disparity_px[0]);
-            centroids.push([c[0] - t[0], c[1] - t[1]]);
+            errors.push(e);
+            centroids.push(c);
         }
         let wrong = confident_wrong(&errors, &centroids);
         let name = format!("crossing/{}/{seed}", shape.name());
