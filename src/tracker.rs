@@ -80,12 +80,16 @@ pub const UNCERTAIN: &str = "uncertain";
 /// [`MAX_UNVERIFIED_MOVE_PX`]).
 const GOES_ON: &str = "; tracking goes on";
 
-/// How many times its first pair's standard error an object's disparity
-/// may have before the pair is `uncertain`, when that is more than
-/// [`TrackerParams::max_disparity_std_px`]: an object whose own outline
-/// gives no better (a real grain whose outline changes with the tilt: 1.31
-/// px on the quartz pair 01-02, 1.55 px on 01-03) keeps its numbers, while
-/// one that lost most of what fixed its position says so.
+/// How many times its first pair's excess over
+/// [`TrackerParams::max_disparity_std_px`] an object's disparity standard
+/// error may exceed that limit before the pair is `uncertain`: an object
+/// whose own outline gives no better (a real grain whose outline changes
+/// with the tilt: 1.31 px on the quartz pair 01-02, 1.55 px on 01-03) keeps
+/// its numbers, while one that lost most of what fixed its position says
+/// so. An object first measured within the limit gets no more than the
+/// limit: growing its own standard error 4 times (rod 902 of the combined
+/// suite, first 0.14 px, a limit of 0.55 px) let a pair be `tracked` 1.0
+/// px off at 0.40 px.
 pub const STD_GROWTH: f64 = 4.0;
 
 /// Shortest side of an image's working copy that initialisation accepts
@@ -162,13 +166,13 @@ pub struct TrackerParams {
     #[schema(minimum = 0.0, maximum = 4.0)]
     pub prefilter_sigma_px: Option<f64>,
     /// A pair whose disparity standard error (`disparity_std_px`) exceeds
-    /// this many pixels, and [`STD_GROWTH`] times that of the pair that
-    /// initialised the object (after a loss, the lower of the first
-    /// initialisation's and the fresh one's), is reported `lost` with reason `uncertain`,
-    /// without numbers; tracking goes on from its poses. Default 0.4: a
-    /// `tracked` disparity is then within 1 px of the truth at 2.5 standard
-    /// errors. Such pairs are the ones where too little of an occluded
-    /// outline is left to fix the position.
+    /// this many pixels is reported `lost` with reason `uncertain`, without
+    /// numbers; tracking goes on from its poses. Default 0.4: a `tracked`
+    /// disparity is then within 1 px of the truth at 2.5 standard errors.
+    /// Such pairs are the ones where too little of an occluded outline is
+    /// left to fix the position. An object whose first pair (after a loss,
+    /// the lower of the first initialisation's and the fresh one's) already
+    /// exceeded the limit may exceed it by [`STD_GROWTH`] times as much.
     #[schema(minimum = 0.01, maximum = 1000.0)]
     pub max_disparity_std_px: f64,
 }
@@ -194,6 +198,16 @@ impl Default for TrackerParams {
 }
 
 impl TrackerParams {
+    /// The standard error above which a pair is `uncertain`, for an object
+    /// whose first pair's was `first` px (see
+    /// [`Self::max_disparity_std_px`]): the limit, raised for an object
+    /// above it to its excess over the limit grown [`STD_GROWTH`] times
+    /// (quartz 01-02, first 1.31 px: 4.0 px).
+    pub fn std_limit(&self, first: f64) -> f64 {
+        let limit = self.max_disparity_std_px;
+        limit.max(limit + STD_GROWTH * (first - limit))
+    }
+
     /// Checks every part; the message names the field and what was expected.
     pub fn validate(&self) -> Result<(), String> {
         self.init.validate().map_err(|e| format!("init: {e}"))?;
@@ -515,6 +529,13 @@ pub struct TrackerState {
     /// kept); see [`TrackerParams::max_disparity_std_px`].
     #[serde(default)]
     pub first_disparity_std_px: f64,
+    /// True from an initialisation or a search that found the object until
+    /// a tracking step measures the left view's velocity: the prediction
+    /// is the last pose, so an `uncertain` pair's move from it is the
+    /// object's own motion as much as a slide, and does not count towards
+    /// [`MAX_UNVERIFIED_MOVE_PX`].
+    #[serde(default)]
+    pub unmeasured_velocity: bool,
 }
 
 impl TrackerState {
@@ -693,7 +714,11 @@ impl StereoTracker {
         }
         let frame = self.frames;
         self.frames += 1;
-        let predicted = self.state.as_ref().filter(|s| !s.lost).map(|s| s.predicted()[0]);
+        let predicted = self
+            .state
+            .as_ref()
+            .filter(|s| !s.lost && !s.unmeasured_velocity)
+            .map(|s| s.predicted()[0]);
         // The templates are lent to the step, not copied: tracking does not
         // change them, and initialising replaces them.
         let mut result = match (&self.state, self.template.take()) {
@@ -736,13 +761,13 @@ impl StereoTracker {
             }
         };
         let first = self.state.as_ref().map_or(0.0, |s| s.first_disparity_std_px);
-        let limit = self.params.max_disparity_std_px.max(STD_GROWTH * first);
+        let limit = self.params.std_limit(first);
         if let Some(std) = result
             .disparity_std_px
             .filter(|&std| std > limit && result.status != Status::Lost)
         {
             result.mark_lost(format!(
-                "{UNCERTAIN}: the disparity's standard error is {std:.2} px (limit {limit:.2} px: max_disparity_std_px {:.2}, or {STD_GROWTH} times the first pair's {first:.2}){GOES_ON}",
+                "{UNCERTAIN}: the disparity's standard error is {std:.2} px (limit {limit:.2} px: max_disparity_std_px {:.2}, or more for an object whose first pair exceeded it; its first pair's {first:.2} px){GOES_ON}",
                 self.params.max_disparity_std_px
             ));
         }
@@ -1042,6 +1067,7 @@ impl StereoTracker {
             refused_inits: 0,
             unverified_move_px: 0.0,
             first_disparity_std_px: 0.0,
+            unmeasured_velocity: true,
         };
         let [left_bands, right_bands] = noise_bands(
             &state,
@@ -1443,6 +1469,7 @@ impl StereoTracker {
             left: left_fit.pose,
             right: right_fit.pose,
             left_velocity: velocity(left_fit.pose),
+            unmeasured_velocity: false,
             ..state.clone()
         };
         let mut result = self.pair_result(
@@ -2284,6 +2311,7 @@ impl StereoTracker {
             left: left_pose,
             right: right_pose,
             left_velocity: [0.0; 3],
+            unmeasured_velocity: true,
             lost: false,
             missed_searches: 0,
             ..state.clone()

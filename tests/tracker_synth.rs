@@ -220,19 +220,19 @@ fn occluders_moving_on_their_own_and_fast_motion() {
 /// Issue #17: strong noise, a quarter occluder and grey-level flicker
 /// together, 4 shapes x seeds 100..105, 10 pairs: disparity RMS <= 0.25 px,
 /// no confident wrong pair, at most 5% not tracked, the std calibrated.
-/// Measured: 0.140 px, 4 of 200 pairs lost (`occluded`), std ratio 0.75.
+/// Measured: 0.121 px, 7 of 200 pairs not tracked (`occluded` or
+/// `uncertain`), std ratio 1.11.
 /// Before, a rod half under a bright bar parallel to it was taken 24 px
 /// onto the bar, its median sector at 0.06 of its first contrast, and
 /// reported 0% occluded and `tracked` 1.5-3 px off: 0.293 px, 5 confident
-/// wrong. Not yet held on other seeds: one pair of rod 902 (seeds
-/// 900..905) 1.1 px off in disparity at 2.7 standard errors, where an
-/// occluder first covers a third of it (its limit is four times its first
-/// pair's standard error). Tip 116 (seeds 100..119), 1.2 px off at 2.6
-/// standard errors (0.46 px), is `uncertain` since the default
-/// `max_disparity_std_px` is 0.4 px (rod 118's slide over a run of
-/// `uncertain` pairs is caught: see
-/// `a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed`). Seeds 300..305 no
-/// longer show rod 302 sliding along its axis (see
+/// wrong. On seeds 900..905 rod 902 was 1.1 px off at 2.7 standard errors
+/// while its limit was four times its first pair's (see
+/// `an_object_first_measured_within_the_limit_is_held_to_it`); tip 116
+/// (seeds 100..119), 1.2 px off at 2.6 standard errors (0.46 px), is
+/// `uncertain` since the default `max_disparity_std_px` is 0.4 px (rod
+/// 118's slide over a run of `uncertain` pairs is caught: see
+/// `a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed`).
+/// Seeds 300..305 no longer show rod 302 sliding along its axis (see
 /// `a_move_the_visible_outline_does_not_fix_is_not_followed`).
 #[test]
 fn noise_occlusion_and_flicker_together() {
@@ -371,8 +371,10 @@ fn tools_entering_from_the_border_are_tracked() {
 }
 
 /// The other new scene classes of issue #16, 4 shapes x seeds 900..905 (not
-/// used while developing), 10 pairs each, no pair lost and none confidently
-/// wrong, the reported standard error calibrated within a factor of 1.5.
+/// used while developing), 10 pairs each: at most 5% of the pairs not
+/// tracked (issue #17; measured: relief rod 903's pair 5 `uncertain` at
+/// 0.42 px, the others none) and none confidently wrong, the reported
+/// standard error calibrated within a factor of 1.5.
 /// Scratches and fibres under the object, a dark object with a bright rim
 /// and a relief substrate: within the issue's 0.15 px (measured 0.042,
 /// 0.097 and 0.113; the dark scene 0.119 with 3 confident wrong pairs
@@ -388,7 +390,13 @@ fn scratched_dark_blurred_and_relief_scenes() {
         (Preset::Relief, 0.15),
     ] {
         let a = measure(preset, &Shape::ALL, 900..905, FRAMES);
-        assert_eq!(a.lost, 0, "{}: {} pairs lost", preset.name(), a.lost);
+        let total = a.pairs + a.lost;
+        assert!(
+            a.lost * 20 <= total,
+            "{}: {} of {total} pairs not tracked",
+            preset.name(),
+            a.lost
+        );
         assert_eq!(
             a.confident_wrong,
             0,
@@ -682,6 +690,43 @@ fn a_rod_beside_a_bright_bar_is_found_again() {
     eprintln!("reacquired at pair {frame}: disparity {d:+.3} px, left centroid {off:.2} px from the truth");
     assert!(d.abs() <= 0.5, "pair {frame}: disparity {d:+.3} px off");
     assert!(off <= 2.0, "pair {frame}: left centroid {off:.2} px off");
+}
+
+/// Issue #17: an object first measured within `max_disparity_std_px` is
+/// held to it. Combined rod 902, 10 pairs (seeds 900..905's run): a dark
+/// bar first covers its right end at pair 1, and its standard error grows
+/// from 0.14 px to 0.40 px; against four times its first pair's (0.55
+/// px) the pair was `tracked` 1.0 px off. Held to 0.4 px, pair 1 is
+/// `uncertain`, and as the object's velocity was not yet measured, its
+/// move from the first pose (the rod's own 3 px drift) does not end the
+/// run of uncertain pairs and lose the rod. Required: no confident wrong
+/// pair, pair 1 `uncertain`, at least 7 of the 10 pairs `tracked`
+/// (measured: 7, pairs 5 and 6 `uncertain` too at 0.46 and 0.53 px).
+#[test]
+fn an_object_first_measured_within_the_limit_is_held_to_it() {
+    use semdepth::tracker::UNCERTAIN;
+    let config = SynthConfig {
+        frames: 10,
+        ..SynthConfig::preset(Preset::Combined, Shape::Rod, 902)
+    };
+    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
+    eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
+    let wrong: Vec<_> = deviations_from_medians(&errors, &centroids)
+        .into_iter()
+        .filter(|d| d.confident_wrong())
+        .collect();
+    assert!(wrong.is_empty(), "confident wrong: {wrong:?}");
+    assert!(
+        reasons
+            .iter()
+            .any(|r| r.starts_with(&format!("pair 1: {UNCERTAIN}"))),
+        "pair 1 is not uncertain: {reasons:#?}"
+    );
+    assert!(
+        errors.len() >= 7,
+        "{} of 10 pairs tracked: {reasons:#?}",
+        errors.len()
+    );
 }
 
 /// Issue #17, item 5: 200 pairs while the object turns by 0.005 rad per
@@ -1104,8 +1149,9 @@ fn a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed() {
 /// outline) was lost at pair 7, its template not found for ten pairs, and
 /// initialised afresh at pair 18 on its visible half: a standard error of
 /// 2.5 px, so a limit of 4 times that, and pair 19 was `tracked` at 3.2 px,
-/// 4.5 px off. Required: no confident wrong pair, and the pairs after the
-/// fresh initialisation are `uncertain` against the first pair's 0.14 px.
+/// 4.5 px off. Required: no confident wrong pair, and a pair from the
+/// fresh initialisation on (pairs 17-19; measured: 17 and 18, at 1.78 and
+/// 2.57 px) `uncertain` against the first pair's 0.14 px.
 #[test]
 fn an_object_found_afresh_keeps_the_first_standard_error_as_its_reference() {
     let config = SynthConfig {
@@ -1122,9 +1168,10 @@ fn an_object_found_afresh_keeps_the_first_standard_error_as_its_reference() {
         "confident wrong pairs (untracked: {reasons:#?})"
     );
     assert!(
-        reasons
+        reasons.iter().any(|r| ["pair 17", "pair 18", "pair 19"]
             .iter()
-            .any(|r| r.starts_with("pair 19: uncertain") && r.contains("first pair's 0.1")),
+            .any(|p| r.starts_with(&format!("{p}: uncertain")))
+            && r.contains("first pair's 0.1")),
         "{reasons:#?}"
     );
 }
