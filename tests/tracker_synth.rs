@@ -711,11 +711,7 @@ fn an_object_first_measured_within_the_limit_is_held_to_it() {
     };
     let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
     eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
-    let wrong: Vec<_> = deviations_from_medians(&errors, &centroids)
-        .into_iter()
-        .filter(|d| d.confident_wrong())
-        .collect();
-    assert!(wrong.is_empty(), "confident wrong: {wrong:?}");
+    assert_eq!(confident_wrong(&errors, &centroids), 0, "confident wrong pairs");
     assert!(
         reasons
             .iter()
