@@ -290,10 +290,14 @@ impl SectorTemplate {
     /// Band energy over the seen sectors not marked occluded: minus the
     /// two-region likelihood ratio of the union of their inner bands against
     /// the union of their outer bands, divided by `m_ref`. `+inf` when the
-    /// contour leaves the covered area (a template without cuts) or nothing
-    /// is left.
+    /// outer band leaves the covered area (a template without cuts) or
+    /// nothing is left.
     pub fn masked_energy(&self, sums: &PrefixSums, pose: Pose, occluded: &[bool], m_ref: f64) -> f64 {
-        if self.cuts.is_empty() && !sums.contains(&place(&self.outer, pose)) {
+        // The outer band's edge, not the contour: on tables split with a
+        // guard (`PrefixSums::split`) the contour must stay a guard inside
+        // their area, its band need not (a rod's band at its ends reached
+        // into the guard, and every masked energy there was infinite).
+        if self.cuts.is_empty() && !sums.covers(&place(&self.outer, pose)) {
             return f64::INFINITY;
         }
         let (a, b) = self.visible_bands(sums, pose, occluded);

@@ -351,6 +351,17 @@ impl<'a> PrefixSums<'a> {
             .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
     }
 
+    /// True when every vertex lies inside the covered area itself, the
+    /// guard of [`PrefixSums::split`] not deducted: a polygon that is a
+    /// band's outer edge (the guard is the room left for such bands
+    /// around contours that [`PrefixSums::contains`]).
+    pub fn covers(&self, points: &[Point]) -> bool {
+        let [x0, y0, x1, y1] = self.rect.extent();
+        points
+            .iter()
+            .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
+    }
+
     /// True when the box `[x0, y0, x1, y1]` (e.g. a polygon's bounding box)
     /// lies inside the covered area: the same test as [`PrefixSums::contains`]
     /// for a caller that has the bounding box already.

@@ -725,6 +725,31 @@ fn an_object_first_measured_within_the_limit_is_held_to_it() {
     );
 }
 
+/// Issue #17, item 3: a dark bar that sweeps along a rod's long side
+/// without covering it (crossing rod 1017, 20 pairs; an unseen seed) raises
+/// the contrast of half its sectors. Where that moved the left fit, the
+/// pose's move without those sectors is a bias the standard error carries;
+/// it was measured as none, on tables whose guard the rod's band at its
+/// ends reached into, and pairs 3 and 13 were `tracked` 1.08 and 1.00 px
+/// off at a reported 0.30 and 0.28 px. Required: no confident wrong pair,
+/// and at least 3 of the 20 pairs `tracked` (measured: 3; the bar lies
+/// beside the rod or over it in the others).
+#[test]
+fn a_dark_bar_beside_a_rod_does_not_move_it_unreported() {
+    let config = SynthConfig {
+        frames: 20,
+        ..SynthConfig::preset(Preset::Crossing, Shape::Rod, 1017)
+    };
+    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
+    eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
+    assert_eq!(confident_wrong(&errors, &centroids), 0, "confident wrong pairs");
+    assert!(
+        errors.len() >= 3,
+        "{} of 20 pairs tracked: {reasons:#?}",
+        errors.len()
+    );
+}
+
 /// Issue #17, item 5: 200 pairs while the object turns by 0.005 rad per
 /// pair and drifts 0.5-3 px per pair (reflected at the frame's margins),
 /// 4 shapes, seed 100, noise of the clean preset: the left centroid's error,
@@ -891,7 +916,11 @@ fn the_right_view_is_searched_on_its_epipolar_line() {
 /// (20 pairs) was `tracked` 2.6-3.2 px off in disparity with standard
 /// errors of 0.11-0.49 px (4 pairs), and the crossing tip of seed 203 slid
 /// 9-14 px along its axis (5 pairs). No pair is confident wrong, and the
-/// rod's pairs under the bar are lost as occluded or uncertain.
+/// rod's pairs under the bar are lost as occluded or uncertain: from pair
+/// 1 on the bar hides 41-48% of its outline, and only its first pair need
+/// be tracked (pair 1 was `tracked` 0.95 px off at 0.37 px while the bias
+/// of its risen sectors went unmeasured on the near tables; it is
+/// `uncertain` at 0.84 px now). The tip keeps at least 2 pairs (5).
 #[test]
 fn a_bar_along_half_an_object_does_not_place_its_contour() {
     for (shape, seed) in [(Shape::Rod, 114), (Shape::Tip, 203)] {
@@ -917,9 +946,10 @@ fn a_bar_along_half_an_object_does_not_place_its_contour() {
             "{name}: confident wrong pairs of {} tracked",
             errors.len()
         );
+        let least = if shape == Shape::Rod { 1 } else { 2 };
         assert!(
-            errors.len() >= 2,
-            "{name}: only {} of 20 pairs tracked",
+            errors.len() >= least,
+            "{name}: only {} of 20 pairs tracked (expected {least} or more)",
             errors.len()
         );
         if shape == Shape::Rod {
