@@ -249,6 +249,14 @@ impl Drop for PrefixSums<'_> {
     }
 }
 
+/// True when every point lies in the box `[x0, y0, x1, y1]` (edges
+/// included).
+fn all_within(points: &[Point], [x0, y0, x1, y1]: [f64; 4]) -> bool {
+    points
+        .iter()
+        .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
+}
+
 impl<'a> PrefixSums<'a> {
     /// Rows between two stored rows of the summed-area table. A window
     /// lookup adds up to this many rows of F per corner; 4 keeps that under
@@ -345,10 +353,7 @@ impl<'a> PrefixSums<'a> {
     /// True when every vertex lies inside the covered area (so the polygon's
     /// sums are exact, not clamped).
     pub fn contains(&self, points: &[Point]) -> bool {
-        let [x0, y0, x1, y1] = self.polygon_extent();
-        points
-            .iter()
-            .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
+        all_within(points, self.polygon_extent())
     }
 
     /// True when every vertex lies inside the covered area itself, the
@@ -356,10 +361,7 @@ impl<'a> PrefixSums<'a> {
     /// band's outer edge (the guard is the room left for such bands
     /// around contours that [`PrefixSums::contains`]).
     pub fn covers(&self, points: &[Point]) -> bool {
-        let [x0, y0, x1, y1] = self.rect.extent();
-        points
-            .iter()
-            .all(|p| p[0] >= x0 && p[0] <= x1 && p[1] >= y0 && p[1] <= y1)
+        all_within(points, self.rect.extent())
     }
 
     /// True when the box `[x0, y0, x1, y1]` (e.g. a polygon's bounding box)
