@@ -193,7 +193,7 @@ impl SectorTemplate {
                 .chain(self.limits.iter().copied())
                 .collect()
         };
-        let seen = |p: Point| domain.iter().all(|h| h.depth(p) >= 1.0) && sums.contains(&[p]);
+        let seen = |p: Point| domain.iter().all(|h| h.depth(p) >= 1.0) && sums.covers(&[p]);
         let mut arc = Vec::with_capacity(n / self.starts.len().max(1) + 4);
         (0..self.starts.len())
             .map(|k| {

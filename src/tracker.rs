@@ -2999,6 +2999,7 @@ fn lost_result(frame: u64, reason: String) -> PairResult {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::region::RegionSum;
     use crate::synth::{frames, Preset, Scene, Shape, SynthConfig};
 
     fn sequence(preset: Preset, shape: Shape, seed: u64, n: usize) -> Vec<crate::synth::SynthPair> {
@@ -3264,6 +3265,48 @@ mod tests {
                 a.is_finite() && (a - b).abs() < 1e-9 * b.abs(),
                 "{shift:?}: near {a} full {b}"
             );
+        }
+    }
+
+    /// The same for a template cut by the image border, whose sectors are
+    /// judged seen vertex by vertex: a band may reach into the guard of
+    /// split tables (it was judged unseen there, as a rod's was above).
+    #[test]
+    fn near_tables_see_the_sectors_full_tables_see() {
+        let pairs = sequence(Preset::BorderTool, Shape::Tip, 8, 1);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        let (template, sectors) = tracker.template.as_ref().unwrap();
+        assert!(!template.cuts.is_empty(), "the tool is cut by the border");
+        let pose = tracker.state.as_ref().unwrap().left;
+        let frame = &pairs[0].left;
+        let guard = SectorTemplate::outer_band_width(template);
+        // Tables just wide enough for the outer band: the band's outermost
+        // vertices lie within the guard.
+        let r = template.radius + guard + 1.0;
+        let polygons =
+            PixelRect::around([pose.x, pose.y, pose.x, pose.y], r, frame.width, frame.height).unwrap();
+        let near = PrefixSums::split(frame, polygons, guard, polygons, &[], INTENSITY_OFFSET);
+        let full = PrefixSums::new(frame, PixelRect::full(frame), INTENSITY_OFFSET);
+        let (a, b) = (sectors.band_sums(&near, pose), sectors.band_sums(&full, pose));
+        let seen = b.iter().filter(|s| s.is_some()).count();
+        assert!(
+            seen >= a.len() / 2,
+            "full tables see {seen} of {} sectors",
+            a.len()
+        );
+        for (k, (a, b)) in a.iter().zip(&b).enumerate() {
+            let sum = |s: &Option<(RegionSum, RegionSum)>| s.map(|(i, o)| (i.count, i.sum, o.count, o.sum));
+            let (a, b) = (sum(a), sum(b));
+            let close = match (a, b) {
+                (Some(a), Some(b)) => [a.0 - b.0, a.1 - b.1, a.2 - b.2, a.3 - b.3]
+                    .iter()
+                    .zip([b.0, b.1, b.2, b.3])
+                    .all(|(d, v)| d.abs() <= 1e-9 * v.abs().max(1.0)),
+                (None, None) => true,
+                _ => false,
+            };
+            assert!(close, "sector {k}: near {a:?} full {b:?}");
         }
     }
 
