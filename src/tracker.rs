@@ -1457,6 +1457,27 @@ impl StereoTracker {
                 )
             });
         let reach = self.params.rigid.search_radius_px;
+        // A left fit that ended past the search discs (around the
+        // prediction and the last pose) went further than the object may
+        // move between pairs: the full fit, bounded by its disc, ran to the
+        // edge, and the masked fit that followed walked on. It stands only
+        // where no more of its outline is left out than a template found
+        // after a loss may have (40%): a real grain between tilts
+        // moved 25.7 px with a third of its sectors left out; a bar as
+        // bright as a rod, over its upper half, took both contours 31 px
+        // onto itself with 62% left out (`tracked` 1.3 px off at a
+        // reported 0.26 px).
+        let moved = dist(left_fit.pose.center(), left_predicted.center())
+            .min(dist(left_fit.pose.center(), state.left.center()));
+        let left_out = fraction(&left_fit.occluded);
+        let limit = REACQUIRE_OCCLUDED_FRACTION.min(self.params.occlusion.max_occluded_fraction);
+        let beyond_reach = (moved > reach && left_out > limit).then(|| {
+            format!(
+                "occluded: the left contour moved {moved:.1} px from its prediction, past the search radius ({reach} px), to where {:.0}% of its outline looks unlike the object's (limit {:.0}%)",
+                100.0 * left_out,
+                100.0 * limit
+            )
+        });
         // The left pose's change over the pair, the next pair's prediction.
         let velocity = |pose: Pose| {
             [
@@ -1480,8 +1501,9 @@ impl StereoTracker {
             &left_fit,
             &right_fit,
         );
-        if let Some(reason) =
-            occluded_jump.or_else(|| self.loss_reason(&candidate, template, &left_fit, &right_fit))
+        if let Some(reason) = occluded_jump
+            .or(beyond_reach)
+            .or_else(|| self.loss_reason(&candidate, template, &left_fit, &right_fit))
         {
             // Keep the last good poses; the next pair searches for the
             // template.
