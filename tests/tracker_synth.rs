@@ -572,6 +572,25 @@ fn errors_and_reasons(config: &SynthConfig, params: TrackerParams) -> (Vec<f64>,
     (errors, centroids, reasons)
 }
 
+/// Tracks `frames` pairs of `preset`, `shape` and `seed` with the default
+/// parameters and requires no confident wrong pair; prints and returns
+/// the tracked pairs' disparity errors and the other pairs' reasons.
+fn without_confident_wrong(
+    preset: Preset,
+    shape: Shape,
+    seed: u64,
+    frames: usize,
+) -> (Vec<f64>, Vec<String>) {
+    let config = SynthConfig {
+        frames,
+        ..SynthConfig::preset(preset, shape, seed)
+    };
+    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
+    eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
+    assert_eq!(confident_wrong(&errors, &centroids), 0, "confident wrong pairs");
+    (errors, reasons)
+}
+
 /// Issue #17, item 4: after a loss the object is sought by its own
 /// template, not initialised afresh on whatever is largest. Fast sequences
 /// (15-20 px per pair), 4 shapes x seeds 100..103: pairs 0-4 are tracked,
@@ -705,13 +724,7 @@ fn a_rod_beside_a_bright_bar_is_found_again() {
 #[test]
 fn an_object_first_measured_within_the_limit_is_held_to_it() {
     use semdepth::tracker::UNCERTAIN;
-    let config = SynthConfig {
-        frames: 10,
-        ..SynthConfig::preset(Preset::Combined, Shape::Rod, 902)
-    };
-    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
-    eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
-    assert_eq!(confident_wrong(&errors, &centroids), 0, "confident wrong pairs");
+    let (errors, reasons) = without_confident_wrong(Preset::Combined, Shape::Rod, 902, 10);
     assert!(
         reasons
             .iter()
@@ -736,13 +749,7 @@ fn an_object_first_measured_within_the_limit_is_held_to_it() {
 /// beside the rod or over it in the others).
 #[test]
 fn a_dark_bar_beside_a_rod_does_not_move_it_unreported() {
-    let config = SynthConfig {
-        frames: 20,
-        ..SynthConfig::preset(Preset::Crossing, Shape::Rod, 1017)
-    };
-    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
-    eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
-    assert_eq!(confident_wrong(&errors, &centroids), 0, "confident wrong pairs");
+    let (errors, reasons) = without_confident_wrong(Preset::Crossing, Shape::Rod, 1017, 20);
     assert!(
         errors.len() >= 3,
         "{} of 20 pairs tracked: {reasons:#?}",
@@ -759,13 +766,7 @@ fn a_dark_bar_beside_a_rod_does_not_move_it_unreported() {
 /// move past the search radius named.
 #[test]
 fn a_bar_as_bright_as_a_rod_does_not_take_its_contour_unreported() {
-    let config = SynthConfig {
-        frames: 20,
-        ..SynthConfig::preset(Preset::Combined, Shape::Rod, 2017)
-    };
-    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
-    eprintln!("errors {errors:+.2?}; not tracked: {reasons:#?}");
-    assert_eq!(confident_wrong(&errors, &centroids), 0, "confident wrong pairs");
+    let (_, reasons) = without_confident_wrong(Preset::Combined, Shape::Rod, 2017, 20);
     assert!(
         reasons
             .iter()
