@@ -53,34 +53,42 @@ fn main() {
                 );
             }
         }
-        let (l, rr) = (r.left.unwrap(), r.right.unwrap());
-        // DUMP=dir writes each left image with the tracked and true outlines.
+        // DUMP=dir writes each image with the tracked (red) and true (green)
+        // outlines.
         if let Ok(dir) = std::env::var("DUMP") {
-            let mut canvas = image::DynamicImage::ImageLuma8(pair.left.to_gray8()).to_rgb8();
-            for (pts, colour) in [
-                (&l.contour, [255u8, 0, 0]),
-                (&pair.truth.left.polygon.points, [0, 255, 0]),
+            for (side, img, view, truth) in [
+                ("left", &pair.left, &r.left, &pair.truth.left.polygon.points),
+                ("right", &pair.right, &r.right, &pair.truth.right.polygon.points),
             ] {
-                let n = pts.len();
-                for i in 0..n {
-                    let (p, q) = (pts[i], pts[(i + 1) % n]);
-                    imageproc::drawing::draw_line_segment_mut(
-                        &mut canvas,
-                        (p[0] as f32, p[1] as f32),
-                        (q[0] as f32, q[1] as f32),
-                        image::Rgb(colour),
-                    );
+                let mut canvas = image::DynamicImage::ImageLuma8(img.to_gray8()).to_rgb8();
+                let tracked = view.as_ref().map(|v| &v.contour);
+                for (pts, colour) in [(tracked, [255u8, 0, 0]), (Some(truth), [0, 255, 0])] {
+                    let Some(pts) = pts else { continue };
+                    let n = pts.len();
+                    for i in 0..n {
+                        let (p, q) = (pts[i], pts[(i + 1) % n]);
+                        imageproc::drawing::draw_line_segment_mut(
+                            &mut canvas,
+                            (p[0] as f32, p[1] as f32),
+                            (q[0] as f32, q[1] as f32),
+                            image::Rgb(colour),
+                        );
+                    }
                 }
+                canvas.save(format!("{dir}/{side}_{:02}.png", r.frame)).unwrap();
             }
-            canvas.save(format!("{dir}/left_{:02}.png", r.frame)).unwrap();
         }
+        let (Some(l), Some(rr), Some(d)) = (&r.left, &r.right, r.disparity_px) else {
+            println!("{} {:?} {:?}", r.frame, r.status, r.reason);
+            continue;
+        };
         let tl = pair.truth.left.centroid;
         let tr = pair.truth.right.centroid;
         println!(
             "{} {:?} L err ({:+.3},{:+.3}) R err ({:+.3},{:+.3}) dx err {:+.3} truth d {:.3} z {:.1} angle L {:+.4} truth rot {:+.4} occl {:.2}/{:.2}",
             r.frame, r.status, l.centroid[0] - tl[0], l.centroid[1] - tl[1], rr.centroid[0] - tr[0], rr.centroid[1] - tr[1],
-            r.disparity_px.unwrap()[0] - pair.truth.disparity_px[0], pair.truth.disparity_px[0], pair.truth.z_um,
-            r.angle_diff_rad.unwrap(), pair.truth.left.rotation_rad, l.occluded_fraction, rr.occluded_fraction
+            d[0] - pair.truth.disparity_px[0], pair.truth.disparity_px[0], pair.truth.z_um,
+            r.angle_diff_rad.unwrap_or(f64::NAN), pair.truth.left.rotation_rad, l.occluded_fraction, rr.occluded_fraction
         );
     }
 }
