@@ -480,6 +480,35 @@ pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_rat
     )
 }
 
+/// The change of the object's grey relative to its surroundings' since
+/// `reference`: the median over the sectors seen in both of the inner
+/// band's ratio (current / reference), divided by the median of the outer
+/// band's. Near 1 when the same object is in view under any gain (e.g.
+/// charging); the grey of something else in the object's place (a brighter
+/// bar) moves it. `None` when fewer than 3 sectors are seen in both.
+pub fn grey_change(reference: SectorReference, current: &SectorLook) -> Option<f64> {
+    // The outer band's mean from the inner one and the Michelson contrast.
+    let outer = |a: f64, m: f64| a * (1.0 - m) / (1.0 + m);
+    let (mut inner, mut outside) = (Vec::new(), Vec::new());
+    for k in 0..reference.contrasts.len().min(current.contrasts.len()) {
+        let (Some(&ri), Some(&ci)) = (reference.inner.get(k), current.inner.get(k)) else {
+            continue;
+        };
+        let (rc, cc) = (reference.contrasts[k], current.contrasts[k]);
+        let (ro, co) = (outer(ri, rc), outer(ci, cc));
+        if [ri, ci, ro, co].iter().all(|v| v.is_finite() && *v > 0.0) {
+            inner.push(ci / ri);
+            outside.push(co / ro);
+        }
+    }
+    if inner.len() < 3 {
+        return None;
+    }
+    let (gi, _) = median_and_spread(&inner)?;
+    let (go, _) = median_and_spread(&outside)?;
+    (go > 0.0).then(|| gi / go)
+}
+
 /// A sector's inner band holds the object's grey when its mean, relative
 /// to the reference and to the median such ratio, stays within this
 /// fraction of 1, or within three robust standard deviations of the
@@ -724,6 +753,32 @@ mod tests {
             blind.hidden[16] && blind.hidden[22] && !blind.hidden[5],
             "{blind:?}"
         );
+    }
+
+    #[test]
+    fn the_grey_change_ignores_gain_and_sees_another_grey() {
+        // An object at 150 on a background of 60 (Michelson 0.43).
+        let m = |a: f64, b: f64| (a - b) / (a + b);
+        let look = |a: f64, b: f64| SectorLook {
+            contrasts: vec![m(a, b); 24],
+            inner: vec![a; 24],
+        };
+        let first = look(150.0, 60.0);
+        let reference = SectorReference {
+            contrasts: &first.contrasts,
+            inner: &first.inner,
+        };
+        // Charging: everything 30% brighter.
+        let g = grey_change(reference, &look(195.0, 78.0)).unwrap();
+        assert!((g - 1.0).abs() < 1e-9, "{g}");
+        // A bar at 100 against the same background, its edge contrast
+        // near the object's.
+        let g = grey_change(reference, &look(100.0, 60.0)).unwrap();
+        assert!((g - 100.0 / 150.0).abs() < 1e-9, "{g}");
+        // Too few sectors seen.
+        let mut unseen = look(150.0, 60.0);
+        unseen.inner[2..].fill(f64::NAN);
+        assert_eq!(grey_change(reference, &unseen), None);
     }
 
     #[test]

@@ -24,7 +24,7 @@ use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
 use crate::occlusion::{
-    grown, judge_look, risen_on_their_own, OcclusionParams, SectorReference, SectorTemplate,
+    grey_change, grown, judge_look, risen_on_their_own, OcclusionParams, SectorReference, SectorTemplate,
 };
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
@@ -2187,8 +2187,9 @@ impl StereoTracker {
     /// Whether the template at `pose` shows the object as on the first pair
     /// (`reference`: that pair's sector contrasts in this view): no sector
     /// hidden (its inside changed), at most [`REACQUIRE_OCCLUDED_FRACTION`]
-    /// of them with a changed contrast, and the median sector within
-    /// 0.7-1.43 of its first contrast. With more of it changed, a slender
+    /// of them with a changed contrast, the median sector within 0.7-1.43
+    /// of its first contrast, and its grey against its surroundings within
+    /// [`MIN_GREY_CHANGE`] of its first. With more of it changed, a slender
     /// object slid along its axis, or something like it, matches as well (a
     /// rod under a bar was taken again 10 px along its axis in one view
     /// only, 1.3 px of disparity off); the object is sought again on the
@@ -2201,9 +2202,10 @@ impl StereoTracker {
         pose: Pose,
     ) -> bool {
         let occlusion = &self.params.occlusion;
+        let look = sectors.look(sums, pose);
         let judged = judge_look(
             reference,
-            &sectors.look(sums, pose),
+            &look,
             occlusion.min_contrast_ratio,
             occlusion.max_contrast_ratio,
         );
@@ -2213,6 +2215,8 @@ impl StereoTracker {
         !judged.hidden.contains(&true)
             && fraction(&judged.occluded) <= REACQUIRE_OCCLUDED_FRACTION.min(occlusion.max_occluded_fraction)
             && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
+            && grey_change(reference, &look)
+                .is_none_or(|g| (MIN_GREY_CHANGE..=1.0 / MIN_GREY_CHANGE).contains(&g))
     }
 
     /// The object sought by its template over the hint box (or the whole
@@ -2785,6 +2789,15 @@ const MIN_ISOTROPY: f64 = 0.05;
 /// Largest occluded share of the left outline at which a disparity that
 /// jumped by more than [`DISPARITY_JUMP_PX`] is still trusted.
 const OCCLUDED_JUMP_FRACTION: f64 = 0.25;
+
+/// Least change of the object's grey against its surroundings
+/// ([`crate::occlusion::grey_change`]) at which a template found after a
+/// loss shows the object (and most, its inverse): the template placed in
+/// a bright bar beside a rod, along its edge, kept the rod's contrast there
+/// while its inside showed 0.62-0.72 of the rod's grey (its bright rim
+/// included) against the same background (crossing rod 2005, taken 36 px
+/// off and `tracked`). Flicker moves the ratio by less than 10%.
+const MIN_GREY_CHANGE: f64 = 0.8;
 
 /// Largest share of occluded sectors at which a template found after a loss
 /// is taken: the coverage up to which an occluded object is to be held
