@@ -504,9 +504,10 @@ pub fn grey_change(reference: SectorReference, current: &SectorLook) -> Option<f
     if inner.len() < 3 {
         return None;
     }
+    // Both medians are of positive ratios.
     let (gi, _) = median_and_spread(&inner)?;
     let (go, _) = median_and_spread(&outside)?;
-    (go > 0.0).then(|| gi / go)
+    Some(gi / go)
 }
 
 /// A sector's inner band holds the object's grey when its mean, relative
