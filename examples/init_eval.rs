@@ -63,11 +63,15 @@ fn main() {
                     } else {
                         initialise(&pair.left, params).ok().map(|found| found.contour)
                     };
-                    let iou = contour.map_or(0.0, |c| mask_iou(&c.rasterize(w, h), &truth));
+                    let found = contour.map(|c| c.rasterize(w, h));
+                    let iou = found.as_ref().map_or(0.0, |m| mask_iou(m, &truth));
+                    // Found area over true area: above 1 when the outline lies outside the edge.
+                    let area = |m: &[bool]| m.iter().filter(|&&b| b).count() as f64;
+                    let ratio = found.as_ref().map_or(0.0, |m| area(m) / area(&truth));
                     let limit = if k == 0 { 0.9 } else { 0.95 };
                     if iou < limit {
                         fails.push(format!(
-                            "{}/{}/{seed} {}: {iou:.3}",
+                            "{}/{}/{seed} {}: {iou:.3} (area {ratio:.3} of the truth's)",
                             preset.name(),
                             shape.name(),
                             ["none", "roi", "point"][k]
