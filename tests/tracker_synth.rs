@@ -763,19 +763,6 @@ fn a_bar_beside_a_lost_rod_is_not_taken_for_it() {
     }
 }
 
-/// Issue #17, item 3: an occluder a little brighter than the object is not
-/// a new backdrop. Occluded rod 2008 (20 pairs): a bar 1.11-1.26 times the
-/// rod's grey lies along it from pair 1 and hides 47% of its outline. With
-/// the object's grey taken from every sector, the bar's passed for it, the
-/// 13 sectors under the bar were left out as a backdrop, none hidden, and
-/// pair 3 was `tracked` with its left centroid 4.0 px along the rod.
-/// Required: no confident wrong pair (disparity within 1 px, left centroid
-/// within 3 px, after the run's median offsets).
-#[test]
-fn a_bar_a_little_brighter_than_a_rod_is_not_taken_for_its_backdrop() {
-    without_confident_wrong(Preset::Occluded, Shape::Rod, 2008, 20);
-}
-
 /// Issue #17: an object first measured within `max_disparity_std_px` is
 /// held to it. Combined rod 902, 10 pairs (seeds 900..905's run): a dark
 /// bar first covers its right end at pair 1, and its standard error grows
