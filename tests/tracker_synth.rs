@@ -551,6 +551,40 @@ fn truth_errors(result: &PairResult, pair: &SynthPair) -> Option<(f64, [f64; 2])
     ))
 }
 
+/// Tracks pairs 0-4 of `scene`, each `initialised` or `tracked`, then
+/// feeds two blank pairs of grey `blank` (the beam blanked), each `lost`
+/// without a disparity; returns pair 4's disparity and left centroid errors
+/// ([`truth_errors`]), the offsets of the template's reference point.
+fn lost_after_five_pairs(
+    scene: &semdepth::synth::Scene,
+    tracker: &mut StereoTracker,
+    blank: u16,
+    name: &str,
+) -> (f64, [f64; 2]) {
+    let mut offsets = (0.0, [0.0; 2]);
+    for k in 0..5 {
+        let pair = scene.render(k);
+        let r = tracker.process(&pair.left, &pair.right).unwrap();
+        assert!(
+            matches!(r.status, Status::Initialised | Status::Tracked),
+            "{name} pair {k}: {:?}",
+            r.reason
+        );
+        offsets = truth_errors(&r, &pair).expect("a tracked pair has numbers");
+    }
+    let config = scene.config();
+    let blank = semdepth::imageio::GrayFrame::filled(config.width, config.height, 8, blank);
+    for k in 0..2 {
+        let r = tracker.process(&blank, &blank).unwrap();
+        assert_eq!(r.status, Status::Lost, "{name} blank pair {k}: {:?}", r.reason);
+        assert!(
+            r.disparity_px.is_none(),
+            "{name}: a lost pair carries no disparity"
+        );
+    }
+    offsets
+}
+
 /// A sequence tracked from its first pair: the disparity and left
 /// centroid errors of the pairs with numbers, and "pair N: reason" for the
 /// others.
@@ -601,7 +635,6 @@ fn without_confident_wrong(
 /// own reference point and disparity offset).
 #[test]
 fn a_lost_object_is_found_again_by_its_template() {
-    use semdepth::imageio::GrayFrame;
     use semdepth::synth::Scene;
     use semdepth::tracker::{REACQUIRED, REACQUIRE_PAIRS};
     for shape in Shape::ALL {
@@ -613,36 +646,7 @@ fn a_lost_object_is_found_again_by_its_template() {
             };
             let scene = Scene::new(&config).unwrap();
             let mut tracker = StereoTracker::new(TrackerParams::default());
-            let mut offsets = ([0.0; 2], 0.0);
-            for k in 0..5 {
-                let pair = scene.render(k);
-                let r = tracker.process(&pair.left, &pair.right).unwrap();
-                assert!(
-                    matches!(r.status, Status::Initialised | Status::Tracked),
-                    "{name} pair {k}: {:?}",
-                    r.reason
-                );
-                let c = r.left.unwrap().centroid;
-                let t = pair.truth.left.centroid;
-                offsets = (
-                    [c[0] - t[0], c[1] - t[1]],
-                    r.disparity_px.unwrap()[0] - pair.truth.disparity_px[0],
-                );
-            }
-            let blank = GrayFrame {
-                width: config.width,
-                height: config.height,
-                bit_depth: 8,
-                data: vec![90; (config.width * config.height) as usize],
-            };
-            for k in 0..2 {
-                let r = tracker.process(&blank, &blank).unwrap();
-                assert_eq!(r.status, Status::Lost, "{name} blank pair {k}");
-                assert!(
-                    r.disparity_px.is_none(),
-                    "{name}: a lost pair carries no disparity"
-                );
-            }
+            let (d0, c0) = lost_after_five_pairs(&scene, &mut tracker, 90, &name);
             assert_eq!(
                 tracker.state().unwrap().missed_searches,
                 1,
@@ -653,10 +657,8 @@ fn a_lost_object_is_found_again_by_its_template() {
             let r = tracker.process(&pair.left, &pair.right).unwrap();
             assert_eq!(r.status, Status::Tracked, "{name}: {:?}", r.reason);
             assert_eq!(r.reason.as_deref(), Some(REACQUIRED), "{name}");
-            let d = r.disparity_px.unwrap()[0] - pair.truth.disparity_px[0] - offsets.1;
-            let c = r.left.unwrap().centroid;
-            let t = pair.truth.left.centroid;
-            let off = (c[0] - t[0] - offsets.0[0]).hypot(c[1] - t[1] - offsets.0[1]);
+            let (d, c) = truth_errors(&r, &pair).expect("a tracked pair has numbers");
+            let (d, off) = (d - d0, (c[0] - c0[0]).hypot(c[1] - c0[1]));
             eprintln!("{name}: reacquired, disparity {d:+.3} px, left centroid {off:.2} px from the truth");
             assert!(d.abs() <= 0.3, "{name}: disparity {d:+.3} px off");
             assert!(off <= 2.0, "{name}: left centroid {off:.2} px off");
@@ -723,7 +725,6 @@ fn a_rod_beside_a_bright_bar_is_found_again() {
 /// pair 4's offsets).
 #[test]
 fn a_bar_beside_a_lost_rod_is_not_taken_for_it() {
-    use semdepth::imageio::GrayFrame;
     use semdepth::synth::Scene;
     let config = SynthConfig {
         frames: 20,
@@ -731,17 +732,7 @@ fn a_bar_beside_a_lost_rod_is_not_taken_for_it() {
     };
     let scene = Scene::new(&config).unwrap();
     let mut tracker = StereoTracker::new(TrackerParams::default());
-    let mut offsets = (0.0, [0.0; 2]);
-    for k in 0..5 {
-        let pair = scene.render(k);
-        let r = tracker.process(&pair.left, &pair.right).unwrap();
-        offsets = truth_errors(&r, &pair).unwrap_or_else(|| panic!("pair {k}: {:?}", r.reason));
-    }
-    let blank = GrayFrame::filled(config.width, config.height, 8, 60);
-    for _ in 0..2 {
-        let r = tracker.process(&blank, &blank).unwrap();
-        assert_eq!(r.status, Status::Lost, "{:?}", r.reason);
-    }
+    let offsets = lost_after_five_pairs(&scene, &mut tracker, 60, "crossing/rod/2005");
     for k in 7..14 {
         let pair = scene.render(k);
         let r = tracker.process(&pair.left, &pair.right).unwrap();
