@@ -1471,13 +1471,25 @@ impl StereoTracker {
             .min(dist(left_fit.pose.center(), state.left.center()));
         let left_out = fraction(&left_fit.occluded);
         let limit = REACQUIRE_OCCLUDED_FRACTION.min(self.params.occlusion.max_occluded_fraction);
-        let beyond_reach = (moved > reach && left_out > limit).then(|| {
-            format!(
+        // Within the discs, a long move to where most of the outline is left
+        // out is no better placed: what is left cannot tell the object from
+        // what covers it (a blob that started to move as a bright bar came
+        // over a quarter of it was taken 23 px onto the bar, 83% left out).
+        let beyond_reach = if moved > reach && left_out > limit {
+            Some(format!(
                 "occluded: the left contour moved {moved:.1} px from its prediction, past the search radius ({reach} px), to where {:.0}% of its outline looks unlike the object's (limit {:.0}%)",
                 100.0 * left_out,
                 100.0 * limit
-            )
-        });
+            ))
+        } else if moved > FAR_MOVE_PX && left_out > FAR_MOVE_LEFT_OUT {
+            Some(format!(
+                "occluded: the left contour moved {moved:.1} px from its prediction (more than {FAR_MOVE_PX} px) to where {:.0}% of its outline looks unlike the object's (limit {:.0}% after such a move)",
+                100.0 * left_out,
+                100.0 * FAR_MOVE_LEFT_OUT
+            ))
+        } else {
+            None
+        };
         // The left pose's change over the pair, the next pair's prediction.
         let velocity = |pose: Pose| {
             [
@@ -2753,6 +2765,16 @@ impl ImageFit {
 /// new backdrop behind the object) too little of the outline keeps its
 /// contrast to place the contour.
 const MAX_MASKED_FRACTION: f64 = 0.9;
+
+/// A left fit that moved more than this many pixels from its prediction
+/// (and from the last pose) is lost as occluded when more than
+/// [`FAR_MOVE_LEFT_OUT`] of its sectors are left out: too little of its
+/// outline is seen to tell the object from what covers it.
+const FAR_MOVE_PX: f64 = 5.0;
+
+/// The share of sectors left out beyond which a move of more than
+/// [`FAR_MOVE_PX`] is not followed.
+const FAR_MOVE_LEFT_OUT: f64 = 0.75;
 
 /// How far both views' fits may move from their predictions, pixels,
 /// before the left view is fitted again from the right view's result (see
