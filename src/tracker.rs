@@ -1474,7 +1474,9 @@ impl StereoTracker {
         // Within the discs, a long move to where most of the outline is left
         // out is no better placed: what is left cannot tell the object from
         // what covers it (a blob that started to move as a bright bar came
-        // over a quarter of it was taken 23 px onto the bar, 83% left out).
+        // over a quarter of it was taken 23 px onto the bar, 83% left out;
+        // a rod with a bar along it slid 3.2 px along its axis, 58% left
+        // out, and was `tracked` 4 px off).
         let beyond_reach = if moved > reach && left_out > limit {
             Some(format!(
                 "occluded: the left contour moved {moved:.1} px from its prediction, past the search radius ({reach} px), to where {:.0}% of its outline looks unlike the object's (limit {:.0}%)",
@@ -2770,11 +2772,12 @@ const MAX_MASKED_FRACTION: f64 = 0.9;
 /// (and from the last pose) is lost as occluded when more than
 /// [`FAR_MOVE_LEFT_OUT`] of its sectors are left out: too little of its
 /// outline is seen to tell the object from what covers it.
-const FAR_MOVE_PX: f64 = 5.0;
+const FAR_MOVE_PX: f64 = 3.0;
 
 /// The share of sectors left out beyond which a move of more than
-/// [`FAR_MOVE_PX`] is not followed.
-const FAR_MOVE_LEFT_OUT: f64 = 0.75;
+/// [`FAR_MOVE_PX`] is not followed: more than half (a rod with a bar
+/// along it, 58% left out, moved 3.2 px along its axis).
+const FAR_MOVE_LEFT_OUT: f64 = 0.55;
 
 /// How far both views' fits may move from their predictions, pixels,
 /// before the left view is fitted again from the right view's result (see
