@@ -1477,7 +1477,7 @@ impl StereoTracker {
         // over a quarter of it was taken 23 px onto the bar, 83% left out;
         // a rod with a bar along it slid 3.2 px along its axis, 58% left
         // out, and was `tracked` 4 px off).
-        let beyond_reach = if moved > reach && left_out > limit {
+        let moved_unseen = if moved > reach && left_out > limit {
             Some(format!(
                 "occluded: the left contour moved {moved:.1} px from its prediction, past the search radius ({reach} px), to where {:.0}% of its outline looks unlike the object's (limit {:.0}%)",
                 100.0 * left_out,
@@ -1516,7 +1516,7 @@ impl StereoTracker {
             &right_fit,
         );
         if let Some(reason) = occluded_jump
-            .or(beyond_reach)
+            .or(moved_unseen)
             .or_else(|| self.loss_reason(&candidate, template, &left_fit, &right_fit))
         {
             // Keep the last good poses; the next pair searches for the

@@ -954,8 +954,8 @@ fn an_occluder_arriving_as_the_object_starts_to_move_does_not_take_it() {
                 r.reason
             );
         }
-        // The three still pairs are tracked: the test would pass vacuously
-        // if the object were never found.
+        // At least three pairs have numbers (the still ones): the test
+        // would pass vacuously if the object were never found.
         assert!(lost <= 4, "{name}: {lost} of 7 pairs without numbers");
     }
 }
