@@ -1,5 +1,6 @@
 //! Prints per-frame left/right centroid errors for one synthetic sequence:
-//! `cargo run --release --example track_one -- PRESET SHAPE SEED [FRAMES]`.
+//! `cargo run --release --example track_one -- PRESET SHAPE SEED [FRAMES]`;
+//! `HINT=roi|point` hints the first pair, `DUMP=dir` writes overlays.
 use clap::ValueEnum;
 use semdepth::energy::{evaluate, EnergyParams};
 use semdepth::fit::{place, RigidTemplate};
@@ -19,8 +20,18 @@ fn main() {
         ..SynthConfig::preset(preset, shape, seed)
     };
     println!("motion {:?}", cfg.motion);
-    let mut t = StereoTracker::new(TrackerParams::default());
-    for pair in frames(&cfg).unwrap() {
+    let pairs: Vec<_> = frames(&cfg).unwrap().collect();
+    let mut params = TrackerParams::default();
+    // HINT=roi or HINT=point gives the first pair's object as a hint, as
+    // track_eval does.
+    let first = &pairs[0].truth.left;
+    match std::env::var("HINT").as_deref() {
+        Ok("roi") => params.init.roi = Some(first.roi_hint(0.1)),
+        Ok("point") => params.init.point = first.point_hint(cfg.width, cfg.height),
+        _ => {}
+    }
+    let mut t = StereoTracker::new(params);
+    for pair in pairs {
         let r = t.process(&pair.left, &pair.right).unwrap();
         if std::env::var("SCAN").is_ok() {
             let st = t.state().unwrap();
@@ -85,10 +96,10 @@ fn main() {
         let tl = pair.truth.left.centroid;
         let tr = pair.truth.right.centroid;
         println!(
-            "{} {:?} L err ({:+.3},{:+.3}) R err ({:+.3},{:+.3}) dx err {:+.3} truth d {:.3} z {:.1} angle L {:+.4} truth rot {:+.4} occl {:.2}/{:.2}",
+            "{} {:?} L err ({:+.3},{:+.3}) R err ({:+.3},{:+.3}) dx err {:+.3} truth d {:.3} z {:.1} angle L {:+.4} truth rot {:+.4} occl {:.2}/{:.2} std {:.3}",
             r.frame, r.status, l.centroid[0] - tl[0], l.centroid[1] - tl[1], rr.centroid[0] - tr[0], rr.centroid[1] - tr[1],
             d[0] - pair.truth.disparity_px[0], pair.truth.disparity_px[0], pair.truth.z_um,
-            r.angle_diff_rad.unwrap_or(f64::NAN), pair.truth.left.rotation_rad, l.occluded_fraction, rr.occluded_fraction
+            r.angle_diff_rad.unwrap_or(f64::NAN), pair.truth.left.rotation_rad, l.occluded_fraction, rr.occluded_fraction, r.disparity_std_px.unwrap_or(f64::NAN)
         );
     }
 }
