@@ -630,6 +630,61 @@ pub fn judge_look(
     }
 }
 
+/// Per sector of `hidden`: both of its bands now show the grey that the
+/// sector's outer band showed in `reference` (scaled by the median change
+/// of the outer bands of the sectors not in `left_out`, e.g. charging),
+/// within `tolerance` of it. The contour runs over bare substrate there: it
+/// left the object's edge, as a rod's end does when the rod slid along its
+/// axis. An occluder shows its own grey in the inner band instead. The
+/// scale comes from sectors that kept their contrast only: before a new
+/// backdrop (a tool over a particle as bright as itself) the outer bands
+/// changed, and their median would make the tool's own grey look like the
+/// substrate's. Needs the inner band means of both looks (all false
+/// without them).
+pub fn overhanging(
+    reference: SectorReference,
+    current: &SectorLook,
+    (left_out, hidden): (&[bool], &[bool]),
+    tolerance: f64,
+) -> Vec<bool> {
+    let n = hidden.len();
+    if reference.inner.len() != n
+        || current.inner.len() != n
+        || reference.contrasts.len() != n
+        || left_out.len() != n
+    {
+        return vec![false; n];
+    }
+    // The outer band's mean from the inner one and the Michelson contrast.
+    let outer = |a: f64, m: f64| a * (1.0 - m) / (1.0 + m);
+    // Per sector: the reference's outer grey, the current inner and outer.
+    let greys = |k: usize| {
+        let (ri, ci) = (reference.inner[k], current.inner[k]);
+        let g = [
+            outer(ri, reference.contrasts[k]),
+            ci,
+            outer(ci, current.contrasts[k]),
+        ];
+        g.iter().all(|v| v.is_finite() && *v > 0.0).then_some(g)
+    };
+    let gains: Vec<f64> = (0..n)
+        .filter(|&k| !left_out[k])
+        .filter_map(|k| greys(k).map(|[ro, _, co]| co / ro))
+        .collect();
+    let Some((gain, _)) = median_and_spread(&gains) else {
+        return vec![false; n];
+    };
+    (0..n)
+        .map(|k| {
+            hidden[k]
+                && greys(k).is_some_and(|[ro, ci, co]| {
+                    let substrate = gain * ro;
+                    (ci / substrate - 1.0).abs() <= tolerance && (co / substrate - 1.0).abs() <= tolerance
+                })
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -790,6 +845,72 @@ mod tests {
         current[3] = 0.2;
         let marks = judge_sectors(&reference, &current, 0.35, 2.0).occluded;
         assert!(!marks[3]);
+    }
+
+    #[test]
+    fn bare_substrate_in_both_bands_is_an_overhang_and_an_occluder_is_not() {
+        // Object 150 on substrate 75 (Michelson contrast 1/3); everything
+        // 10% darker now (charging).
+        let reference = SectorLook {
+            contrasts: vec![1.0 / 3.0; 24],
+            inner: vec![150.0; 24],
+        };
+        let reference = SectorReference {
+            contrasts: &reference.contrasts,
+            inner: &reference.inner,
+        };
+        let mut current = SectorLook {
+            contrasts: vec![1.0 / 3.0; 24],
+            inner: vec![135.0; 24],
+        };
+        // Sectors 0..=2: the contour's end over bare substrate (both bands
+        // 67.5, the substrate's grey after the same change); 3..=5: under a
+        // bright bar (both bands 200); 6: a sector not seen.
+        for k in 0..3 {
+            (current.contrasts[k], current.inner[k]) = (0.0, 68.0);
+        }
+        for k in 3..6 {
+            (current.contrasts[k], current.inner[k]) = (0.0, 200.0);
+        }
+        (current.contrasts[6], current.inner[6]) = (f64::NAN, f64::NAN);
+        let hidden: Vec<bool> = (0..24).map(|k| k < 7).collect();
+        let over = overhanging(reference, &current, (&hidden, &hidden), INNER_HOLDS_TOLERANCE);
+        assert_eq!((0..24).filter(|&k| over[k]).collect::<Vec<_>>(), vec![0, 1, 2]);
+        // Only hidden sectors are judged; without inner means, none.
+        let none = [false; 24];
+        assert!(!overhanging(reference, &current, (&none, &none), INNER_HOLDS_TOLERANCE).contains(&true));
+        let bare = SectorReference {
+            contrasts: reference.contrasts,
+            inner: &[],
+        };
+        assert!(!overhanging(bare, &current, (&hidden, &hidden), INNER_HOLDS_TOLERANCE).contains(&true));
+        // A darker substrate under the end (a dark occluder, 20% below the
+        // substrate's grey) is no overhang at this tolerance.
+        for k in 0..3 {
+            current.inner[k] = 54.0;
+        }
+        assert!(!overhanging(reference, &current, (&hidden, &hidden), INNER_HOLDS_TOLERANCE).contains(&true));
+        // A tool as bright as the particle it now lies over: most of its
+        // outline (sectors 8..=23) before the particle (outer bands 135,
+        // left out but not hidden), sectors 0..=2 hidden with the tool's
+        // grey inside and the particle's outside. The scale of the
+        // substrate's grey comes from sectors 3..=7 (unchanged), so the
+        // tool's grey is no substrate.
+        let mut tool = SectorLook {
+            contrasts: vec![1.0 / 3.0; 24],
+            inner: vec![150.0; 24],
+        };
+        for k in 0..24 {
+            if !(3..8).contains(&k) {
+                (tool.contrasts[k], tool.inner[k]) = (0.0, 150.0);
+            }
+        }
+        let left_out: Vec<bool> = (0..24).map(|k| !(3..8).contains(&k)).collect();
+        let hidden: Vec<bool> = (0..24).map(|k| k < 3).collect();
+        assert!(!overhanging(reference, &tool, (&left_out, &hidden), INNER_HOLDS_TOLERANCE).contains(&true));
+        // Scaled by the median of all but the hidden sectors, the
+        // particle's grey passed for the substrate's.
+        assert!(overhanging(reference, &tool, (&hidden, &hidden), INNER_HOLDS_TOLERANCE).contains(&true));
     }
 }
 
