@@ -24,6 +24,13 @@ const MAX_RELATIVE_STD_PX: f64 = 0.2;
 const MAX_STD_RATIO: f64 = 1.5;
 /// Share of pairs on which either object may be untracked.
 const MAX_UNTRACKED: f64 = 0.05;
+/// Share of pairs on which the tool passing in front of the particle may be
+/// untracked ([`a_tool_passing_in_front_of_the_particle`]): on seed 802 it
+/// is lost from pair 14 on, where its contour had turned onto the
+/// particle's edge (before, it went on turning and was `tracked` 5-36 px
+/// off to the end), and its template is not found again while it lies over
+/// the particle: 10 of 120 pairs in the clean scenes.
+const MAX_TOOL_UNTRACKED: f64 = 0.09;
 
 /// `a` and `b` side by side (same height and bit depth).
 fn side_by_side(a: &GrayFrame, b: &GrayFrame) -> GrayFrame {
@@ -214,6 +221,7 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
         let (mut errors, mut reported, mut dz_errors, mut dz_reported) = (vec![], vec![], vec![], vec![]);
         let mut particle_untracked = 0usize;
         let (mut failures, mut tool_untracked, mut pairs, mut max_hidden) = (vec![], 0usize, 0usize, 0.0f64);
+        let mut wandered = vec![];
         for seed in SEEDS {
             let mut tool = SynthConfig {
                 frames: FRAMES,
@@ -246,6 +254,7 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
             .unwrap();
             let (mut seq_err, mut seq_reported, mut seq_dz_err) = (vec![], vec![], vec![]);
             let mut own_errors = [vec![], vec![]];
+            let mut own_centroid_errors: [Vec<(usize, [f64; 2])>; 2] = [vec![], vec![]];
             for k in 0..FRAMES {
                 let (a, b) = (tool.render(k), particle.render(k));
                 let (w, h) = (a.left.width, a.left.height);
@@ -276,10 +285,13 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
                     ));
                 }
                 let truths = [a.truth.disparity_px[0], b.truth.disparity_px[0]];
+                let centroids = [a.truth.left.centroid, b.truth.left.centroid];
                 for i in 0..2 {
                     if measured(i) {
                         let d = m.objects[i].result.disparity_axis_px.unwrap();
                         own_errors[i].push((k, d - truths[i]));
+                        let c = m.objects[i].result.left.as_ref().unwrap().centroid;
+                        own_centroid_errors[i].push((k, [c[0] - centroids[i][0], c[1] - centroids[i][1]]));
                     }
                 }
                 if measured(0) && measured(1) {
@@ -291,7 +303,8 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
                 }
             }
             // Confident wrong: a measured disparity more than 1 px off
-            // the truth after the sequence's median offset.
+            // the truth, or (`wandered`) a left centroid more than 3 px
+            // from it, after the sequence's median offsets (issue #17).
             for (i, name) in ["tool", "particle"].into_iter().enumerate() {
                 let offsets: Vec<f64> = own_errors[i].iter().map(|e| e.1).collect();
                 let offset = median(&offsets);
@@ -300,6 +313,17 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
                         failures.push(format!(
                             "seed {seed} pair {k}: {name} disparity {:.2} px off, tracked",
                             e - offset
+                        ));
+                    }
+                }
+                let xs: Vec<f64> = own_centroid_errors[i].iter().map(|e| e.1[0]).collect();
+                let ys: Vec<f64> = own_centroid_errors[i].iter().map(|e| e.1[1]).collect();
+                let (ox, oy) = (median(&xs), median(&ys));
+                for (k, e) in &own_centroid_errors[i] {
+                    let off = (e[0] - ox).hypot(e[1] - oy);
+                    if off > 3.0 {
+                        wandered.push(format!(
+                            "seed {seed} pair {k}: {name} left centroid {off:.1} px off, tracked"
                         ));
                     }
                 }
@@ -331,6 +355,7 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
             particle_untracked: particle_untracked as f64 / pairs as f64,
             max_hidden,
             failures,
+            wandered,
         }
     }
 }
@@ -351,8 +376,11 @@ struct Passing {
     particle_untracked: f64,
     /// Largest fraction of the particle hidden.
     max_hidden: f64,
-    /// Confident wrong pairs, and the particle lost while mostly visible.
+    /// Confident wrong pairs by disparity, and the particle lost while
+    /// mostly visible.
     failures: Vec<String>,
+    /// Pairs tracked with a left centroid more than 3 px off.
+    wandered: Vec<String>,
 }
 
 /// One object passing in front of the other: a tool 80 um above a particle
@@ -376,12 +404,12 @@ fn a_tool_passing_in_front_of_the_particle() {
             p.max_hidden
         );
         assert!(p.failures.is_empty(), "{}: {:#?}", preset.name(), p.failures);
-        for (what, share) in [
-            ("tool in front", p.tool_untracked),
-            ("particle", p.particle_untracked),
+        for (what, share, limit) in [
+            ("tool in front", p.tool_untracked, MAX_TOOL_UNTRACKED),
+            ("particle", p.particle_untracked, MAX_UNTRACKED),
         ] {
             assert!(
-                share <= MAX_UNTRACKED,
+                share <= limit,
                 "{}: the {what} untracked in {:.1}% of pairs",
                 preset.name(),
                 100.0 * share
@@ -407,5 +435,25 @@ fn a_tool_passing_in_front_of_the_particle() {
                 preset.name()
             );
         }
+        // In the clean scenes both contours stay on their objects: the
+        // tool's, once turned onto the particle's edge, is lost instead of
+        // going on turning (seed 802 was `tracked` 5-36 px off from pair
+        // 14). Under noise see the ignored test below.
+        if preset == Preset::Clean {
+            assert!(p.wandered.is_empty(), "clean: {:#?}", p.wandered);
+        }
     }
+}
+
+/// Known failure (issue #17): under noise the tool's contour turns slowly
+/// onto the particle's edge (0.02-0.05 rad per pair, its rotation carried
+/// on by the prediction) and is `tracked` 3-9 px off over the last pairs of
+/// seeds 800, 801 and 804, with its disparity within the limits. Kept to be
+/// run by hand until the tracker holds it: `cargo test --release --test
+/// session_synth -- --ignored`.
+#[test]
+#[ignore = "known failure (issue #17): the tool's contour turns onto the particle's edge under noise"]
+fn a_tool_passing_in_front_of_the_particle_stays_on_itself_under_noise() {
+    let p = tool_passing_in_front(Preset::Noisy);
+    assert!(p.wandered.is_empty(), "noisy: {:#?}", p.wandered);
 }
