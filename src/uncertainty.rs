@@ -286,6 +286,39 @@ pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
     }
 }
 
+/// How poorly the `arcs` fix a rigid pose's rotation about `centre`: the
+/// rotation's entry of the inverse of the information matrix of (x, y,
+/// theta), the integral of `J J^T` with `J = (n_x, n_y, (p - centre) x n)`
+/// over the arcs (a normal shift of the outline at `p`). Its ratio for two
+/// sets of arcs is the ratio of the rotation's variances under the same
+/// noise; infinite when nothing fixes the rotation (an arc of a circle,
+/// which turns about its centre unseen).
+pub fn rotation_variance(arcs: &[Vec<Point>], centre: Point) -> f64 {
+    let mut m = [[0.0f64; 3]; 3];
+    for w in arcs.iter().flat_map(|arc| arc.windows(2)) {
+        let e = [w[1][0] - w[0][0], w[1][1] - w[0][1]];
+        let l = e[0].hypot(e[1]);
+        if l <= 0.0 {
+            continue;
+        }
+        let n = [e[1] / l, -e[0] / l];
+        let p = [
+            0.5 * (w[0][0] + w[1][0]) - centre[0],
+            0.5 * (w[0][1] + w[1][1]) - centre[1],
+        ];
+        let j = [n[0], n[1], p[0] * n[1] - p[1] * n[0]];
+        for r in 0..3 {
+            for c in 0..3 {
+                m[r][c] += j[r] * j[c] * l;
+            }
+        }
+    }
+    match crate::geometry::solve3(&m, &[0.0, 0.0, 1.0], 0.0) {
+        Some(x) if x[2].is_finite() && x[2] > 0.0 => x[2],
+        _ => f64::INFINITY,
+    }
+}
+
 /// The geometric information matrix of the `arcs`, the integral of
 /// `n n^T` over them: `[xx, xy, yy]`.
 fn information_matrix(arcs: &[Vec<Point>]) -> [f64; 3] {
@@ -341,6 +374,36 @@ pub fn axis_std(energy: impl Fn(f64) -> f64, m_ref: f64, means: [f64; 2], s: f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_arc_of_a_circle_fixes_no_rotation_and_a_straight_edge_does() {
+        let arc = |from: f64, to: f64, centre: Point, r: f64| -> Vec<Point> {
+            (0..=32)
+                .map(|k| {
+                    let a = from + (to - from) * k as f64 / 32.0;
+                    [centre[0] + r * a.cos(), centre[1] + r * a.sin()]
+                })
+                .collect()
+        };
+        let pi = std::f64::consts::PI;
+        // A tool: a round head of radius 10 about (-30, 0), two straight
+        // sides from it to a tip at (30, 0); the pose's centre is the origin.
+        let head = arc(0.5 * pi, 1.5 * pi, [-30.0, 0.0], 10.0);
+        let upper = vec![[-30.0, -10.0], [30.0, 0.0]];
+        let lower = vec![[30.0, 0.0], [-30.0, 10.0]];
+        let whole = rotation_variance(&[head.clone(), upper.clone(), lower.clone()], [0.0, 0.0]);
+        assert!(whole.is_finite() && whole > 0.0, "{whole}");
+        // The head alone turns about its own centre unseen.
+        let head_only = rotation_variance(std::slice::from_ref(&head), [0.0, 0.0]);
+        assert!(head_only > 1e6 * whole, "{head_only} against {whole}");
+        // With one side it is fixed, if less well.
+        let with_side = rotation_variance(&[head, upper], [0.0, 0.0]);
+        assert!(
+            with_side.is_finite() && with_side < 10.0 * whole,
+            "{with_side} against {whole}"
+        );
+        assert_eq!(rotation_variance(&[], [0.0, 0.0]), f64::INFINITY);
+    }
 
     #[test]
     fn the_weakest_direction_of_an_outline() {
