@@ -1,0 +1,103 @@
+//! A tool (the generator's tip) sweeping down at 8 px per pair over a
+//! particle as bright as itself, as in `tests/session_synth.rs`
+//! (`a_tool_passing_in_front_of_the_particle`), tracked alone with a `roi`
+//! hint: prints the tool's status, left centroid error, hidden share and
+//! rotation per pair.
+//! `cargo run --release --example tool_probe -- SEED` (env NOISY=1 for the
+//! noisy preset, DUMP=dir for overlays: tracked red, truth green).
+use semdepth::imageio::GrayFrame;
+use semdepth::init::InitParams;
+use semdepth::synth::{Preset, Scene, Shape, SynthConfig, ZPattern};
+use semdepth::tracker::{StereoTracker, TrackerParams};
+fn composite(under: &GrayFrame, over: &GrayFrame, mask: &[bool]) -> GrayFrame {
+    let data = under
+        .data
+        .iter()
+        .zip(&over.data)
+        .zip(mask)
+        .map(|((u, o), m)| if *m { *o } else { *u })
+        .collect();
+    GrayFrame::new(under.width, under.height, under.bit_depth, data).unwrap()
+}
+fn main() {
+    let seed: u64 = std::env::args().nth(1).unwrap().parse().unwrap();
+    let dir = std::env::var("DUMP").ok();
+    let preset = if std::env::var("NOISY").is_ok() {
+        Preset::Noisy
+    } else {
+        Preset::Clean
+    };
+    let mut tool = SynthConfig {
+        frames: 24,
+        ..SynthConfig::preset(preset, Shape::Tip, seed)
+    };
+    tool.motion.z_pattern = ZPattern::Constant;
+    tool.motion.z_start_um = 60.0;
+    tool.motion.start_px = Some([320.0, 100.0]);
+    tool.motion.start_angle_rad = Some(0.0);
+    tool.motion.drift_px_per_frame = [0.0, 8.0];
+    tool.motion.rotation_rad_per_frame = 0.0;
+    let mut particle = SynthConfig {
+        frames: 24,
+        ..SynthConfig::preset(preset, Shape::Sphere, seed + 1000)
+    };
+    particle.motion.z_pattern = ZPattern::Constant;
+    particle.motion.z_start_um = -20.0;
+    particle.motion.start_px = Some([340.0, 250.0]);
+    particle.motion.drift_px_per_frame = [0.3, 0.1];
+    let (tool, particle) = (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap());
+    let a0 = tool.render(0);
+    let mut t = StereoTracker::new(TrackerParams {
+        init: InitParams {
+            roi: Some(a0.truth.left.roi_hint(0.1)),
+            ..Default::default()
+        },
+        ..Default::default()
+    });
+    for k in 0..24 {
+        let (a, b) = (tool.render(k), particle.render(k));
+        let (w, h) = (a.left.width, a.left.height);
+        let left = composite(&b.left, &a.left, &a.truth.left.polygon.rasterize(w, h));
+        let right = composite(&b.right, &a.right, &a.truth.right.polygon.rasterize(w, h));
+        let r = t.process(&left, &right).unwrap();
+        let c = r.left.as_ref().map(|l| {
+            (
+                l.centroid[0] - a.truth.left.centroid[0],
+                l.centroid[1] - a.truth.left.centroid[1],
+                l.occluded_fraction,
+            )
+        });
+        println!(
+            "{k}: {:?} {:.2?} theta {:.3?} {:?}",
+            r.status,
+            c,
+            t.state().map(|s| s.left.theta),
+            r.reason
+        );
+        if let Some(dir) = &dir {
+            let mut canvas = image::DynamicImage::ImageLuma8(left.to_gray8()).to_rgb8();
+            let tracked = r
+                .left
+                .as_ref()
+                .map(|v| v.contour.clone())
+                .or_else(|| t.state().map(|s| semdepth::fit::place(&s.template, s.left)));
+            for (pts, colour) in [
+                (tracked.as_ref(), [255u8, 0, 0]),
+                (Some(&a.truth.left.polygon.points), [0, 255, 0]),
+            ] {
+                let Some(pts) = pts else { continue };
+                let n = pts.len();
+                for i in 0..n {
+                    let (p, q) = (pts[i], pts[(i + 1) % n]);
+                    imageproc::drawing::draw_line_segment_mut(
+                        &mut canvas,
+                        (p[0] as f32, p[1] as f32),
+                        (q[0] as f32, q[1] as f32),
+                        image::Rgb(colour),
+                    );
+                }
+            }
+            canvas.save(format!("{dir}/tool_{k:02}.png")).unwrap();
+        }
+    }
+}
