@@ -5,20 +5,14 @@
 //! rotation per pair.
 //! `cargo run --release --example tool_probe -- SEED` (env NOISY=1 for the
 //! noisy preset, DUMP=dir for overlays: tracked red, truth green).
-use semdepth::imageio::GrayFrame;
 use semdepth::init::InitParams;
-use semdepth::synth::{Preset, Scene, Shape, SynthConfig, ZPattern};
+use semdepth::synth::Preset;
 use semdepth::tracker::{StereoTracker, TrackerParams};
-fn composite(under: &GrayFrame, over: &GrayFrame, mask: &[bool]) -> GrayFrame {
-    let data = under
-        .data
-        .iter()
-        .zip(&over.data)
-        .zip(mask)
-        .map(|((u, o), m)| if *m { *o } else { *u })
-        .collect();
-    GrayFrame::new(under.width, under.height, under.bit_depth, data).unwrap()
-}
+
+// The scene as the test builds it.
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 fn main() {
     let seed: u64 = std::env::args().nth(1).unwrap().parse().unwrap();
     let dir = std::env::var("DUMP").ok();
@@ -27,25 +21,7 @@ fn main() {
     } else {
         Preset::Clean
     };
-    let mut tool = SynthConfig {
-        frames: 24,
-        ..SynthConfig::preset(preset, Shape::Tip, seed)
-    };
-    tool.motion.z_pattern = ZPattern::Constant;
-    tool.motion.z_start_um = 60.0;
-    tool.motion.start_px = Some([320.0, 100.0]);
-    tool.motion.start_angle_rad = Some(0.0);
-    tool.motion.drift_px_per_frame = [0.0, 8.0];
-    tool.motion.rotation_rad_per_frame = 0.0;
-    let mut particle = SynthConfig {
-        frames: 24,
-        ..SynthConfig::preset(preset, Shape::Sphere, seed + 1000)
-    };
-    particle.motion.z_pattern = ZPattern::Constant;
-    particle.motion.z_start_um = -20.0;
-    particle.motion.start_px = Some([340.0, 250.0]);
-    particle.motion.drift_px_per_frame = [0.3, 0.1];
-    let (tool, particle) = (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap());
+    let (tool, particle) = common::tool_over_particle(preset, seed, 24);
     let a0 = tool.render(0);
     let mut t = StereoTracker::new(TrackerParams {
         init: InitParams {
@@ -57,8 +33,8 @@ fn main() {
     for k in 0..24 {
         let (a, b) = (tool.render(k), particle.render(k));
         let (w, h) = (a.left.width, a.left.height);
-        let left = composite(&b.left, &a.left, &a.truth.left.polygon.rasterize(w, h));
-        let right = composite(&b.right, &a.right, &a.truth.right.polygon.rasterize(w, h));
+        let left = common::composite(&b.left, &a.left, &a.truth.left.polygon.rasterize(w, h));
+        let right = common::composite(&b.right, &a.right, &a.truth.right.polygon.rasterize(w, h));
         let r = t.process(&left, &right).unwrap();
         let c = r.left.as_ref().map(|l| {
             (

@@ -196,18 +196,6 @@ fn relative_height_of_a_tool_above_a_particle() {
     }
 }
 
-/// `over` painted onto `under` where `mask` is set (same size).
-fn composite(under: &GrayFrame, over: &GrayFrame, mask: &[bool]) -> GrayFrame {
-    let data = under
-        .data
-        .iter()
-        .zip(&over.data)
-        .zip(mask)
-        .map(|((u, o), m)| if *m { *o } else { *u })
-        .collect();
-    GrayFrame::new(under.width, under.height, under.bit_depth, data).unwrap()
-}
-
 /// Fraction of the particle's area the tool hides (left image) beyond which
 /// the particle may be reported lost (`occluded`) rather than tracked.
 const MAY_LOSE_HIDDEN: f64 = 0.25;
@@ -223,25 +211,7 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
         let (mut failures, mut tool_untracked, mut pairs, mut max_hidden) = (vec![], 0usize, 0usize, 0.0f64);
         let mut wandered = vec![];
         for seed in SEEDS {
-            let mut tool = SynthConfig {
-                frames: FRAMES,
-                ..SynthConfig::preset(preset, Shape::Tip, seed)
-            };
-            tool.motion.z_pattern = ZPattern::Constant;
-            tool.motion.z_start_um = 60.0;
-            tool.motion.start_px = Some([320.0, 100.0]);
-            tool.motion.start_angle_rad = Some(0.0);
-            tool.motion.drift_px_per_frame = [0.0, 8.0];
-            tool.motion.rotation_rad_per_frame = 0.0;
-            let mut particle = SynthConfig {
-                frames: FRAMES,
-                ..SynthConfig::preset(preset, Shape::Sphere, seed + 1000)
-            };
-            particle.motion.z_pattern = ZPattern::Constant;
-            particle.motion.z_start_um = -20.0;
-            particle.motion.start_px = Some([340.0, 250.0]);
-            particle.motion.drift_px_per_frame = [0.3, 0.1];
-            let (tool, particle) = (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap());
+            let (tool, particle) = common::tool_over_particle(preset, seed, FRAMES);
             let (a, b) = (tool.render(0), particle.render(0));
             let object = common::boxed_object;
             let mut session = Session::new(
@@ -264,8 +234,8 @@ fn tool_passing_in_front(preset: Preset) -> Passing {
                 let hidden = under.iter().zip(&tool_left).filter(|(p, t)| **p && **t).count() as f64
                     / under.iter().filter(|p| **p).count() as f64;
                 max_hidden = max_hidden.max(hidden);
-                let left = composite(&b.left, &a.left, &tool_left);
-                let right = composite(&b.right, &a.right, &tool_right);
+                let left = common::composite(&b.left, &a.left, &tool_left);
+                let right = common::composite(&b.right, &a.right, &tool_right);
                 let m = session.measure(&left, &right, None, Some(&calibration)).unwrap();
                 pairs += 1;
                 let measured =

@@ -912,6 +912,48 @@ fn a_disparity_that_jumps_under_heavy_occlusion_is_not_trusted() {
     }
 }
 
+/// Tracks `shape` on `preset` (seed `seed`, a 26-pair sequence) through
+/// pairs 0, 0, 0 (standing still) and then every `stride`th pair up to
+/// `last` (`examples/restart_probe`); asserts that every pair with numbers
+/// lies within 1 px of disparity and 3 px of left centroid of the truth
+/// after the first pair's offsets, and that at least one pair has them.
+/// Returns the reasons of the pairs without numbers.
+fn restarted_within_truth(
+    preset: Preset,
+    shape: Shape,
+    seed: u64,
+    stride: usize,
+    last: usize,
+) -> Vec<String> {
+    let name = format!("{} {} {seed}", preset.name(), shape.name());
+    let config = SynthConfig {
+        frames: 26,
+        ..SynthConfig::preset(preset, shape, seed)
+    };
+    let scene = semdepth::synth::Scene::new(&config).unwrap();
+    let mut tracker = StereoTracker::new(TrackerParams::default());
+    let mut offsets = None;
+    let mut reasons = Vec::new();
+    for k in [0, 0, 0].into_iter().chain((stride..=last).step_by(stride)) {
+        let pair = scene.render(k);
+        let r = tracker.process(&pair.left, &pair.right).unwrap();
+        let Some((d, c)) = truth_errors(&r, &pair) else {
+            reasons.push(r.reason.unwrap_or_default());
+            continue;
+        };
+        let (d0, c0) = *offsets.get_or_insert((d, c));
+        let (dd, dc) = ((d - d0).abs(), (c[0] - c0[0]).hypot(c[1] - c0[1]));
+        assert!(
+            dd <= 1.0 && dc <= 3.0,
+            "{name} pair {k}: {:?} {dd:.2} px of disparity and {dc:.1} px of left centroid off ({:?})",
+            r.status,
+            r.reason
+        );
+    }
+    assert!(offsets.is_some(), "{name}: never tracked");
+    reasons
+}
+
 /// An object that stood still for three pairs starts to move at three
 /// times its drift just as the preset's bright bar comes over a quarter of
 /// it (pairs 0, 0, 0, then every third pair to 12 of a 26-pair sequence,
@@ -929,34 +971,14 @@ fn an_occluder_arriving_as_the_object_starts_to_move_does_not_take_it() {
         (Preset::Combined, 101),
         (Preset::Combined, 105),
     ] {
-        let name = format!("{} blob {seed}", preset.name());
-        let config = SynthConfig {
-            frames: 26,
-            ..SynthConfig::preset(preset, Shape::Blob, seed)
-        };
-        let scene = semdepth::synth::Scene::new(&config).unwrap();
-        let mut tracker = StereoTracker::new(TrackerParams::default());
-        let mut offsets = None;
-        let mut lost = 0;
-        for k in [0, 0, 0, 3, 6, 9, 12] {
-            let pair = scene.render(k);
-            let r = tracker.process(&pair.left, &pair.right).unwrap();
-            let Some((d, c)) = truth_errors(&r, &pair) else {
-                lost += 1;
-                continue;
-            };
-            let (d0, c0) = *offsets.get_or_insert((d, c));
-            let (dd, dc) = ((d - d0).abs(), (c[0] - c0[0]).hypot(c[1] - c0[1]));
-            assert!(
-                dd <= 1.0 && dc <= 3.0,
-                "{name} pair {k}: {:?} {dd:.2} px of disparity and {dc:.1} px of left centroid off ({:?})",
-                r.status,
-                r.reason
-            );
-        }
+        let lost = restarted_within_truth(preset, Shape::Blob, seed, 3, 12).len();
         // At least three pairs have numbers (the still ones): the test
         // would pass vacuously if the object were never found.
-        assert!(lost <= 4, "{name}: {lost} of 7 pairs without numbers");
+        assert!(
+            lost <= 4,
+            "{} blob {seed}: {lost} of 7 pairs without numbers",
+            preset.name()
+        );
     }
 }
 
@@ -983,35 +1005,10 @@ fn a_contour_whose_end_left_the_object_is_not_tracked() {
         (Preset::Fast, 107),
         (Preset::Fast, 109),
     ] {
-        let name = format!("{} rod {seed}", preset.name());
-        let config = SynthConfig {
-            frames: 26,
-            ..SynthConfig::preset(preset, Shape::Rod, seed)
-        };
-        let scene = semdepth::synth::Scene::new(&config).unwrap();
-        let mut tracker = StereoTracker::new(TrackerParams::default());
-        let mut offsets = None;
-        for k in [0, 0, 0].into_iter().chain((1..=8).map(|i| 3 * i)) {
-            let pair = scene.render(k);
-            let r = tracker.process(&pair.left, &pair.right).unwrap();
-            let Some((d, c)) = truth_errors(&r, &pair) else {
-                overhangs += r
-                    .reason
-                    .as_deref()
-                    .is_some_and(|reason| reason.contains("left the object's edge"))
-                    as usize;
-                continue;
-            };
-            let (d0, c0) = *offsets.get_or_insert((d, c));
-            let (dd, dc) = ((d - d0).abs(), (c[0] - c0[0]).hypot(c[1] - c0[1]));
-            assert!(
-                dd <= 1.0 && dc <= 3.0,
-                "{name} pair {k}: {:?} {dd:.2} px of disparity and {dc:.1} px of left centroid off ({:?})",
-                r.status,
-                r.reason
-            );
-        }
-        assert!(offsets.is_some(), "{name}: never tracked");
+        overhangs += restarted_within_truth(preset, Shape::Rod, seed, 3, 24)
+            .iter()
+            .filter(|reason| reason.contains("left the object's edge"))
+            .count();
     }
     assert!(overhangs > 0, "no pair was lost for leaving the object's edge");
 }

@@ -226,3 +226,52 @@ pub fn boxed_object(name: &str, roi: [i64; 4]) -> semdepth::session::SessionObje
         },
     )
 }
+
+/// `over` painted onto `under` where `mask` is set (same size).
+pub fn composite(
+    under: &semdepth::imageio::GrayFrame,
+    over: &semdepth::imageio::GrayFrame,
+    mask: &[bool],
+) -> semdepth::imageio::GrayFrame {
+    let data = under
+        .data
+        .iter()
+        .zip(&over.data)
+        .zip(mask)
+        .map(|((u, o), m)| if *m { *o } else { *u })
+        .collect();
+    semdepth::imageio::GrayFrame::new(under.width, under.height, under.bit_depth, data).unwrap()
+}
+
+/// The scenes of a tool passing in front of a particle (`frames` pairs):
+/// a tip 80 um above a sphere, starting above it at (320, 100) and
+/// sweeping down 8 px per pair without turning, the sphere drifting
+/// slowly at (340, 250). Each pair is the particle's scene with the tool's
+/// painted over it inside the tool's true outline ([`composite`]), so the
+/// tool hides the particle with its own disparity.
+pub fn tool_over_particle(
+    preset: semdepth::synth::Preset,
+    seed: u64,
+    frames: usize,
+) -> (semdepth::synth::Scene, semdepth::synth::Scene) {
+    use semdepth::synth::{Scene, Shape, SynthConfig, ZPattern};
+    let mut tool = SynthConfig {
+        frames,
+        ..SynthConfig::preset(preset, Shape::Tip, seed)
+    };
+    tool.motion.z_pattern = ZPattern::Constant;
+    tool.motion.z_start_um = 60.0;
+    tool.motion.start_px = Some([320.0, 100.0]);
+    tool.motion.start_angle_rad = Some(0.0);
+    tool.motion.drift_px_per_frame = [0.0, 8.0];
+    tool.motion.rotation_rad_per_frame = 0.0;
+    let mut particle = SynthConfig {
+        frames,
+        ..SynthConfig::preset(preset, Shape::Sphere, seed + 1000)
+    };
+    particle.motion.z_pattern = ZPattern::Constant;
+    particle.motion.z_start_um = -20.0;
+    particle.motion.start_px = Some([340.0, 250.0]);
+    particle.motion.drift_px_per_frame = [0.3, 0.1];
+    (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap())
+}
