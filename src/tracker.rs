@@ -2848,9 +2848,9 @@ const FAR_MOVE_LEFT_OUT: f64 = 0.55;
 /// A masked left fit whose visible outline leaves its rotation's variance
 /// more than this many times that of the whole outline
 /// ([`uncertainty::rotation_variance`]) does not turn. Visible arcs of a
-/// tool's round head gave 200-680, the occluder suites' masked fits less
-/// than 100 (at 16, occluded rods that turn lagged behind: seeds 2000-2019
-/// left centroid RMS 0.23 -> 0.34 px and one confident wrong pair).
+/// tool's round head gave 200-680; at 100 no figure of the occluder suites
+/// changed, at 16 occluded rods that turn lagged behind (seeds 2000-2019:
+/// left centroid RMS 0.23 -> 0.34 px, one confident wrong pair).
 const ROTATION_BLIND_RATIO: f64 = 100.0;
 
 /// A fit with this many adjacent sectors over bare substrate
