@@ -387,7 +387,7 @@ fn median_magnitude(reference: &[f64]) -> f64 {
 
 /// The marks that belong to a run of at least `min` consecutive marks
 /// (the sectors wrap round; all marked is one run).
-fn runs_at_least(marks: &[bool], min: usize) -> Vec<bool> {
+pub fn runs_at_least(marks: &[bool], min: usize) -> Vec<bool> {
     let n = marks.len();
     if marks.iter().all(|&m| m) {
         return marks.to_vec();

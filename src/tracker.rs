@@ -24,8 +24,8 @@ use crate::imageio::{check_pair, GrayFrame, ImageInputError};
 use crate::init::{edge_width, fitted_to_edge, initialise, InitParams, InitResult};
 use crate::meta::ImageMeta;
 use crate::occlusion::{
-    grey_change, grown, judge_look, overhanging, risen_on_their_own, OcclusionParams, SectorReference,
-    SectorTemplate, INNER_HOLDS_TOLERANCE,
+    grey_change, grown, judge_look, overhanging, risen_on_their_own, runs_at_least, OcclusionParams,
+    SectorReference, SectorTemplate, INNER_HOLDS_TOLERANCE,
 };
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
@@ -1559,11 +1559,11 @@ impl StereoTracker {
         let overhang = [("left", &left_fit), ("right", &right_fit)]
             .into_iter()
             .find_map(|(name, fit)| {
-                let run = longest_run(&fit.overhang);
-                (run >= OVERHANG_RUN).then(|| {
+                let runs = runs_at_least(&fit.overhang, OVERHANG_RUN);
+                let sectors = runs.iter().filter(|&&r| r).count();
+                (sectors > 0).then(|| {
                     format!(
-                        "the {name} contour left the object's edge: {run} adjacent sectors of its outline lie on bare substrate (limit {})",
-                        OVERHANG_RUN - 1
+                        "the {name} contour left the object's edge: {sectors} sectors of its outline, {OVERHANG_RUN} or more side by side, lie on bare substrate"
                     )
                 })
             });
@@ -2937,24 +2937,6 @@ fn masked_fit(
         Some(u) => line_polish(found, e, u, masked).0,
         None => newton_polish(found, e, template.radius, search.rotate, masked).0,
     }
-}
-
-/// Longest run of true marks (wrapping round).
-fn longest_run(marks: &[bool]) -> usize {
-    let n = marks.len();
-    if marks.iter().all(|&m| m) {
-        return n;
-    }
-    let (mut best, mut run) = (0, 0);
-    for k in 0..2 * n {
-        if marks[k % n] {
-            run += 1;
-            best = best.max(run.min(n));
-        } else {
-            run = 0;
-        }
-    }
-    best
 }
 
 /// Fraction of true marks.
