@@ -294,6 +294,16 @@ pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
 /// noise; infinite when nothing fixes the rotation (an arc of a circle,
 /// which turns about its centre unseen).
 pub fn rotation_variance(arcs: &[Vec<Point>], centre: Point) -> f64 {
+    match crate::geometry::solve3(&pose_information(arcs, centre), &[0.0, 0.0, 1.0], 0.0) {
+        Some(x) if x[2].is_finite() && x[2] > 0.0 => x[2],
+        _ => f64::INFINITY,
+    }
+}
+
+/// The geometric information matrix of the `arcs` for a rigid pose (x, y,
+/// theta about `centre`): the integral over them of `J J^T`, `J = (n_x,
+/// n_y, (p - centre) x n)` for the unit normal `n` at `p`.
+fn pose_information(arcs: &[Vec<Point>], centre: Point) -> [[f64; 3]; 3] {
     let mut m = [[0.0f64; 3]; 3];
     for w in arcs.iter().flat_map(|arc| arc.windows(2)) {
         let e = [w[1][0] - w[0][0], w[1][1] - w[0][1]];
@@ -313,27 +323,15 @@ pub fn rotation_variance(arcs: &[Vec<Point>], centre: Point) -> f64 {
             }
         }
     }
-    match crate::geometry::solve3(&m, &[0.0, 0.0, 1.0], 0.0) {
-        Some(x) if x[2].is_finite() && x[2] > 0.0 => x[2],
-        _ => f64::INFINITY,
-    }
+    m
 }
 
-/// The geometric information matrix of the `arcs`, the integral of
-/// `n n^T` over them: `[xx, xy, yy]`.
+/// The geometric information matrix of the `arcs` for a translation, the
+/// integral of `n n^T` over them: `[xx, xy, yy]` (the translation block of
+/// [`pose_information`]).
 fn information_matrix(arcs: &[Vec<Point>]) -> [f64; 3] {
-    let (mut xx, mut xy, mut yy) = (0.0, 0.0, 0.0);
-    for w in arcs.iter().flat_map(|arc| arc.windows(2)) {
-        let e = [w[1][0] - w[0][0], w[1][1] - w[0][1]];
-        let l = e[0].hypot(e[1]);
-        if l > 0.0 {
-            // n n^T l for the unit normal (e_y, -e_x) / l.
-            xx += e[1] * e[1] / l;
-            xy -= e[0] * e[1] / l;
-            yy += e[0] * e[0] / l;
-        }
-    }
-    [xx, xy, yy]
+    let m = pose_information(arcs, [0.0, 0.0]);
+    [m[0][0], m[0][1], m[1][1]]
 }
 
 /// A cut's share of `S`: a template cut by the image border (a tool whose
