@@ -5,6 +5,7 @@
 //! rotation per pair.
 //! `cargo run --release --example tool_probe -- SEED` (env NOISY=1 for the
 //! noisy preset, DUMP=dir for overlays: tracked red, truth green).
+use semdepth::display::{render_png, Overlay};
 use semdepth::init::InitParams;
 use semdepth::synth::Preset;
 use semdepth::tracker::{StereoTracker, TrackerParams};
@@ -51,29 +52,24 @@ fn main() {
             r.reason
         );
         if let Some(dir) = &dir {
-            let mut canvas = image::DynamicImage::ImageLuma8(left.to_gray8()).to_rgb8();
+            // The state's contour where the pair has none (lost).
             let tracked = r
                 .left
                 .as_ref()
                 .map(|v| v.contour.clone())
                 .or_else(|| t.state().map(|s| semdepth::fit::place(&s.template, s.left)));
-            for (pts, colour) in [
-                (tracked.as_ref(), [255u8, 0, 0]),
-                (Some(&a.truth.left.polygon.points), [0, 255, 0]),
-            ] {
-                let Some(pts) = pts else { continue };
-                let n = pts.len();
-                for i in 0..n {
-                    let (p, q) = (pts[i], pts[(i + 1) % n]);
-                    imageproc::drawing::draw_line_segment_mut(
-                        &mut canvas,
-                        (p[0] as f32, p[1] as f32),
-                        (q[0] as f32, q[1] as f32),
-                        image::Rgb(colour),
-                    );
-                }
+            let mut overlays = vec![Overlay {
+                contour: &a.truth.left.polygon.points,
+                colour: [0, 255, 0],
+            }];
+            if let Some(contour) = &tracked {
+                overlays.push(Overlay {
+                    contour,
+                    colour: [255, 0, 0],
+                });
             }
-            canvas.save(format!("{dir}/tool_{k:02}.png")).unwrap();
+            let png = render_png(&left, None, &overlays).unwrap();
+            std::fs::write(format!("{dir}/tool_{k:02}.png"), png).unwrap();
         }
     }
 }

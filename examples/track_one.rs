@@ -2,6 +2,7 @@
 //! `cargo run --release --example track_one -- PRESET SHAPE SEED [FRAMES]`;
 //! `HINT=roi|point` hints the first pair, `DUMP=dir` writes overlays.
 use clap::ValueEnum;
+use semdepth::display::{render_png, Overlay};
 use semdepth::energy::{evaluate, EnergyParams};
 use semdepth::fit::{place, RigidTemplate};
 use semdepth::geometry::Polygon;
@@ -71,22 +72,18 @@ fn main() {
                 ("left", &pair.left, &r.left, &pair.truth.left.polygon.points),
                 ("right", &pair.right, &r.right, &pair.truth.right.polygon.points),
             ] {
-                let mut canvas = image::DynamicImage::ImageLuma8(img.to_gray8()).to_rgb8();
-                let tracked = view.as_ref().map(|v| &v.contour);
-                for (pts, colour) in [(tracked, [255u8, 0, 0]), (Some(truth), [0, 255, 0])] {
-                    let Some(pts) = pts else { continue };
-                    let n = pts.len();
-                    for i in 0..n {
-                        let (p, q) = (pts[i], pts[(i + 1) % n]);
-                        imageproc::drawing::draw_line_segment_mut(
-                            &mut canvas,
-                            (p[0] as f32, p[1] as f32),
-                            (q[0] as f32, q[1] as f32),
-                            image::Rgb(colour),
-                        );
-                    }
+                let mut overlays = vec![Overlay {
+                    contour: truth,
+                    colour: [0, 255, 0],
+                }];
+                if let Some(v) = view {
+                    overlays.push(Overlay {
+                        contour: &v.contour,
+                        colour: [255, 0, 0],
+                    });
                 }
-                canvas.save(format!("{dir}/{side}_{:02}.png", r.frame)).unwrap();
+                let png = render_png(img, None, &overlays).unwrap();
+                std::fs::write(format!("{dir}/{side}_{:02}.png", r.frame), png).unwrap();
             }
         }
         let (Some(l), Some(rr), Some(d)) = (&r.left, &r.right, r.disparity_px) else {
