@@ -1,0 +1,185 @@
+//! Initialises and tracks the scenes of `tests/common/tilted.rs` (a
+//! renderer independent of `semdepth::synth`) and prints, per class, the
+//! first left contour's IoU with the truth and the tracking figures:
+//! `cargo run --release --example tilted_eval -- [SEEDS] [FRAMES]`.
+//! Env: `ONLY=grain,needle` picks classes, `SEED0=100` the first seed,
+//! `HINT=roi|point` gives the first pair's object as a hint, `FRAMES_OUT=1`
+//! prints every pair, `DUMP=dir` writes the first left image with the
+//! first contour (red) and every pair's left view of the first seed.
+//! "Confident wrong": a tracked pair off by more than 1 px in disparity or
+//! 3 px in the left reference point (centre, or the needle's tip carried by
+//! the contour), after removing the sequence's median offsets.
+use semdepth::display::{render_png, Overlay};
+use semdepth::geometry::{mask_iou, CarriedPoint, Polygon};
+use semdepth::tracker::{Status, StereoTracker, TrackerParams};
+
+#[path = "../tests/common/tilted.rs"]
+mod tilted;
+
+use tilted::{Class, TiltedPair};
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    if s.is_empty() {
+        0.0
+    } else {
+        s[s.len() / 2]
+    }
+}
+
+/// A box 10% larger than the mask's bounds, as a person draws it.
+fn roi_of(mask: &[bool], w: usize) -> [i64; 4] {
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        let (x, y) = (i % w, i / w);
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+    }
+    let (gx, gy) = (0.1 * (x1 - x0) as f64, 0.1 * (y1 - y0) as f64);
+    [
+        (x0 as f64 - gx).floor() as i64,
+        (y0 as f64 - gy).floor() as i64,
+        ((x1 - x0) as f64 + 2.0 * gx).ceil() as i64 + 1,
+        ((y1 - y0) as f64 + 2.0 * gy).ceil() as i64 + 1,
+    ]
+}
+
+/// The mask's pixel nearest its centroid.
+fn point_of(mask: &[bool], w: usize) -> [f64; 2] {
+    let pts: Vec<[f64; 2]> = (0..mask.len())
+        .filter(|&i| mask[i])
+        .map(|i| [(i % w) as f64 + 0.5, (i / w) as f64 + 0.5])
+        .collect();
+    let n = pts.len() as f64;
+    let c = [pts.iter().map(|p| p[0]).sum::<f64>() / n, pts.iter().map(|p| p[1]).sum::<f64>() / n];
+    *pts
+        .iter()
+        .min_by(|a, b| (a[0] - c[0]).hypot(a[1] - c[1]).total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1])))
+        .unwrap()
+}
+
+fn main() {
+    let args: Vec<usize> = std::env::args().skip(1).map(|s| s.parse().unwrap()).collect();
+    let seeds = *args.first().unwrap_or(&5) as u64;
+    let nframes = *args.get(1).unwrap_or(&20);
+    let seed0: u64 = std::env::var("SEED0").map_or(0, |v| v.parse().unwrap());
+    let hint = std::env::var("HINT").ok();
+    let dump = std::env::var("DUMP").ok();
+    let frames_out = std::env::var("FRAMES_OUT").is_ok();
+    for class in Class::ALL {
+        if std::env::var("ONLY").is_ok_and(|o| !o.split(',').any(|c| c == class.name())) {
+            continue;
+        }
+        let (mut ious, mut misses) = (Vec::new(), Vec::new());
+        let (mut sq, mut n, mut pairs, mut untracked, mut wrong) = (0.0, 0usize, 0usize, 0usize, 0usize);
+        let (mut std_sum, mut std_n) = (0.0, 0usize);
+        for seed in seed0..seed0 + seeds {
+            let scene = tilted::scene(class, seed, nframes);
+            let rendered: Vec<TiltedPair> = (0..nframes).map(|k| scene.render(k)).collect();
+            let (w, h) = (scene.width, scene.height);
+            let mut params = TrackerParams::default();
+            match hint.as_deref() {
+                Some("roi") => params.init.roi = Some(roi_of(&rendered[0].left_mask, w)),
+                Some("point") => params.init.point = Some(point_of(&rendered[0].left_mask, w)),
+                _ => {}
+            }
+            let mut tracker = StereoTracker::new(params);
+            let mut anchor: Option<CarriedPoint> = None;
+            let (mut ds, mut cs, mut stds, mut frames_ok) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            for (k, pair) in rendered.iter().enumerate() {
+                let r = tracker.process(&pair.left, &pair.right).unwrap();
+                pairs += 1;
+                if k == 0 {
+                    let iou = r.left.as_ref().map_or(0.0, |l| {
+                        mask_iou(
+                            &Polygon::new(l.contour.clone()).rasterize(w as u32, h as u32),
+                            &pair.left_mask,
+                        )
+                    });
+                    ious.push(iou);
+                    if iou < 0.9 {
+                        misses.push(format!("{seed}: {iou:.3}"));
+                    }
+                }
+                if let Some(dir) = &dump {
+                    if k == 0 {
+                        for (side, frame) in [("left", &pair.left), ("right", &pair.right)] {
+                            let png = render_png(frame, None, &[]).unwrap();
+                            std::fs::write(format!("{dir}/{}_{seed}_{side}.png", class.name()), png).unwrap();
+                        }
+                    }
+                    if seed == seed0 || k == 0 {
+                        let contour = r.left.as_ref().map(|l| l.contour.clone());
+                        let overlays: Vec<Overlay> = contour
+                            .iter()
+                            .map(|c| Overlay {
+                                contour: c,
+                                colour: [255, 0, 0],
+                            })
+                            .collect();
+                        let png = render_png(&pair.left, None, &overlays).unwrap();
+                        std::fs::write(format!("{dir}/{}_{seed}_{k:02}.png", class.name()), png).unwrap();
+                    }
+                }
+                if !matches!(r.status, Status::Tracked | Status::Initialised) {
+                    untracked += 1;
+                    if frames_out {
+                        eprintln!("  {} {seed} pair {k}: {:?} {:?}", class.name(), r.status, r.reason);
+                    }
+                    continue;
+                }
+                let left = r.left.as_ref().unwrap();
+                let carried = anchor.get_or_insert_with(|| {
+                    let at = if class == Class::Needle {
+                        left.centroid
+                    } else {
+                        pair.left_point
+                    };
+                    CarriedPoint::new(pair.left_point, at, left.angle_rad)
+                });
+                let c = carried.at(left.centroid, left.angle_rad);
+                let d = r.disparity_px.unwrap()[0] - pair.disparity_px;
+                ds.push(d);
+                cs.push([c[0] - pair.left_point[0], c[1] - pair.left_point[1]]);
+                stds.push(r.disparity_std_px.unwrap_or(f64::NAN));
+                frames_ok.push(k);
+            }
+            let md = median(&ds);
+            let mc = [
+                median(&cs.iter().map(|c| c[0]).collect::<Vec<_>>()),
+                median(&cs.iter().map(|c| c[1]).collect::<Vec<_>>()),
+            ];
+            for i in 0..ds.len() {
+                let e = ds[i] - md;
+                let ce = (cs[i][0] - mc[0]).hypot(cs[i][1] - mc[1]);
+                sq += e * e;
+                n += 1;
+                if stds[i].is_finite() {
+                    std_sum += stds[i];
+                    std_n += 1;
+                }
+                let bad = e.abs() > 1.0 || ce > 3.0;
+                wrong += bad as usize;
+                if frames_out || bad {
+                    eprintln!(
+                        "  {} {seed} pair {}: disparity error {e:+.3} (std {:.3}) centroid error {ce:.2}{}",
+                        class.name(),
+                        frames_ok[i],
+                        stds[i],
+                        if bad { "  CONFIDENT WRONG" } else { "" }
+                    );
+                }
+            }
+        }
+        let rms = (sq / n.max(1) as f64).sqrt();
+        let good = ious.iter().filter(|&&v| v >= 0.9).count();
+        println!(
+            "{:<11} IoU>=0.9 {good}/{} (median {:.3}) misses [{}] | disparity RMS {rms:.3} px, std ratio {:.2}, untracked {untracked}/{pairs}, confident wrong {wrong}",
+            class.name(),
+            ious.len(),
+            median(&ious),
+            misses.join(", "),
+            (std_sum / std_n.max(1) as f64) / rms.max(1e-9),
+        );
+    }
+}
