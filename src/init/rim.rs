@@ -16,6 +16,10 @@ use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::region::{PixelRect, PrefixSums};
 
+/// How many times the reach a sector whose rim still rises there is
+/// measured out to.
+const FAR_REACH: f64 = 2.0;
+
 /// Width of one ring, pixels.
 const RING_PX: f64 = 0.5;
 
@@ -49,7 +53,10 @@ pub(super) struct Grown {
 /// the outline moves to where the rim falls half way back to the substrate
 /// beyond its peak, elsewhere it stays. A sector whose bands leave the
 /// image takes the growth of the nearest measured sector on either side.
-/// `None` when no sector has such a rim, when every sector's bands leave
+/// A sector whose rim still rises at `max_px`, or does not fall back
+/// within it, is measured again out to [`FAR_REACH`] times as far (a large
+/// grain's steep side can show a rim 15 px wide, and the substrate band
+/// then lay on it). `None` when no sector has such a rim, when every sector's bands leave
 /// the image, or when the outline is too small to offset.
 pub(super) fn grow_over_rim(
     frame: &GrayFrame,
@@ -57,14 +64,10 @@ pub(super) fn grow_over_rim(
     max_px: f64,
     min_excess: f64,
 ) -> Option<Grown> {
-    let reach = max_px + SUBSTRATE_BAND_PX[1] + 2.0;
-    let rect = PixelRect::around(contour.bounds(), reach, frame.width, frame.height)?;
     let n = contour.len();
     if n < 16 {
         return None;
     }
-    // Only differences of means are compared: no intensity offset needed.
-    let sums = PrefixSums::new(frame, rect, 0);
     // Normals from a smoothed copy (about 9 vertices): the outline's pixel
     // noise would turn offsets of 10-20 px along the vertex normals into
     // loops.
@@ -76,6 +79,76 @@ pub(super) fn grow_over_rim(
     // Sector k spans vertices starts[k]..=starts[k + 1] (cyclically).
     let count = ((contour.length() / SECTOR_PX).round() as usize).clamp(8, n / 2);
     let starts: Vec<usize> = (0..=count).map(|k| k * n / count).collect();
+    let near = sector_growth(frame, contour, &at, &starts, max_px, min_excess)?;
+    // Where the rim still rises at the reach (a wide rim on a large grain's
+    // steep side), the profile is measured again out to twice as far; its
+    // growth counts when it lies beyond half the first reach.
+    let growth = if near.contains(&Sector::Unfinished) {
+        let far = sector_growth(frame, contour, &at, &starts, FAR_REACH * max_px, min_excess);
+        near.iter()
+            .enumerate()
+            .map(|(k, &g)| match (g, far.as_ref().map(|f| f[k])) {
+                (Sector::Unfinished, Some(Sector::Grown(f))) if f > 0.5 * max_px => Sector::Grown(f),
+                (Sector::Unfinished, _) => Sector::Grown(0.0),
+                (g, _) => g,
+            })
+            .collect()
+    } else {
+        near
+    };
+    // A sector whose rim does not fall back within reach keeps no growth;
+    // one not measured takes the mean of the nearest measured sector on
+    // either side.
+    let value = |g: Sector| match g {
+        Sector::Grown(v) => Some(v),
+        Sector::Unfinished => Some(0.0),
+        Sector::Unmeasured => None,
+    };
+    let nearest = |k: usize, step: usize| {
+        (1..count)
+            .map(|j| (k + j * step) % count)
+            .find_map(|j| value(growth[j]))
+            .unwrap_or(0.0)
+    };
+    let growth: Vec<f64> = (0..count)
+        .map(|k| value(growth[k]).unwrap_or_else(|| 0.5 * (nearest(k, 1) + nearest(k, count - 1))))
+        .collect();
+    if growth.iter().all(|&g| g == 0.0) {
+        return None;
+    }
+    let offsets = super::edge_fit::per_vertex(&starts, &growth, n);
+    let outline = Polygon::new((0..n).map(|i| at(i, offsets[i])).collect());
+    let mean_px = offsets.iter().sum::<f64>() / n as f64;
+    Some(Grown { outline, mean_px })
+}
+
+/// What one sector's profile says.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Sector {
+    /// Its bands leave the image.
+    Unmeasured,
+    /// The outline moves this far out (0: no rim).
+    Grown(f64),
+    /// The rim does not fall back to the substrate within reach.
+    Unfinished,
+}
+
+/// Each sector's growth over the rim within `max_px` (see
+/// [`grow_over_rim`]); `None` when the profiles leave the image everywhere
+/// or the substrate is not brighter than the object.
+fn sector_growth(
+    frame: &GrayFrame,
+    contour: &Polygon,
+    at: &dyn Fn(usize, f64) -> Point,
+    starts: &[usize],
+    max_px: f64,
+    min_excess: f64,
+) -> Option<Vec<Sector>> {
+    let count = starts.len() - 1;
+    let reach = max_px + SUBSTRATE_BAND_PX[1] + 2.0;
+    let rect = PixelRect::around(contour.bounds(), reach, frame.width, frame.height)?;
+    // Only differences of means are compared: no intensity offset needed.
+    let sums = PrefixSums::new(frame, rect, 0);
     // Sum and area of the strip between offsets d0 < d1 along sector k.
     let strip = |k: usize, d0: f64, d1: f64| -> [f64; 2] {
         let (a, b) = (starts[k], starts[k + 1]);
@@ -133,76 +206,65 @@ pub(super) fn grow_over_rim(
         return None;
     }
     // Each sector's means, a quarter weight from each neighbour.
-    let growth: Vec<Option<f64>> = (0..count)
+    let growth = (0..count)
         .map(|k| {
             if !measured[k] {
-                return None;
+                return Sector::Unmeasured;
             }
-            let means: Option<Vec<f64>> = (0..=rings)
-                .map(|r| {
-                    let [s, a] = [(count + k - 1) % count, k, (k + 1) % count]
-                        .iter()
-                        .zip([0.25, 0.5, 0.25])
-                        .fold([0.0, 0.0], |t, (&j, w)| {
-                            [t[0] + w * raw[j][r][0], t[1] + w * raw[j][r][1]]
-                        });
-                    (a > 0.0).then(|| s / a)
-                })
-                .collect();
-            let means = means?;
-            let (substrate, profile) = (means[0], &means[1..]);
-            let (peak_at, &peak) = profile.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
-            if peak - substrate < min_excess * contrast {
-                return Some(0.0);
-            }
-            // The outline is where the rim falls back to the substrate
-            // most steeply (an anti-aliased edge's midpoint), found between
-            // the peak and the first ring at half its excess: the
-            // half-way level itself sits 0.45 px out on average, as the
-            // outline's own scatter lowers the narrow peak.
-            let half = substrate + 0.5 * (peak - substrate);
-            let end = (peak_at + 1..profile.len()).find(|&r| profile[r] <= half)?;
-            let end = (end + 2).min(profile.len() - 1);
-            // Fall between rings r - 1 and r, at their common boundary.
-            let fall = |r: usize| profile[r - 1] - profile[r];
-            let r = (peak_at + 1..=end).max_by(|&a, &b| fall(a).total_cmp(&fall(b)))?;
-            // Parabola through the falls around the steepest.
-            let shift = if r > peak_at + 1 && r < end {
-                let (a, b, c) = (fall(r - 1), fall(r), fall(r + 1));
-                let d = a - 2.0 * b + c;
-                if d < 0.0 {
-                    (0.5 * (a - c) / d).clamp(-0.5, 0.5)
+            let grown = || -> Option<Sector> {
+                let means: Option<Vec<f64>> = (0..=rings)
+                    .map(|r| {
+                        let [s, a] = [(count + k - 1) % count, k, (k + 1) % count]
+                            .iter()
+                            .zip([0.25, 0.5, 0.25])
+                            .fold([0.0, 0.0], |t, (&j, w)| {
+                                [t[0] + w * raw[j][r][0], t[1] + w * raw[j][r][1]]
+                            });
+                        (a > 0.0).then(|| s / a)
+                    })
+                    .collect();
+                let means = means?;
+                let (substrate, profile) = (means[0], &means[1..]);
+                let (peak_at, &peak) = profile.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+                // Still rising at the reach: the substrate band may lie on
+                // the rim itself.
+                if peak_at + 2 >= profile.len() {
+                    return Some(Sector::Unfinished);
+                }
+                if peak - substrate < min_excess * contrast {
+                    return Some(Sector::Grown(0.0));
+                }
+                // The outline is where the rim falls back to the substrate
+                // most steeply (an anti-aliased edge's midpoint), found between
+                // the peak and the first ring at half its excess: the
+                // half-way level itself sits 0.45 px out on average, as the
+                // outline's own scatter lowers the narrow peak.
+                let half = substrate + 0.5 * (peak - substrate);
+                let Some(end) = (peak_at + 1..profile.len()).find(|&r| profile[r] <= half) else {
+                    return Some(Sector::Unfinished);
+                };
+                let end = (end + 2).min(profile.len() - 1);
+                // Fall between rings r - 1 and r, at their common boundary.
+                let fall = |r: usize| profile[r - 1] - profile[r];
+                let r = (peak_at + 1..=end).max_by(|&a, &b| fall(a).total_cmp(&fall(b)))?;
+                // Parabola through the falls around the steepest.
+                let shift = if r > peak_at + 1 && r < end {
+                    let (a, b, c) = (fall(r - 1), fall(r), fall(r + 1));
+                    let d = a - 2.0 * b + c;
+                    if d < 0.0 {
+                        (0.5 * (a - c) / d).clamp(-0.5, 0.5)
+                    } else {
+                        0.0
+                    }
                 } else {
                     0.0
-                }
-            } else {
-                0.0
+                };
+                Some(Sector::Grown(ring(r) + shift * RING_PX))
             };
-            Some(ring(r) + shift * RING_PX)
+            grown().unwrap_or(Sector::Grown(0.0))
         })
         .collect();
-    // A sector whose rim does not fall back within reach keeps no growth;
-    // one not measured takes the mean of the nearest measured sector on
-    // either side.
-    let nearest = |k: usize, step: usize| {
-        (1..count)
-            .map(|j| (k + j * step) % count)
-            .find(|&j| measured[j])
-            .map_or(0.0, |j| growth[j].unwrap_or(0.0))
-    };
-    let growth: Vec<f64> = (0..count)
-        .map(|k| match (measured[k], growth[k]) {
-            (true, g) => g.unwrap_or(0.0),
-            (false, _) => 0.5 * (nearest(k, 1) + nearest(k, count - 1)),
-        })
-        .collect();
-    if growth.iter().all(|&g| g == 0.0) {
-        return None;
-    }
-    let offsets = super::edge_fit::per_vertex(&starts, &growth, n);
-    let outline = Polygon::new((0..n).map(|i| at(i, offsets[i])).collect());
-    let mean_px = offsets.iter().sum::<f64>() / n as f64;
-    Some(Grown { outline, mean_px })
+    Some(growth)
 }
 
 #[cfg(test)]
@@ -260,6 +322,33 @@ mod tests {
                 "from radius {start}: grown to {r:.2}, expected 40 +- 0.5"
             );
         }
+    }
+
+    #[test]
+    fn a_rim_wider_than_the_reach_is_followed_to_its_outer_edge() {
+        // Radius 40: the core (60) brightens linearly from radius 30 to a
+        // rim of 200 at the edge, on a substrate of 140 (a dark grain's
+        // steep side). From radius 31 the edge is 9 px out, past a reach
+        // of 8 px where the rim is still rising.
+        let data = (0..200u32 * 200)
+            .map(|i| {
+                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
+                crate::imageio::pixel_mean(x, y, |px, py| {
+                    let r = (px - 100.0).hypot(py - 100.0);
+                    if r > 40.0 {
+                        140.0
+                    } else {
+                        60.0 + 140.0 * ((r - 30.0) / 10.0).clamp(0.0, 1.0)
+                    }
+                })
+                .round() as u16
+            })
+            .collect();
+        let frame = GrayFrame::new(200, 200, 8, data).unwrap();
+        let start = Polygon::circle([100.0, 100.0], 31.0, 96);
+        let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.15).unwrap();
+        let r = mean_radius(&outline);
+        assert!((r - 40.0).abs() < 0.5, "grown to {r:.2}, expected 40 +- 0.5");
     }
 
     #[test]
