@@ -34,6 +34,11 @@ use serde::{Deserialize, Serialize};
 use super::morphology::{dilate_disk, erode_disk, fill_region, outer_regions};
 use super::{FloatImage, Polarity};
 
+/// Width of the bands inside and outside a candidate's outline whose grey
+/// difference tells an edge from a level line of a smooth gradient,
+/// working pixels.
+const EDGE_BAND: u8 = 2;
+
 /// Grey levels tried per polarity.
 const LEVELS: usize = 16;
 
@@ -524,6 +529,82 @@ impl WorkArea<'_> {
             }
         }
         self.score_from(n_a, s_a, c.bbox(), self.outline_edges(c) as f64)
+    }
+
+    /// How much of the region's contrast its outline shows as a step: the
+    /// mean grey of the band [`EDGE_BAND`] working pixels wide inside the
+    /// outline minus that of the band as wide outside it, over the region's
+    /// mean minus the rest of its window's (as in the score), in absolute
+    /// value. About 0.6-1 on an object's edge, more with an edge rim; a
+    /// level line of a smooth gradient (a patch of shaded substrate) shows
+    /// 0.1-0.3. `None` without pixels in a band; pixels past the image
+    /// border belong to neither band.
+    pub fn edge_share(&self, c: &Candidate) -> Option<f64> {
+        let band = EDGE_BAND;
+        let pad = band as u32 + 1;
+        let (pw, ph) = (c.width + 2 * pad, c.height + 2 * pad);
+        let (iw, ih) = (self.width() as i64, self.height() as i64);
+        let global = |x: u32, y: u32| {
+            (
+                c.origin[0] as i64 + x as i64 - pad as i64,
+                c.origin[1] as i64 + y as i64 - pad as i64,
+            )
+        };
+        // Past the image border the mask continues its border pixels.
+        let padded = GrayImage::from_fn(pw, ph, |x, y| {
+            let (gx, gy) = global(x, y);
+            let (cx, cy) = (gx.clamp(0, iw - 1), gy.clamp(0, ih - 1));
+            let (lx, ly) = (cx - c.origin[0] as i64, cy - c.origin[1] as i64);
+            let inside = lx >= 0 && ly >= 0 && lx < c.width as i64 && ly < c.height as i64;
+            Luma([if inside && c.mask[(ly as u32 * c.width + lx as u32) as usize] {
+                255
+            } else {
+                0
+            }])
+        });
+        let grown = dilate_disk(&padded, band);
+        let shrunk = erode_disk(&padded, band);
+        let values = self.work.as_raw();
+        let (mut n_in, mut s_in, mut n_out, mut s_out) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        for y in 0..ph {
+            for x in 0..pw {
+                let (gx, gy) = global(x, y);
+                if gx < 0 || gy < 0 || gx >= iw || gy >= ih {
+                    continue;
+                }
+                let v = values[(gy * iw + gx) as usize] as f64;
+                let m = padded.get_pixel(x, y)[0] != 0;
+                if m && shrunk.get_pixel(x, y)[0] == 0 {
+                    (n_in, s_in) = (n_in + 1.0, s_in + v);
+                } else if !m && grown.get_pixel(x, y)[0] != 0 {
+                    (n_out, s_out) = (n_out + 1.0, s_out + v);
+                }
+            }
+        }
+        if n_in == 0.0 || n_out == 0.0 {
+            return None;
+        }
+        // The region against its window, as in the score.
+        let (n_a, s_a) = (0..c.mask.len())
+            .filter(|&i| c.mask[i])
+            .fold((0.0, 0.0), |(n, s), i| {
+                let (x, y) = (i as u32 % c.width + c.origin[0], i as u32 / c.width + c.origin[1]);
+                (n + 1.0, s + values[(y as i64 * iw + x as i64) as usize] as f64)
+            });
+        let s = self.scale as f64;
+        let margin = ((0.3 * (n_a * s * s).sqrt()).max(8.0) / s).ceil() as i64;
+        let [x0, y0, x1, y1] = c.bbox();
+        let window = [
+            (x0 as i64 - margin).max(0) as usize,
+            (y0 as i64 - margin).max(0) as usize,
+            (x1 as i64 + margin).min(iw) as usize,
+            (y1 as i64 + margin).min(ih) as usize,
+        ];
+        let (n_w, s_w) = self.table.sum(window);
+        let rest = (s_w - s_a) / (n_w - n_a).max(1.0);
+        let step = s_in / n_in - s_out / n_out;
+        let contrast = s_a / n_a - rest;
+        (contrast != 0.0).then(|| (step / contrast).abs())
     }
 
     /// The score of a region of `n_a` working pixels with grey-value sum
@@ -1054,6 +1135,58 @@ pub(super) fn traced_border(c: &Candidate) -> Option<Vec<[i32; 2]>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The share of its contrast a disc of radius 20 at (60, 60) shows as
+    /// a step at its outline, on the 120 x 120 image `grey(r)`.
+    fn disc_edge_share(grey: impl Fn(f64) -> f32) -> f64 {
+        let n = 120u32;
+        let work = FloatImage::from_fn(n, n, |x, y| {
+            Luma([grey((x as f64 - 60.0).hypot(y as f64 - 60.0))])
+        });
+        let area = WorkArea {
+            work: &work,
+            blurred: &work,
+            scale: 1,
+            image_sides: [true; 4],
+            domain: [0, 0, n, n],
+            point: None,
+            polarity: Polarity::Any,
+            min_area: 0.0,
+            max_area: f64::INFINITY,
+            offset: 1.0 / 255.0,
+            table: SummedArea::new(&work),
+        };
+        let mask: Vec<bool> = (0..41 * 41)
+            .map(|i| ((i % 41) as f64 - 20.0).hypot((i / 41) as f64 - 20.0) < 20.0)
+            .collect();
+        let disc = Candidate {
+            origin: [40, 40],
+            width: 41,
+            height: 41,
+            mask,
+            source: Source::Edges { dilation_radius: 1 },
+            score: Score {
+                score: 0.0,
+                contrast: 0.0,
+                data: 0.0,
+                outline_px: 0.0,
+                area_px: 0.0,
+            },
+        };
+        area.edge_share(&disc).unwrap()
+    }
+
+    #[test]
+    fn an_object_shows_its_contrast_at_its_outline_and_a_shaded_patch_does_not() {
+        // A disc of 0.6 on 0.4: the bands on either side of its outline
+        // differ by its whole contrast.
+        let object = disc_edge_share(|r| if r < 20.0 { 0.6 } else { 0.4 });
+        assert!(object > 0.8, "object: {object:.2}");
+        // The level line r = 20 of a smooth cone (substrate shaded from
+        // 0.7 at its top to 0.3 at 60 px): 0.15-0.25 of the contrast.
+        let patch = disc_edge_share(|r| (0.7 - 0.4 * r / 60.0).max(0.3) as f32);
+        assert!(patch < super::super::prompted::NO_EDGE_SHARE, "patch: {patch:.2}");
+    }
 
     #[test]
     fn holes_are_filled_and_the_outside_kept() {

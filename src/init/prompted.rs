@@ -14,7 +14,10 @@
 //! as a box drawn around the whole object: a best candidate that leaves one
 //! side of it largely empty is joined to the edge outline beside it (an
 //! object whose faces differ from each other more than from the substrate,
-//! see [`BOX_GAP_TIGHT`]).
+//! see [`BOX_GAP_TIGHT`]). A best candidate whose outline shows no edge
+//! (a level line of shaded substrate, whose contrast is measured across
+//! tens of pixels and grows with its size) gives way to one that does
+//! ([`NO_EDGE_SHARE`]).
 
 use super::candidates::{finalists, traced_border, Candidate, Rejections, SummedArea, WorkArea};
 use super::{
@@ -35,6 +38,16 @@ const CHALLENGE_RATIO: f64 = 2.0;
 /// stop inside the object: roi IoU >= 0.95 in 0.60 / 0.70 of the cases at a
 /// ratio of 1, 1.00 / 1.00 at 1.5; seeds 300-304).
 const HINTED_CHALLENGE_RATIO: f64 = 1.5;
+
+/// A best candidate whose outline shows less than this share of its
+/// contrast as a step ([`WorkArea::edge_share`]) has no edge ...
+pub(super) const NO_EDGE_SHARE: f64 = 0.35;
+
+/// ... and gives way to the best candidate with at least this share ...
+const EDGE_SHARE: f64 = 0.5;
+
+/// ... that scores at least this share of its score.
+const NO_EDGE_YIELD: f64 = 0.5;
 
 /// A tailed region (see [`find`]) is the best candidate plus thin
 /// appendages when it has at most this share more area ...
@@ -176,9 +189,22 @@ pub(super) fn find(
         .filter_map(|c| work_area.finish(c, &mut rejected))
         .collect();
     candidates.sort_by(|a, b| b.score.score.total_cmp(&a.score.score));
-    let Some(best) = candidates.first() else {
+    let Some(mut best) = candidates.first() else {
         return Err(no_candidate(high, &rejected, min_area, max_area, px_per_work));
     };
+    // A best region whose outline shows no edge (a patch of shaded
+    // substrate, its contrast measured across tens of pixels) gives way to
+    // the best one with an edge that scores at least half as high.
+    if work_area.edge_share(best).is_some_and(|s| s < NO_EDGE_SHARE) {
+        let floor = NO_EDGE_YIELD * best.score.score;
+        if let Some(c) = candidates
+            .iter()
+            .take_while(|c| c.score.score >= floor)
+            .find(|c| work_area.edge_share(c).is_some_and(|s| s >= EDGE_SHARE))
+        {
+            best = c;
+        }
+    }
     // A best candidate that leaves the roi largely empty gives way to an
     // edge outline joined to it that fills the box.
     let gap = |c: &Candidate| widest_gap(c.bbox(), work_area.domain);
