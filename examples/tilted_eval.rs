@@ -51,10 +51,16 @@ fn point_of(mask: &[bool], w: usize) -> [f64; 2] {
         .map(|i| [(i % w) as f64 + 0.5, (i / w) as f64 + 0.5])
         .collect();
     let n = pts.len() as f64;
-    let c = [pts.iter().map(|p| p[0]).sum::<f64>() / n, pts.iter().map(|p| p[1]).sum::<f64>() / n];
-    *pts
-        .iter()
-        .min_by(|a, b| (a[0] - c[0]).hypot(a[1] - c[1]).total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1])))
+    let c = [
+        pts.iter().map(|p| p[0]).sum::<f64>() / n,
+        pts.iter().map(|p| p[1]).sum::<f64>() / n,
+    ];
+    *pts.iter()
+        .min_by(|a, b| {
+            (a[0] - c[0])
+                .hypot(a[1] - c[1])
+                .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
+        })
         .unwrap()
 }
 
@@ -124,7 +130,12 @@ fn main() {
                 if !matches!(r.status, Status::Tracked | Status::Initialised) {
                     untracked += 1;
                     if frames_out {
-                        eprintln!("  {} {seed} pair {k}: {:?} {:?}", class.name(), r.status, r.reason);
+                        eprintln!(
+                            "  {} {seed} pair {k}: {:?} {:?}",
+                            class.name(),
+                            r.status,
+                            r.reason
+                        );
                     }
                     continue;
                 }

@@ -138,9 +138,9 @@ impl Shape {
     /// Radius of a disc around the local origin holding the shape.
     fn reach(&self) -> f64 {
         match *self {
-            Shape::Lens { radius, harmonics, .. } => {
-                radius * (1.0 + harmonics.iter().map(|h| h.0.abs()).sum::<f64>())
-            }
+            Shape::Lens {
+                radius, harmonics, ..
+            } => radius * (1.0 + harmonics.iter().map(|h| h.0.abs()).sum::<f64>()),
             Shape::Needle { .. } => 4000.0,
             Shape::Plate { half, .. } => half[0].hypot(half[1]),
         }
@@ -206,7 +206,14 @@ pub struct Substrate {
 
 impl Substrate {
     /// `roughness` scales every slope (0 gives a flat, uniform substrate).
-    pub fn random(rng: &mut Rng, width: f64, height: f64, roughness: f64, grooves: usize, debris: usize) -> Self {
+    pub fn random(
+        rng: &mut Rng,
+        width: f64,
+        height: f64,
+        roughness: f64,
+        grooves: usize,
+        debris: usize,
+    ) -> Self {
         let waves = (0..48)
             .map(|_| {
                 let wavelength = (3f64.ln() + rng.unit() * (220f64 / 3.0).ln()).exp();
@@ -495,7 +502,10 @@ impl TiltedScene {
     fn ground_bins(&self, n_bins: usize, n_sub: usize) -> [Vec<f32>; 2] {
         let phis = [-self.imaging.tilt / 2.0, self.imaging.tilt / 2.0];
         let rows = self.height * SUBROWS;
-        let mut out = [Vec::with_capacity(rows * n_bins), Vec::with_capacity(rows * n_bins)];
+        let mut out = [
+            Vec::with_capacity(rows * n_bins),
+            Vec::with_capacity(rows * n_bins),
+        ];
         for r in 0..rows {
             let y = (r as f64 + 0.5) / SUBROWS as f64;
             let ground = self.substrate.profile(y, -PAD, n_sub);
@@ -602,7 +612,9 @@ fn gaussian(src: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
         return src.to_vec();
     }
     let r = (3.0 * sigma).ceil() as i64;
-    let kernel: Vec<f64> = (-r..=r).map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp()).collect();
+    let kernel: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
     let total: f64 = kernel.iter().sum();
     let kernel: Vec<f64> = kernel.iter().map(|k| k / total).collect();
     let mut tmp = vec![0.0; w * h];

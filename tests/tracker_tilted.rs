@@ -1,0 +1,241 @@
+//! Initialisation and tracking on scenes our generator did not make: the
+//! tilted three-dimensional renderer of `common/tilted.rs` (bodies above a
+//! rough substrate seen from two beam tilts, secant-law brightness that
+//! differs between the views, shot noise). Seeds 100-104 were not looked
+//! at while the code was tuned (`examples/tilted_eval` prints the same
+//! figures for any seeds).
+
+#[path = "common/tilted.rs"]
+mod tilted;
+
+use semdepth::geometry::{mask_iou, CarriedPoint, Polygon};
+use semdepth::tracker::{Status, StereoTracker, TrackerParams};
+use tilted::Class;
+
+const SEEDS: std::ops::Range<u64> = 100..105;
+const PAIRS: usize = 12;
+
+/// A box 10% larger than the mask's bounds, as a person draws it.
+fn roi_of(mask: &[bool], w: usize) -> [i64; 4] {
+    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
+    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
+        let (x, y) = (i % w, i / w);
+        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
+    }
+    let (gx, gy) = ((x1 - x0) as i64 / 10, (y1 - y0) as i64 / 10);
+    [
+        x0 as i64 - gx,
+        y0 as i64 - gy,
+        (x1 - x0) as i64 + 2 * gx + 1,
+        (y1 - y0) as i64 + 2 * gy + 1,
+    ]
+}
+
+fn median(v: &[f64]) -> f64 {
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[s.len() / 2]
+}
+
+/// What tracking one class over [`SEEDS`] gave.
+#[derive(Debug, Default)]
+struct Figures {
+    /// First left contour's IoU with the truth, per seed.
+    ious: Vec<f64>,
+    pairs: usize,
+    untracked: usize,
+    /// Tracked pairs off by more than 1 px in disparity or 3 px in the left
+    /// reference point (after the sequence's median offsets), listed.
+    confident_wrong: Vec<String>,
+    /// Disparity errors after each sequence's median offset.
+    errors: Vec<f64>,
+    /// Reported standard errors of the same pairs.
+    stds: Vec<f64>,
+}
+
+impl Figures {
+    fn rms(&self) -> f64 {
+        (self.errors.iter().map(|e| e * e).sum::<f64>() / self.errors.len() as f64).sqrt()
+    }
+
+    /// Mean reported standard error over the observed error RMS.
+    fn std_ratio(&self) -> f64 {
+        self.stds.iter().sum::<f64>() / self.stds.len() as f64 / self.rms()
+    }
+}
+
+/// Tracks [`PAIRS`] pairs of `class` for every seed, without hints.
+fn track(class: Class) -> Figures {
+    let mut f = Figures::default();
+    for seed in SEEDS {
+        let scene = tilted::scene(class, seed, PAIRS);
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        let mut anchor: Option<CarriedPoint> = None;
+        let (mut ds, mut cs, mut stds, mut ks) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for k in 0..PAIRS {
+            let pair = scene.render(k);
+            let r = tracker.process(&pair.left, &pair.right).unwrap();
+            f.pairs += 1;
+            if k == 0 {
+                let (w, h) = (scene.width as u32, scene.height as u32);
+                f.ious.push(r.left.as_ref().map_or(0.0, |l| {
+                    mask_iou(&Polygon::new(l.contour.clone()).rasterize(w, h), &pair.left_mask)
+                }));
+            }
+            if !matches!(r.status, Status::Tracked | Status::Initialised) {
+                f.untracked += 1;
+                continue;
+            }
+            let left = r.left.as_ref().unwrap();
+            // The needle's tip is carried by the contour (its centroid is
+            // that of the part inside the frame); the others' centres are
+            // their reference points.
+            let carried = anchor.get_or_insert_with(|| {
+                let at = if class == Class::Needle {
+                    left.centroid
+                } else {
+                    pair.left_point
+                };
+                CarriedPoint::new(pair.left_point, at, left.angle_rad)
+            });
+            let c = carried.at(left.centroid, left.angle_rad);
+            ds.push(r.disparity_px.unwrap()[0] - pair.disparity_px);
+            cs.push([c[0] - pair.left_point[0], c[1] - pair.left_point[1]]);
+            stds.push(r.disparity_std_px.unwrap());
+            ks.push(k);
+        }
+        let md = median(&ds);
+        let mc = [
+            median(&cs.iter().map(|c| c[0]).collect::<Vec<_>>()),
+            median(&cs.iter().map(|c| c[1]).collect::<Vec<_>>()),
+        ];
+        for i in 0..ds.len() {
+            let (e, ce) = (ds[i] - md, (cs[i][0] - mc[0]).hypot(cs[i][1] - mc[1]));
+            if e.abs() > 1.0 || ce > 3.0 {
+                f.confident_wrong.push(format!(
+                    "seed {seed} pair {}: disparity {e:+.2} px, centre {ce:.2} px",
+                    ks[i]
+                ));
+            }
+            f.errors.push(e);
+            f.stds.push(stds[i]);
+        }
+    }
+    f
+}
+
+/// Checks one class against its limits: every first contour at IoU >= 0.9
+/// with the truth, no confident wrong pair, at most `max_untracked` of the
+/// pairs untracked, the disparity error RMS at most `max_rms` px and the
+/// mean reported standard error within `std_ratio` of it.
+fn check(class: Class, max_untracked: f64, max_rms: f64, std_ratio: [f64; 2]) {
+    let f = track(class);
+    let name = class.name();
+    assert!(
+        f.ious.iter().all(|&v| v >= 0.9),
+        "{name}: first left contours' IoU {:.3?}",
+        f.ious
+    );
+    assert!(
+        f.confident_wrong.is_empty(),
+        "{name}: confident wrong pairs {:#?}",
+        f.confident_wrong
+    );
+    let share = f.untracked as f64 / f.pairs as f64;
+    assert!(
+        share <= max_untracked,
+        "{name}: {} of {} pairs untracked",
+        f.untracked,
+        f.pairs
+    );
+    assert!(
+        f.rms() <= max_rms,
+        "{name}: disparity error RMS {:.3} px > {max_rms}",
+        f.rms()
+    );
+    let ratio = f.std_ratio();
+    assert!(
+        (std_ratio[0]..=std_ratio[1]).contains(&ratio),
+        "{name}: mean standard error / error RMS {ratio:.2} (expected {std_ratio:?})"
+    );
+}
+
+/// A bright grain drifting above a rough, grooved substrate: measured RMS
+/// 0.040 px, std ratio 1.21, nothing untracked.
+#[test]
+fn a_grain_above_a_rough_substrate_is_held() {
+    check(Class::Grain, 0.0, 0.08, [1.0 / 1.5, 1.5]);
+}
+
+/// A grain darker than the substrate, its steep side a bright rim up to
+/// 15 px wide (the outline must take it in: the dark centre alone was
+/// found at IoU 0.62-0.87 and tracked up to 1.8 px off). Measured RMS
+/// 0.26 px, std ratio 0.96, 6 of 60 pairs `uncertain`.
+#[test]
+fn a_dark_grain_is_held_with_its_bright_rim() {
+    check(Class::DarkGrain, 0.12, 0.35, [1.0 / 1.5, 1.5]);
+}
+
+/// A needle entering from a border, in and out along its axis: measured
+/// RMS 0.060 px, std ratio 0.67 (the round shank's shading differs between
+/// the views, which the standard error does not know of: the issue's
+/// factor 1.5 is only just met).
+#[test]
+fn a_needle_entering_from_the_border_is_held() {
+    check(Class::Needle, 0.0, 0.12, [0.6, 1.5]);
+}
+
+/// A flat plate whose walls show on opposite sides in the two views:
+/// measured RMS 0.107 px, std ratio 1.16. Without the rule that an outline
+/// must show an edge, seed 5 of this class was a patch of shaded substrate
+/// tracked as the object, 0.7-7.5 px off.
+#[test]
+fn a_plate_with_walls_is_held() {
+    check(Class::Plate, 0.05, 0.2, [1.0 / 1.5, 1.5]);
+}
+
+/// With a `roi` around the object, every class's first left contour has
+/// IoU >= 0.9 with the truth (measured medians 0.950-0.976).
+#[test]
+fn a_roi_gives_the_object_on_every_tilted_class() {
+    for class in Class::ALL {
+        for seed in SEEDS {
+            let scene = tilted::scene(class, seed, 1);
+            let pair = scene.render(0);
+            let mut params = TrackerParams::default();
+            params.init.roi = Some(roi_of(&pair.left_mask, scene.width));
+            let r = StereoTracker::new(params)
+                .process(&pair.left, &pair.right)
+                .unwrap();
+            let iou = r.left.as_ref().map_or(0.0, |l| {
+                mask_iou(
+                    &Polygon::new(l.contour.clone()).rasterize(scene.width as u32, scene.height as u32),
+                    &pair.left_mask,
+                )
+            });
+            assert!(iou >= 0.9, "{} seed {seed}: IoU {iou:.3}", class.name());
+        }
+    }
+}
+
+/// The scene where the failure was seen (plate seed 5, looked at while the
+/// rule was made): a faint plate beside a 250-px patch of darker shaded
+/// substrate that touches the frame's edge. The patch scored 0.114 against
+/// the plate's 0.073, its contrast measured across 60 px; at its outline
+/// it shows 0.27 of that contrast as a step, the plate 0.59. Without hints
+/// the plate must be found.
+#[test]
+fn a_patch_of_shaded_substrate_is_not_taken_for_the_object() {
+    let scene = tilted::scene(Class::Plate, 5, 1);
+    let pair = scene.render(0);
+    let r = StereoTracker::new(TrackerParams::default())
+        .process(&pair.left, &pair.right)
+        .unwrap();
+    let iou = r.left.as_ref().map_or(0.0, |l| {
+        mask_iou(
+            &Polygon::new(l.contour.clone()).rasterize(scene.width as u32, scene.height as u32),
+            &pair.left_mask,
+        )
+    });
+    assert!(iou >= 0.9, "IoU {iou:.3}");
+}
