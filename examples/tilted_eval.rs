@@ -141,7 +141,7 @@ fn main() {
                 }
                 let left = r.left.as_ref().unwrap();
                 let carried = anchor.get_or_insert_with(|| {
-                    let at = if class == Class::Needle {
+                    let at = if matches!(class, Class::Needle | Class::CrossedTool) {
                         left.centroid
                     } else {
                         pair.left_point
@@ -173,10 +173,12 @@ fn main() {
                 wrong += bad as usize;
                 if frames_out || bad {
                     eprintln!(
-                        "  {} {seed} pair {}: disparity error {e:+.3} (std {:.3}) centroid error {ce:.2}{}",
+                        "  {} {seed} pair {}: disparity error {e:+.3} (std {:.3}) centroid error {ce:.2} (raw {:+.1}, {:+.1}){}",
                         class.name(),
                         frames_ok[i],
                         stds[i],
+                        cs[i][0],
+                        cs[i][1],
                         if bad { "  CONFIDENT WRONG" } else { "" }
                     );
                 }

@@ -91,7 +91,7 @@ fn track(class: Class) -> Figures {
             // that of the part inside the frame); the others' centres are
             // their reference points.
             let carried = anchor.get_or_insert_with(|| {
-                let at = if class == Class::Needle {
+                let at = if matches!(class, Class::Needle | Class::CrossedTool) {
                     left.centroid
                 } else {
                     pair.left_point

@@ -651,10 +651,23 @@ pub enum Class {
     Needle,
     /// A flat plate with walls, brighter than the substrate.
     Plate,
+    /// A bright grain (the object) with a needle above it that sweeps in
+    /// over part of it and back out, with its own height and disparity.
+    Crossed,
+    /// The same scene with the needle as the object: a tool passing over a
+    /// particle as bright as itself.
+    CrossedTool,
 }
 
 impl Class {
-    pub const ALL: [Class; 4] = [Class::Grain, Class::DarkGrain, Class::Needle, Class::Plate];
+    pub const ALL: [Class; 6] = [
+        Class::Grain,
+        Class::DarkGrain,
+        Class::Needle,
+        Class::Plate,
+        Class::Crossed,
+        Class::CrossedTool,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -662,6 +675,8 @@ impl Class {
             Class::DarkGrain => "dark_grain",
             Class::Needle => "needle",
             Class::Plate => "plate",
+            Class::Crossed => "crossed",
+            Class::CrossedTool => "crossed_tool",
         }
     }
 }
@@ -683,14 +698,14 @@ pub fn scene(class: Class, seed: u64, frames: usize) -> TiltedScene {
     let heading = rng.range(0.0, std::f64::consts::TAU);
     let spin = rng.range(-0.004, 0.004);
     let (shape, material, start, angle, velocity) = match class {
-        Class::Grain | Class::DarkGrain => {
+        Class::Grain | Class::DarkGrain | Class::Crossed | Class::CrossedTool => {
             let radius = rng.range(28.0, 55.0);
             let harmonics = [
                 (rng.range(0.0, 0.12), rng.range(0.0, 6.3)),
                 (rng.range(0.0, 0.08), rng.range(0.0, 6.3)),
                 (rng.range(0.0, 0.05), rng.range(0.0, 6.3)),
             ];
-            let material = if class == Class::Grain {
+            let material = if class != Class::DarkGrain {
                 rng.range(1.3, 1.8)
             } else {
                 rng.range(0.45, 0.7)
@@ -760,15 +775,22 @@ pub fn scene(class: Class, seed: u64, frames: usize) -> TiltedScene {
             }
         })
         .collect();
+    let mut bodies = vec![Body {
+        shape,
+        material,
+        poses,
+    }];
+    if matches!(class, Class::Crossed | Class::CrossedTool) {
+        bodies.push(crossing_needle(&bodies[0], seed, frames));
+    }
+    if class == Class::CrossedTool {
+        bodies.swap(0, 1);
+    }
     TiltedScene {
         width,
         height,
         substrate,
-        bodies: vec![Body {
-            shape,
-            material,
-            poses,
-        }],
+        bodies,
         imaging: Imaging {
             tilt: 6f64.to_radians(),
             dose: rng.range(12.0, 40.0),
@@ -778,5 +800,52 @@ pub fn scene(class: Class, seed: u64, frames: usize) -> TiltedScene {
         },
         seed,
         ground: Default::default(),
+    }
+}
+
+/// A needle above `grain` that comes in from 50 px beyond its rim along a
+/// random direction, passes a random side of its centre and reaches up to
+/// half its radius past the centre line in 10 pairs, then goes back; it
+/// follows the grain's drift and stays 15-35 px above the grain's top,
+/// with a height swing of its own.
+fn crossing_needle(grain: &Body, seed: u64, frames: usize) -> Body {
+    let mut rng = Rng::new(seed ^ 0x00C0_55ED_0000_0001);
+    let Shape::Lens {
+        radius, thickness, ..
+    } = grain.shape
+    else {
+        unreachable!("the crossed grain is a lens")
+    };
+    let dir = rng.range(0.0, std::f64::consts::TAU);
+    let (c, s) = (dir.cos(), dir.sin());
+    let side = rng.range(-0.5, 0.5) * radius;
+    let run = radius + 50.0 + rng.range(0.0, 0.5) * radius;
+    let above = thickness + rng.range(15.0, 35.0);
+    let (swing, period) = (rng.range(0.0, 8.0), rng.range(10.0, 25.0));
+    let shape = Shape::Needle {
+        tip: rng.range(2.0, 4.0),
+        taper: rng.range(0.15, 0.3),
+        shank: rng.range(9.0, 14.0),
+    };
+    let poses = (0..frames)
+        .map(|k| {
+            let g = grain.poses[k];
+            let phase = (k as f64 / 10.0).rem_euclid(2.0);
+            let travel = run * if phase < 1.0 { phase } else { 2.0 - phase };
+            let back = radius + 50.0 - travel;
+            Pose {
+                centre: [
+                    g.centre[0] - back * c - side * s,
+                    g.centre[1] - back * s + side * c,
+                ],
+                angle: dir,
+                z: g.z + above + swing * (std::f64::consts::TAU * k as f64 / period).sin(),
+            }
+        })
+        .collect();
+    Body {
+        shape,
+        material: rng.range(1.5, 2.0),
+        poses,
     }
 }
