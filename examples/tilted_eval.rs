@@ -154,6 +154,15 @@ fn main() {
                 cs.push([c[0] - pair.left_point[0], c[1] - pair.left_point[1]]);
                 stds.push(r.disparity_std_px.unwrap_or(f64::NAN));
                 frames_ok.push(k);
+                if frames_out {
+                    eprintln!(
+                        "  {} {seed} pair {k}: occluded {:.2} / {:.2}, reason {:?}",
+                        class.name(),
+                        left.occluded_fraction,
+                        r.right.as_ref().unwrap().occluded_fraction,
+                        r.reason
+                    );
+                }
             }
             let md = median(&ds);
             let mc = [
