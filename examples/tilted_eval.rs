@@ -5,7 +5,11 @@
 //! Env: `ONLY=grain,needle` picks classes, `SEED0=100` the first seed,
 //! `HINT=roi|point` gives the first pair's object as a hint, `FRAMES_OUT=1`
 //! prints every pair, `DUMP=dir` writes the first left image with the
-//! first contour (red) and every pair's left view of the first seed.
+//! first contour (red) and every pair's left view of the first seed,
+//! `SAVE=dir` writes every sequence as `dir/CLASS/CLASS_SEED/` with
+//! `NNNN_left.png`, `NNNN_right.png` and a `truth.json` that
+//! `tools/ncc_baseline.py --sequences dir` reads (the truth's polygon is
+//! the left mask's bounding box, its centroid the reference point).
 //! "Confident wrong": a tracked pair off by more than 1 px in disparity or
 //! 3 px in the left reference point (centre, or the needle's tip carried by
 //! the contour), after removing the sequence's median offsets.
@@ -28,13 +32,19 @@ fn median(v: &[f64]) -> f64 {
     }
 }
 
-/// A box 10% larger than the mask's bounds, as a person draws it.
-fn roi_of(mask: &[bool], w: usize) -> [i64; 4] {
+/// The first and last columns and rows of the mask's pixels.
+fn bounds_of(mask: &[bool], w: usize) -> [usize; 4] {
     let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
     for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
         let (x, y) = (i % w, i / w);
         (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
     }
+    [x0, y0, x1, y1]
+}
+
+/// A box 10% larger than the mask's bounds, as a person draws it.
+fn roi_of(mask: &[bool], w: usize) -> [i64; 4] {
+    let [x0, y0, x1, y1] = bounds_of(mask, w);
     let (gx, gy) = (0.1 * (x1 - x0) as f64, 0.1 * (y1 - y0) as f64);
     [
         (x0 as f64 - gx).floor() as i64,
@@ -64,6 +74,32 @@ fn point_of(mask: &[bool], w: usize) -> [f64; 2] {
         .unwrap()
 }
 
+/// Writes a sequence for `tools/ncc_baseline.py --sequences`.
+fn save(root: &str, class: Class, seed: u64, pairs: &[TiltedPair], w: usize) {
+    let dir = format!("{root}/{}/{}_{seed}", class.name(), class.name());
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut frames = Vec::new();
+    for (k, p) in pairs.iter().enumerate() {
+        for (side, frame) in [("left", &p.left), ("right", &p.right)] {
+            std::fs::write(
+                format!("{dir}/{k:04}_{side}.png"),
+                render_png(frame, None, &[]).unwrap(),
+            )
+            .unwrap();
+        }
+        let [x0, y0, x1, y1] = bounds_of(&p.left_mask, w).map(|v| v as f64);
+        frames.push(format!(
+            "{{\"left\": {{\"polygon\": [[{x0}, {y0}], [{x1}, {y0}], [{x1}, {y1}], [{x0}, {y1}]], \"centroid\": [{}, {}]}}, \"disparity_px\": [{}, 0.0]}}",
+            p.left_point[0], p.left_point[1], p.disparity_px
+        ));
+    }
+    std::fs::write(
+        format!("{dir}/truth.json"),
+        format!("{{\"frames\": [{}]}}", frames.join(", ")),
+    )
+    .unwrap();
+}
+
 fn main() {
     let args: Vec<usize> = std::env::args().skip(1).map(|s| s.parse().unwrap()).collect();
     let seeds = *args.first().unwrap_or(&5) as u64;
@@ -83,6 +119,9 @@ fn main() {
             let scene = tilted::scene(class, seed, nframes);
             let rendered: Vec<TiltedPair> = (0..nframes).map(|k| scene.render(k)).collect();
             let (w, h) = (scene.width, scene.height);
+            if let Ok(root) = std::env::var("SAVE") {
+                save(&root, class, seed, &rendered, w);
+            }
             let mut params = TrackerParams::default();
             match hint.as_deref() {
                 Some("roi") => params.init.roi = Some(roi_of(&rendered[0].left_mask, w)),

@@ -205,6 +205,10 @@ def parse_args():
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
                    help="parallel sequence workers (default: CPU count)")
     p.add_argument("--json", type=pathlib.Path, help="also write the numbers to this JSON file")
+    p.add_argument("--sequences", type=pathlib.Path,
+                   help="track sequences already written as DIR/CONDITION/NAME/ (frames and "
+                        "truth.json, e.g. by `examples/tilted_eval` with SAVE=DIR) instead of "
+                        "generating them")
     return p.parse_args()
 
 
@@ -220,7 +224,7 @@ def main():
     args = parse_args()
     np, cv2 = import_deps()
     semdepth = args.semdepth if args.semdepth.is_file() else shutil.which(str(args.semdepth))
-    if not semdepth or not os.access(semdepth, os.X_OK):
+    if args.sequences is None and (not semdepth or not os.access(semdepth, os.X_OK)):
         sys.exit(f"ncc_baseline: semdepth binary not found at {args.semdepth}; "
                  "run `cargo build --release` or pass --semdepth PATH")
     cv2.setNumThreads(1)  # parallelism comes from the sequence workers
@@ -232,6 +236,21 @@ def main():
         root = pathlib.Path(tmp.name)
     else:
         root = args.work_dir
+    if args.sequences is not None:
+        dirs = sorted(d for d in args.sequences.glob("*/*") if (d / "truth.json").is_file())
+        if not dirs:
+            sys.exit(f"ncc_baseline: no DIR/CONDITION/NAME/truth.json under {args.sequences}")
+        results = []
+        for d in dirs:
+            r = track_sequence(np, cv2, d)
+            r.update(preset=d.parent.name, shape=d.name, seed=None)
+            results.append(r)
+        conditions = sorted({r["preset"] for r in results})
+        summary = {c: summarise([r for r in results if r["preset"] == c]) for c in conditions}
+        print(f"NCC baseline on {len(dirs)} sequences under {args.sequences} (template from the "
+              f"truth's left box + {TEMPLATE_MARGIN} px).\n")
+        print(markdown_table(summary))
+        return
     try:
         jobs = [(c, s, seed) for c in args.conditions for s in SHAPES for seed in range(args.seed0, args.seed0 + args.seeds)]
         with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
