@@ -116,7 +116,10 @@ fn main() {
         let (mut sq, mut n, mut pairs, mut untracked, mut wrong) = (0.0, 0usize, 0usize, 0usize, 0usize);
         let (mut std_sum, mut std_n) = (0.0, 0usize);
         for seed in seed0..seed0 + seeds {
-            let scene = tilted::scene(class, seed, nframes);
+            let mut scene = tilted::scene(class, seed, nframes);
+            if let Ok(v) = std::env::var("LINE_NOISE") {
+                scene.imaging.line_noise = v.parse().unwrap();
+            }
             let rendered: Vec<TiltedPair> = (0..nframes).map(|k| scene.render(k)).collect();
             let (w, h) = (scene.width, scene.height);
             if let Ok(root) = std::env::var("SAVE") {
@@ -128,6 +131,7 @@ fn main() {
                 Some("point") => params.init.point = Some(point_of(&rendered[0].left_mask, w)),
                 _ => {}
             }
+            let params_copy = params.init.clone();
             let mut tracker = StereoTracker::new(params);
             let mut anchor: Option<CarriedPoint> = None;
             let (mut ds, mut cs, mut stds, mut frames_ok) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -142,6 +146,11 @@ fn main() {
                         )
                     });
                     ious.push(iou);
+                    if frames_out {
+                        let init = semdepth::init::initialise(&pair.left, &params_copy)
+                            .map(|r| mask_iou(&r.contour.rasterize(w as u32, h as u32), &pair.left_mask));
+                        eprintln!("  {} {seed}: initialisation's own IoU {init:.3?}, first contour {iou:.3}", class.name());
+                    }
                     if iou < 0.9 {
                         misses.push(format!("{seed}: {iou:.3}"));
                     }
