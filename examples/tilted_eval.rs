@@ -149,7 +149,10 @@ fn main() {
                     if frames_out {
                         let init = semdepth::init::initialise(&pair.left, &params_copy)
                             .map(|r| mask_iou(&r.contour.rasterize(w as u32, h as u32), &pair.left_mask));
-                        eprintln!("  {} {seed}: initialisation's own IoU {init:.3?}, first contour {iou:.3}", class.name());
+                        eprintln!(
+                            "  {} {seed}: initialisation's own IoU {init:.3?}, first contour {iou:.3}",
+                            class.name()
+                        );
                     }
                     if iou < 0.9 {
                         misses.push(format!("{seed}: {iou:.3}"));

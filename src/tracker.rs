@@ -1612,10 +1612,60 @@ impl StereoTracker {
                     pose.y -= along * w[1];
                 }
                 candidate.left_velocity = velocity(candidate.left);
+            } else if let Some(along) =
+                self.unconfirmed_slide(left, left_templates, &state, &left_fit, left_predicted)
+            {
+                // A tool cut by the border is placed along its axis by its
+                // tip alone: a fit that left the prediction along that axis
+                // for a pose where the outline is not as it was (a needle's
+                // tip over a grain as bright as itself, its contour stopped
+                // where the needle seemed to end, `tracked` up to 125 px
+                // behind the tip) is not followed.
+                result.mark_lost(format!(
+                    "{UNCERTAIN}: the contour of an object cut by the border moved {:.1} px along its weakest direction from the prediction, to where its outline is not as on the first pair{GOES_ON}",
+                    along.abs()
+                ));
+                let w = left_fit.weakest_direction;
+                for pose in [&mut candidate.left, &mut candidate.right] {
+                    pose.x -= along * w[0];
+                    pose.y -= along * w[1];
+                }
+                candidate.left_velocity = velocity(candidate.left);
             }
             self.state = Some(candidate);
         }
         result
+    }
+
+    /// For a template cut by the border: the left fit's move from the
+    /// prediction along its weakest direction, when it exceeds
+    /// [`FAR_MOVE_PX`] and the sectors at the fit do not confirm the pose
+    /// ([`crate::occlusion::SectorJudgement::confirms_pose`]); None
+    /// otherwise.
+    fn unconfirmed_slide(
+        &self,
+        left: &GrayFrame,
+        (template, sectors): &(RigidTemplate, SectorTemplate),
+        state: &TrackerState,
+        fit: &ImageFit,
+        predicted: Pose,
+    ) -> Option<f64> {
+        if template.cuts.is_empty() {
+            return None;
+        }
+        let w = fit.weakest_direction;
+        let along = (fit.pose.x - predicted.x) * w[0] + (fit.pose.y - predicted.y) * w[1];
+        if along.abs() <= FAR_MOVE_PX {
+            return None;
+        }
+        let sums = self.sums_around(left, template, fit.pose, Self::NEAR_REACH_PX);
+        let judged = judge_look(
+            state.left_look(),
+            &sectors.look(&sums, fit.pose),
+            self.params.occlusion.min_contrast_ratio,
+            self.params.occlusion.max_contrast_ratio,
+        );
+        (!judged.confirms_pose()).then_some(along)
     }
 
     /// Standard error of `fit` along the disparity axis, pixels, for the
