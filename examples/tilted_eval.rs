@@ -191,6 +191,11 @@ fn main() {
                     continue;
                 }
                 let left = r.left.as_ref().unwrap();
+                // A fresh initialisation makes a new template: the carried point
+                // starts again from it.
+                if r.status == Status::Initialised {
+                    anchor = None;
+                }
                 let carried = anchor.get_or_insert_with(|| {
                     let at = if matches!(class, Class::Needle | Class::CrossedTool) {
                         left.centroid

@@ -95,6 +95,11 @@ fn track(class: Class, roi: bool) -> Figures {
             // The needle's tip is carried by the contour (its centroid is
             // that of the part inside the frame); the others' centres are
             // their reference points.
+            // A fresh initialisation makes a new template: the carried point
+            // starts again from it.
+            if r.status == Status::Initialised {
+                anchor = None;
+            }
             let carried = anchor.get_or_insert_with(|| {
                 let at = if matches!(class, Class::Needle | Class::CrossedTool) {
                     left.centroid
@@ -295,6 +300,9 @@ fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
             continue;
         }
         let left = r.left.as_ref().unwrap();
+        if r.status == Status::Initialised {
+            anchor = None;
+        }
         let carried =
             anchor.get_or_insert_with(|| CarriedPoint::new(pair.left_point, left.centroid, left.angle_rad));
         let tip = carried.at(left.centroid, left.angle_rad);
