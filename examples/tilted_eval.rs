@@ -14,7 +14,7 @@
 //! 3 px in the left reference point (centre, or the needle's tip carried by
 //! the contour), after removing the sequence's median offsets.
 use semdepth::display::{render_png, Overlay};
-use semdepth::geometry::{mask_iou, CarriedPoint, Polygon};
+use semdepth::geometry::mask_iou;
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
 #[path = "../tests/common/tilted.rs"]
@@ -133,18 +133,13 @@ fn main() {
             }
             let params_copy = params.init.clone();
             let mut tracker = StereoTracker::new(params);
-            let mut anchor: Option<CarriedPoint> = None;
+            let mut reference = tilted::ReferencePoint::new(class);
             let (mut ds, mut cs, mut stds, mut frames_ok) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for (k, pair) in rendered.iter().enumerate() {
                 let r = tracker.process(&pair.left, &pair.right).unwrap();
                 pairs += 1;
                 if k == 0 {
-                    let iou = r.left.as_ref().map_or(0.0, |l| {
-                        mask_iou(
-                            &Polygon::new(l.contour.clone()).rasterize(w as u32, h as u32),
-                            &pair.left_mask,
-                        )
-                    });
+                    let iou = tilted::left_iou(pair, &r);
                     ious.push(iou);
                     if frames_out {
                         let init = semdepth::init::initialise(&pair.left, &params_copy)
@@ -191,23 +186,10 @@ fn main() {
                     continue;
                 }
                 let left = r.left.as_ref().unwrap();
-                // A fresh initialisation makes a new template: the carried point
-                // starts again from it.
-                if r.status == Status::Initialised {
-                    anchor = None;
-                }
-                let carried = anchor.get_or_insert_with(|| {
-                    let at = if matches!(class, Class::Needle | Class::CrossedTool) {
-                        left.centroid
-                    } else {
-                        pair.left_point
-                    };
-                    CarriedPoint::new(pair.left_point, at, left.angle_rad)
-                });
-                let c = carried.at(left.centroid, left.angle_rad);
+                let e = reference.error(pair, &r);
                 let d = r.disparity_px.unwrap()[0] - pair.disparity_px;
                 ds.push(d);
-                cs.push([c[0] - pair.left_point[0], c[1] - pair.left_point[1]]);
+                cs.push(e);
                 stds.push(r.disparity_std_px.unwrap_or(f64::NAN));
                 frames_ok.push(k);
                 if frames_out {

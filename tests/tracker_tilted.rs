@@ -8,7 +8,6 @@
 #[path = "common/tilted.rs"]
 mod tilted;
 
-use semdepth::geometry::{mask_iou, CarriedPoint, Polygon};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 use tilted::Class;
 
@@ -75,42 +74,22 @@ fn track(class: Class, roi: bool) -> Figures {
             params.init.roi = Some(roi_of(&scene.render(0).left_mask, scene.width));
         }
         let mut tracker = StereoTracker::new(params);
-        let mut anchor: Option<CarriedPoint> = None;
+        let mut reference = tilted::ReferencePoint::new(class);
         let (mut ds, mut cs, mut stds, mut ks) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for k in 0..PAIRS {
             let pair = scene.render(k);
             let r = tracker.process(&pair.left, &pair.right).unwrap();
             f.pairs += 1;
             if k == 0 {
-                let (w, h) = (scene.width as u32, scene.height as u32);
-                f.ious.push(r.left.as_ref().map_or(0.0, |l| {
-                    mask_iou(&Polygon::new(l.contour.clone()).rasterize(w, h), &pair.left_mask)
-                }));
+                f.ious.push(tilted::left_iou(&pair, &r));
             }
             if !matches!(r.status, Status::Tracked | Status::Initialised) {
                 f.untracked += 1;
                 continue;
             }
-            let left = r.left.as_ref().unwrap();
-            // The needle's tip is carried by the contour (its centroid is
-            // that of the part inside the frame); the others' centres are
-            // their reference points.
-            // A fresh initialisation makes a new template: the carried point
-            // starts again from it.
-            if r.status == Status::Initialised {
-                anchor = None;
-            }
-            let carried = anchor.get_or_insert_with(|| {
-                let at = if matches!(class, Class::Needle | Class::CrossedTool) {
-                    left.centroid
-                } else {
-                    pair.left_point
-                };
-                CarriedPoint::new(pair.left_point, at, left.angle_rad)
-            });
-            let c = carried.at(left.centroid, left.angle_rad);
+            let e = reference.error(&pair, &r);
             ds.push(r.disparity_px.unwrap()[0] - pair.disparity_px);
-            cs.push([c[0] - pair.left_point[0], c[1] - pair.left_point[1]]);
+            cs.push(e);
             stds.push(r.disparity_std_px.unwrap());
             ks.push(k);
         }
@@ -240,12 +219,7 @@ fn a_roi_gives_the_object_on_every_tilted_class() {
             let r = StereoTracker::new(params)
                 .process(&pair.left, &pair.right)
                 .unwrap();
-            let iou = r.left.as_ref().map_or(0.0, |l| {
-                mask_iou(
-                    &Polygon::new(l.contour.clone()).rasterize(scene.width as u32, scene.height as u32),
-                    &pair.left_mask,
-                )
-            });
+            let iou = tilted::left_iou(&pair, &r);
             assert!(iou >= 0.9, "{} seed {seed}: IoU {iou:.3}", class.name());
         }
     }
@@ -264,12 +238,7 @@ fn a_patch_of_shaded_substrate_is_not_taken_for_the_object() {
     let r = StereoTracker::new(TrackerParams::default())
         .process(&pair.left, &pair.right)
         .unwrap();
-    let iou = r.left.as_ref().map_or(0.0, |l| {
-        mask_iou(
-            &Polygon::new(l.contour.clone()).rasterize(scene.width as u32, scene.height as u32),
-            &pair.left_mask,
-        )
-    });
+    let iou = tilted::left_iou(&pair, &r);
     assert!(iou >= 0.9, "IoU {iou:.3}");
 }
 
@@ -291,7 +260,7 @@ fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
     let mut params = TrackerParams::default();
     params.init.roi = Some(roi_of(&scene.render(0).left_mask, scene.width));
     let mut tracker = StereoTracker::new(params);
-    let mut anchor: Option<CarriedPoint> = None;
+    let mut reference = tilted::ReferencePoint::new(Class::CrossedTool);
     let (mut tips, mut ds) = (Vec::new(), Vec::new());
     for k in 0..pairs {
         let pair = scene.render(k);
@@ -299,17 +268,8 @@ fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
         if !matches!(r.status, Status::Tracked | Status::Initialised) {
             continue;
         }
-        let left = r.left.as_ref().unwrap();
-        if r.status == Status::Initialised {
-            anchor = None;
-        }
-        let carried =
-            anchor.get_or_insert_with(|| CarriedPoint::new(pair.left_point, left.centroid, left.angle_rad));
-        let tip = carried.at(left.centroid, left.angle_rad);
-        tips.push((
-            k,
-            (tip[0] - pair.left_point[0]).hypot(tip[1] - pair.left_point[1]),
-        ));
+        let e = reference.error(&pair, &r);
+        tips.push((k, e[0].hypot(e[1])));
         ds.push((k, r.disparity_px.unwrap()[0] - pair.disparity_px));
     }
     assert!(tips.len() >= 6, "only {} of {pairs} pairs tracked", tips.len());

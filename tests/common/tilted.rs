@@ -617,27 +617,24 @@ fn gaussian(src: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
         .collect();
     let total: f64 = kernel.iter().sum();
     let kernel: Vec<f64> = kernel.iter().map(|k| k / total).collect();
-    let mut tmp = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            tmp[y * w + x] = kernel
-                .iter()
-                .enumerate()
-                .map(|(j, k)| k * src[y * w + (x as i64 + j as i64 - r).clamp(0, w as i64 - 1) as usize])
-                .sum();
-        }
-    }
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            out[y * w + x] = kernel
-                .iter()
-                .enumerate()
-                .map(|(j, k)| k * tmp[(y as i64 + j as i64 - r).clamp(0, h as i64 - 1) as usize * w + x])
-                .sum();
-        }
-    }
-    out
+    // One pass along x (step 1, `w` per row) or y (step `w`, 1 per
+    // column), edges clamped.
+    let pass = |src: &[f64], step: usize, len: usize| -> Vec<f64> {
+        (0..w * h)
+            .map(|i| {
+                let at = (i / step) % len;
+                kernel
+                    .iter()
+                    .enumerate()
+                    .map(|(j, k)| {
+                        let t = (at as i64 + j as i64 - r).clamp(0, len as i64 - 1) as usize;
+                        k * src[i - at * step + t * step]
+                    })
+                    .sum()
+            })
+            .collect()
+    };
+    pass(&pass(src, 1, w), w, h)
 }
 
 /// The scene classes measured on this renderer.
@@ -848,4 +845,55 @@ fn crossing_needle(grain: &Body, seed: u64, frames: usize) -> Body {
         material: rng.range(1.5, 2.0),
         poses,
     }
+}
+
+/// Where the tracked contour puts body 0's reference point, as an error
+/// against the truth, pair by pair: a needle's tip is carried by the
+/// contour from the first tracked pair (its centroid is that of the part
+/// inside the frame); the others' centres are the truth's reference
+/// point. A fresh initialisation makes a new template, and the carried
+/// point starts again from it.
+pub struct ReferencePoint {
+    carried_by_contour: bool,
+    anchor: Option<semdepth::geometry::CarriedPoint>,
+}
+
+impl ReferencePoint {
+    pub fn new(class: Class) -> Self {
+        Self {
+            carried_by_contour: matches!(class, Class::Needle | Class::CrossedTool),
+            anchor: None,
+        }
+    }
+
+    /// The reference point's error (tracked minus truth), pixels, for a
+    /// tracked or initialised `result` of `pair`.
+    pub fn error(&mut self, pair: &TiltedPair, result: &semdepth::tracker::PairResult) -> [f64; 2] {
+        let left = result.left.as_ref().expect("a tracked pair has a left contour");
+        if result.status == semdepth::tracker::Status::Initialised {
+            self.anchor = None;
+        }
+        let by_contour = self.carried_by_contour;
+        let carried = self.anchor.get_or_insert_with(|| {
+            let at = if by_contour {
+                left.centroid
+            } else {
+                pair.left_point
+            };
+            semdepth::geometry::CarriedPoint::new(pair.left_point, at, left.angle_rad)
+        });
+        let c = carried.at(left.centroid, left.angle_rad);
+        [c[0] - pair.left_point[0], c[1] - pair.left_point[1]]
+    }
+}
+
+/// IoU of `result`'s left contour with `pair`'s left mask (0 without one).
+pub fn left_iou(pair: &TiltedPair, result: &semdepth::tracker::PairResult) -> f64 {
+    let (w, h) = (pair.left.width, pair.left.height);
+    result.left.as_ref().map_or(0.0, |l| {
+        semdepth::geometry::mask_iou(
+            &semdepth::geometry::Polygon::new(l.contour.clone()).rasterize(w, h),
+            &pair.left_mask,
+        )
+    })
 }
