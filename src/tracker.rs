@@ -1593,28 +1593,25 @@ impl StereoTracker {
             // sectors, inside the rod, looked like a new backdrop, and the
             // next pairs were `tracked` 15-35 px off).
             let position_std = left_fit.axis_std_px * left_fit.weakest_factor;
-            if position_std > MAX_POSITION_STD_PX {
+            // The fit's move from the prediction along its weakest
+            // direction, and how much of it the poses give back.
+            let w = left_fit.weakest_direction;
+            let along =
+                (left_fit.pose.x - left_predicted.x) * w[0] + (left_fit.pose.y - left_predicted.y) * w[1];
+            let given_back = if position_std > MAX_POSITION_STD_PX {
                 result.mark_lost(format!(
                     "{UNCERTAIN}: what is visible of the left outline fixes the object's position only to {position_std:.1} px in one direction (limit {MAX_POSITION_STD_PX} px){GOES_ON}"
                 ));
-                let w = left_fit.weakest_direction;
-                let along =
-                    (left_fit.pose.x - left_predicted.x) * w[0] + (left_fit.pose.y - left_predicted.y) * w[1];
                 let towards_hidden_end =
                     hidden_end(&templates.1, &left_fit, w).is_some_and(|end| end.signum() == along.signum());
-                let along = if towards_hidden_end && along.abs() > UNFOLLOWED_MOVE * position_std {
-                    along
-                } else {
-                    0.0
-                };
-                for pose in [&mut candidate.left, &mut candidate.right] {
-                    pose.x -= along * w[0];
-                    pose.y -= along * w[1];
-                }
-                candidate.left_velocity = velocity(candidate.left);
-            } else if let Some(along) =
-                self.unconfirmed_slide(left, left_templates, &state, &left_fit, left_predicted)
-            {
+                Some(
+                    if towards_hidden_end && along.abs() > UNFOLLOWED_MOVE * position_std {
+                        along
+                    } else {
+                        0.0
+                    },
+                )
+            } else if self.unconfirmed_slide(left, left_templates, &state, left_fit.pose, along) {
                 // A tool cut by the border is placed along its axis by its
                 // tip alone: a fit that left the prediction along that axis
                 // for a pose where the outline is not as it was (a needle's
@@ -1625,10 +1622,14 @@ impl StereoTracker {
                     "{UNCERTAIN}: the contour of an object cut by the border moved {:.1} px along its weakest direction from the prediction, to where its outline is not as on the first pair{GOES_ON}",
                     along.abs()
                 ));
-                let w = left_fit.weakest_direction;
+                Some(along)
+            } else {
+                None
+            };
+            if let Some(back) = given_back {
                 for pose in [&mut candidate.left, &mut candidate.right] {
-                    pose.x -= along * w[0];
-                    pose.y -= along * w[1];
+                    pose.x -= back * w[0];
+                    pose.y -= back * w[1];
                 }
                 candidate.left_velocity = velocity(candidate.left);
             }
@@ -1637,35 +1638,29 @@ impl StereoTracker {
         result
     }
 
-    /// For a template cut by the border: the left fit's move from the
-    /// prediction along its weakest direction, when it exceeds
-    /// [`FAR_MOVE_PX`] and the sectors at the fit do not confirm the pose
-    /// ([`crate::occlusion::SectorJudgement::confirms_pose`]); None
-    /// otherwise.
+    /// For a template cut by the border: whether the left fit at `pose`,
+    /// `along` px from the prediction along its weakest direction, moved
+    /// more than [`FAR_MOVE_PX`] to where the sectors do not confirm the
+    /// pose ([`crate::occlusion::SectorJudgement::confirms_pose`]).
     fn unconfirmed_slide(
         &self,
         left: &GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
         state: &TrackerState,
-        fit: &ImageFit,
-        predicted: Pose,
-    ) -> Option<f64> {
-        if template.cuts.is_empty() {
-            return None;
+        pose: Pose,
+        along: f64,
+    ) -> bool {
+        if template.cuts.is_empty() || along.abs() <= FAR_MOVE_PX {
+            return false;
         }
-        let w = fit.weakest_direction;
-        let along = (fit.pose.x - predicted.x) * w[0] + (fit.pose.y - predicted.y) * w[1];
-        if along.abs() <= FAR_MOVE_PX {
-            return None;
-        }
-        let sums = self.sums_around(left, template, fit.pose, Self::NEAR_REACH_PX);
+        let sums = self.sums_around(left, template, pose, Self::NEAR_REACH_PX);
         let judged = judge_look(
             state.left_look(),
-            &sectors.look(&sums, fit.pose),
+            &sectors.look(&sums, pose),
             self.params.occlusion.min_contrast_ratio,
             self.params.occlusion.max_contrast_ratio,
         );
-        (!judged.confirms_pose()).then_some(along)
+        !judged.confirms_pose()
     }
 
     /// Standard error of `fit` along the disparity axis, pixels, for the
