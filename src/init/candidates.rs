@@ -515,6 +515,12 @@ impl WorkArea<'_> {
 
     /// The region energy's terms and score (see the module docs).
     pub fn score(&self, c: &Candidate) -> Option<Score> {
+        let (n_a, s_a) = self.region_sum(c);
+        self.score_from(n_a, s_a, c.bbox(), self.outline_edges(c) as f64)
+    }
+
+    /// Pixel count and grey-value sum of the candidate's region.
+    fn region_sum(&self, c: &Candidate) -> (f64, f64) {
         let w = self.width() as usize;
         let values = self.work.as_raw();
         let (mut n_a, mut s_a) = (0.0f64, 0.0f64);
@@ -528,7 +534,22 @@ impl WorkArea<'_> {
                 }
             }
         }
-        self.score_from(n_a, s_a, c.bbox(), self.outline_edges(c) as f64)
+        (n_a, s_a)
+    }
+
+    /// The window a region of `n_a` working pixels within `bbox` is scored
+    /// against: the box grown by 0.3 sqrt(A) full-resolution pixels (at
+    /// least 8), clipped to the image, `[x0, y0, x1, y1)`.
+    fn score_window(&self, n_a: f64, bbox: [u32; 4]) -> [usize; 4] {
+        let s = self.scale as f64;
+        let (w, h) = (self.width() as i64, self.height() as i64);
+        let margin = ((0.3 * (n_a * s * s).sqrt()).max(8.0) / s).ceil() as i64;
+        [
+            (bbox[0] as i64 - margin).max(0) as usize,
+            (bbox[1] as i64 - margin).max(0) as usize,
+            (bbox[2] as i64 + margin).min(w) as usize,
+            (bbox[3] as i64 + margin).min(h) as usize,
+        ]
     }
 
     /// How much of the region's contrast its outline shows as a step: the
@@ -585,22 +606,8 @@ impl WorkArea<'_> {
             return None;
         }
         // The region against its window, as in the score.
-        let (n_a, s_a) = (0..c.mask.len())
-            .filter(|&i| c.mask[i])
-            .fold((0.0, 0.0), |(n, s), i| {
-                let (x, y) = (i as u32 % c.width + c.origin[0], i as u32 / c.width + c.origin[1]);
-                (n + 1.0, s + values[(y as i64 * iw + x as i64) as usize] as f64)
-            });
-        let s = self.scale as f64;
-        let margin = ((0.3 * (n_a * s * s).sqrt()).max(8.0) / s).ceil() as i64;
-        let [x0, y0, x1, y1] = c.bbox();
-        let window = [
-            (x0 as i64 - margin).max(0) as usize,
-            (y0 as i64 - margin).max(0) as usize,
-            (x1 as i64 + margin).min(iw) as usize,
-            (y1 as i64 + margin).min(ih) as usize,
-        ];
-        let (n_w, s_w) = self.table.sum(window);
+        let (n_a, s_a) = self.region_sum(c);
+        let (n_w, s_w) = self.table.sum(self.score_window(n_a, c.bbox()));
         let rest = (s_w - s_a) / (n_w - n_a).max(1.0);
         let step = s_in / n_in - s_out / n_out;
         let contrast = s_a / n_a - rest;
@@ -616,15 +623,7 @@ impl WorkArea<'_> {
             return None;
         }
         let s = self.scale as f64;
-        let (w, h) = (self.width() as i64, self.height() as i64);
-        let margin = ((0.3 * (n_a * s * s).sqrt()).max(8.0) / s).ceil() as i64;
-        let window = [
-            (bbox[0] as i64 - margin).max(0) as usize,
-            (bbox[1] as i64 - margin).max(0) as usize,
-            (bbox[2] as i64 + margin).min(w) as usize,
-            (bbox[3] as i64 + margin).min(h) as usize,
-        ];
-        let (n_w, s_w) = self.table.sum(window);
+        let (n_w, s_w) = self.table.sum(self.score_window(n_a, bbox));
         let o = self.offset;
         let (s_a, s_w) = (s_a + o * n_a, s_w + o * n_w);
         let (n_b, s_b) = (n_w - n_a, s_w - s_a);

@@ -199,6 +199,7 @@ pub(super) fn find(
         let floor = NO_EDGE_YIELD * best.score.score;
         if let Some(c) = candidates
             .iter()
+            .skip(1)
             .take_while(|c| c.score.score >= floor)
             .find(|c| work_area.edge_share(c).is_some_and(|s| s >= EDGE_SHARE))
         {
