@@ -32,28 +32,6 @@ fn median(v: &[f64]) -> f64 {
     }
 }
 
-/// The first and last columns and rows of the mask's pixels.
-fn bounds_of(mask: &[bool], w: usize) -> [usize; 4] {
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
-        let (x, y) = (i % w, i / w);
-        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
-    }
-    [x0, y0, x1, y1]
-}
-
-/// A box 10% larger than the mask's bounds, as a person draws it.
-fn roi_of(mask: &[bool], w: usize) -> [i64; 4] {
-    let [x0, y0, x1, y1] = bounds_of(mask, w);
-    let (gx, gy) = (0.1 * (x1 - x0) as f64, 0.1 * (y1 - y0) as f64);
-    [
-        (x0 as f64 - gx).floor() as i64,
-        (y0 as f64 - gy).floor() as i64,
-        ((x1 - x0) as f64 + 2.0 * gx).ceil() as i64 + 1,
-        ((y1 - y0) as f64 + 2.0 * gy).ceil() as i64 + 1,
-    ]
-}
-
 /// The mask's pixel nearest its centroid.
 fn point_of(mask: &[bool], w: usize) -> [f64; 2] {
     let pts: Vec<[f64; 2]> = (0..mask.len())
@@ -75,7 +53,7 @@ fn point_of(mask: &[bool], w: usize) -> [f64; 2] {
 }
 
 /// Writes a sequence for `tools/ncc_baseline.py --sequences`.
-fn save(root: &str, class: Class, seed: u64, pairs: &[TiltedPair], w: usize) {
+fn save(root: &str, class: Class, seed: u64, pairs: &[TiltedPair]) {
     let dir = format!("{root}/{}/{}_{seed}", class.name(), class.name());
     std::fs::create_dir_all(&dir).unwrap();
     let mut frames = Vec::new();
@@ -87,7 +65,7 @@ fn save(root: &str, class: Class, seed: u64, pairs: &[TiltedPair], w: usize) {
             )
             .unwrap();
         }
-        let [x0, y0, x1, y1] = bounds_of(&p.left_mask, w).map(|v| v as f64);
+        let [x0, y0, x1, y1] = p.left_bounds().map(|v| v as f64);
         frames.push(format!(
             "{{\"left\": {{\"polygon\": [[{x0}, {y0}], [{x1}, {y0}], [{x1}, {y1}], [{x0}, {y1}]], \"centroid\": [{}, {}]}}, \"disparity_px\": [{}, 0.0]}}",
             p.left_point[0], p.left_point[1], p.disparity_px
@@ -123,11 +101,11 @@ fn main() {
             let rendered: Vec<TiltedPair> = (0..nframes).map(|k| scene.render(k)).collect();
             let (w, h) = (scene.width, scene.height);
             if let Ok(root) = std::env::var("SAVE") {
-                save(&root, class, seed, &rendered, w);
+                save(&root, class, seed, &rendered);
             }
             let mut params = TrackerParams::default();
             match hint.as_deref() {
-                Some("roi") => params.init.roi = Some(roi_of(&rendered[0].left_mask, w)),
+                Some("roi") => params.init.roi = Some(rendered[0].roi_hint()),
                 Some("point") => params.init.point = Some(point_of(&rendered[0].left_mask, w)),
                 _ => {}
             }

@@ -14,22 +14,6 @@ use tilted::Class;
 const SEEDS: std::ops::Range<u64> = 100..105;
 const PAIRS: usize = 12;
 
-/// A box 10% larger than the mask's bounds, as a person draws it.
-fn roi_of(mask: &[bool], w: usize) -> [i64; 4] {
-    let (mut x0, mut y0, mut x1, mut y1) = (usize::MAX, usize::MAX, 0, 0);
-    for (i, _) in mask.iter().enumerate().filter(|(_, &m)| m) {
-        let (x, y) = (i % w, i / w);
-        (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
-    }
-    let (gx, gy) = ((x1 - x0) as i64 / 10, (y1 - y0) as i64 / 10);
-    [
-        x0 as i64 - gx,
-        y0 as i64 - gy,
-        (x1 - x0) as i64 + 2 * gx + 1,
-        (y1 - y0) as i64 + 2 * gy + 1,
-    ]
-}
-
 fn median(v: &[f64]) -> f64 {
     let mut s = v.to_vec();
     s.sort_by(f64::total_cmp);
@@ -71,7 +55,7 @@ fn track(class: Class, roi: bool) -> Figures {
         let scene = tilted::scene(class, seed, PAIRS);
         let mut params = TrackerParams::default();
         if roi {
-            params.init.roi = Some(roi_of(&scene.render(0).left_mask, scene.width));
+            params.init.roi = Some(scene.render(0).roi_hint());
         }
         let mut tracker = StereoTracker::new(params);
         let mut reference = tilted::ReferencePoint::new(class);
@@ -215,7 +199,7 @@ fn a_roi_gives_the_object_on_every_tilted_class() {
             let scene = tilted::scene(class, seed, 1);
             let pair = scene.render(0);
             let mut params = TrackerParams::default();
-            params.init.roi = Some(roi_of(&pair.left_mask, scene.width));
+            params.init.roi = Some(pair.roi_hint());
             let r = StereoTracker::new(params)
                 .process(&pair.left, &pair.right)
                 .unwrap();
@@ -258,7 +242,7 @@ fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
     let pairs = 20;
     let scene = tilted::scene(Class::CrossedTool, 8, pairs);
     let mut params = TrackerParams::default();
-    params.init.roi = Some(roi_of(&scene.render(0).left_mask, scene.width));
+    params.init.roi = Some(scene.render(0).roi_hint());
     let mut tracker = StereoTracker::new(params);
     let mut reference = tilted::ReferencePoint::new(Class::CrossedTool);
     let (mut tips, mut ds) = (Vec::new(), Vec::new());
