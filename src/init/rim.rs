@@ -56,8 +56,10 @@ pub(super) struct Grown {
 /// A sector whose rim still rises at `max_px`, or does not fall back
 /// within it, is measured again out to [`FAR_REACH`] times as far (a large
 /// grain's steep side can show a rim 15 px wide, and the substrate band
-/// then lay on it). `None` when no sector has such a rim, when every sector's bands leave
-/// the image, or when the outline is too small to offset.
+/// then lay on it). A lone sector left without a rim between two grown by
+/// more than half of `max_px` takes their mean. `None` when no sector has
+/// such a rim, when every sector's bands leave the image, or when the
+/// outline is too small to offset.
 pub(super) fn grow_over_rim(
     frame: &GrayFrame,
     contour: &Polygon,
@@ -112,6 +114,21 @@ pub(super) fn grow_over_rim(
     };
     let growth: Vec<f64> = (0..count)
         .map(|k| value(growth[k]).unwrap_or_else(|| 0.5 * (nearest(k, 1) + nearest(k, count - 1))))
+        .collect();
+    // A lone sector left without a rim between two grown by more than half
+    // the reach takes their mean: a rim does not stop for 16 px of outline,
+    // while a profile can mislead (the substrate band on the rim, or the
+    // rim still rising at twice the reach, a dark grain's rim 16-19 px wide
+    // left a notch in its outline).
+    let growth: Vec<f64> = (0..count)
+        .map(|k| {
+            let (before, after) = (growth[(k + count - 1) % count], growth[(k + 1) % count]);
+            if growth[k] == 0.0 && before.min(after) > 0.5 * max_px {
+                0.5 * (before + after)
+            } else {
+                growth[k]
+            }
+        })
         .collect();
     if growth.iter().all(|&g| g == 0.0) {
         return None;
@@ -349,6 +366,46 @@ mod tests {
         let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.15).unwrap();
         let r = mean_radius(&outline);
         assert!((r - 40.0).abs() < 0.5, "grown to {r:.2}, expected 40 +- 0.5");
+    }
+
+    #[test]
+    fn a_lone_sector_without_a_rim_between_grown_ones_takes_their_growth() {
+        // Radius 44: the core (60) brightens linearly from radius 30 to a
+        // rim of 200 at the edge, on a substrate of 140. Between 3 and 27
+        // degrees a bright speck at radius 35-37 makes the first sector's
+        // profile peak inside the 8-px reach from radius 31, below its
+        // substrate band (42-48 px, half on the rim): no rim there, while
+        // both neighbours still rise at the reach and are measured again
+        // out to twice as far. Left alone, its outline stayed at radius 31,
+        // a notch 13 px deep.
+        let data = (0..200u32 * 200)
+            .map(|i| {
+                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
+                crate::imageio::pixel_mean(x, y, |px, py| {
+                    let (dx, dy) = (px - 100.0, py - 100.0);
+                    let r = dx.hypot(dy);
+                    let degrees = dy.atan2(dx).to_degrees();
+                    if r > 44.0 {
+                        140.0
+                    } else if (35.0..37.0).contains(&r) && (3.0..27.0).contains(&degrees) {
+                        215.0
+                    } else {
+                        60.0 + 140.0 * ((r - 30.0) / 14.0).clamp(0.0, 1.0)
+                    }
+                })
+                .round() as u16
+            })
+            .collect();
+        let frame = GrayFrame::new(200, 200, 8, data).unwrap();
+        let start = Polygon::circle([100.0, 100.0], 31.0, 96);
+        let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.3).unwrap();
+        for (i, p) in outline.points.iter().enumerate().take(8).skip(1) {
+            let r = (p[0] - 100.0).hypot(p[1] - 100.0);
+            assert!(
+                (r - 44.0).abs() < 1.5,
+                "vertex {i}: radius {r:.2}, expected 44 +- 1.5"
+            );
+        }
     }
 
     #[test]

@@ -263,6 +263,12 @@ impl Substrate {
         }
     }
 
+    /// A substrate without relief, grooves or debris: only its material's
+    /// slow variation (wavelengths 120-500 px) shades it.
+    pub fn flat(rng: &mut Rng, width: f64, height: f64) -> Self {
+        Self::random(rng, width, height, 0.0, 0, 0)
+    }
+
     /// Height, its gradient and the material factor along the sub-row `y`
     /// at `x = x0 + i BIN`, `n` samples.
     fn profile(&self, y: f64, x0: f64, n: usize) -> Vec<[f64; 4]> {
