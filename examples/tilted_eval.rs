@@ -10,6 +10,10 @@
 //! `NNNN_left.png`, `NNNN_right.png` and a `truth.json` that
 //! `tools/ncc_baseline.py --sequences dir` reads (the truth's polygon is
 //! the left mask's bounding box, its centroid the reference point).
+//! `LINE_NOISE=0` removes the per-line offsets and `DOSE_SCALE=16`
+//! multiplies the dose, to separate the shot noise's share of an error
+//! from the rest; `FLAT=1` puts the bodies over a flat substrate
+//! (`Substrate::flat`).
 //! "Confident wrong": a tracked pair off by more than 1 px in disparity or
 //! 3 px in the left reference point (centre, or the needle's tip carried by
 //! the contour), after removing the sequence's median offsets.
@@ -97,6 +101,13 @@ fn main() {
             let mut scene = tilted::scene(class, seed, nframes);
             if let Ok(v) = std::env::var("LINE_NOISE") {
                 scene.imaging.line_noise = v.parse().unwrap();
+            }
+            if std::env::var("FLAT").is_ok() {
+                let (w, h) = (scene.width as f64, scene.height as f64);
+                scene.substrate = tilted::Substrate::flat(&mut tilted::Rng::new(seed), w, h);
+            }
+            if let Ok(v) = std::env::var("DOSE_SCALE") {
+                scene.imaging.dose *= v.parse::<f64>().unwrap();
             }
             let rendered: Vec<TiltedPair> = (0..nframes).map(|k| scene.render(k)).collect();
             let (w, h) = (scene.width, scene.height);
