@@ -84,13 +84,20 @@ pub(super) fn grow_over_rim(
     let near = sector_growth(frame, contour, &at, &starts, max_px, min_excess)?;
     // Where the rim still rises at the reach (a wide rim on a large grain's
     // steep side), the profile is measured again out to twice as far; its
-    // growth counts when it lies beyond half the first reach.
+    // growth counts when it lies beyond half the first reach. Where it
+    // still rises there, the profile says nothing of the edge, and the
+    // sector takes its measured neighbours' growth like one whose bands
+    // leave the image (a dark grain's lit side, its rim brighter and wider
+    // than elsewhere, kept three sectors on the core between sectors grown
+    // by 15-18 px).
     let growth = if near.contains(&Sector::Unfinished) {
         let far = sector_growth(frame, contour, &at, &starts, FAR_REACH * max_px, min_excess);
         near.iter()
             .enumerate()
             .map(|(k, &g)| match (g, far.as_ref().map(|f| f[k])) {
                 (Sector::Unfinished, Some(Sector::Grown(f))) if f > 0.5 * max_px => Sector::Grown(f),
+                (Sector::Unfinished, Some(Sector::Unfinished)) => Sector::Unmeasured,
+                (Sector::Grown(0.0), Some(Sector::Unfinished)) => Sector::Unmeasured,
                 (Sector::Unfinished, _) => Sector::Grown(0.0),
                 (g, _) => g,
             })
@@ -404,6 +411,49 @@ mod tests {
             assert!(
                 (r - 44.0).abs() < 1.5,
                 "vertex {i}: radius {r:.2}, expected 44 +- 1.5"
+            );
+        }
+    }
+
+    #[test]
+    fn sectors_whose_rim_rises_past_twice_the_reach_take_their_neighbours_growth() {
+        // As above, but between 0 and 120 degrees the edge swells to a
+        // radius of 60 (at 60 degrees), the rim rising all the way: past
+        // twice the 8-px reach from radius 31 the profile never falls back,
+        // and those sectors take the growth of the sectors beside them
+        // instead of none.
+        let data = (0..200u32 * 200)
+            .map(|i| {
+                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
+                crate::imageio::pixel_mean(x, y, |px, py| {
+                    let (dx, dy) = (px - 100.0, py - 100.0);
+                    let r = dx.hypot(dy);
+                    let degrees = dy.atan2(dx).to_degrees();
+                    let swell = (std::f64::consts::PI * degrees / 120.0).sin().powi(2);
+                    let edge = 44.0
+                        + if (0.0..120.0).contains(&degrees) {
+                            16.0 * swell
+                        } else {
+                            0.0
+                        };
+                    if r > edge {
+                        140.0
+                    } else {
+                        60.0 + 140.0 * ((r - 30.0) / (edge - 30.0)).clamp(0.0, 1.0)
+                    }
+                })
+                .round() as u16
+            })
+            .collect();
+        let frame = GrayFrame::new(200, 200, 8, data).unwrap();
+        let start = Polygon::circle([100.0, 100.0], 31.0, 96);
+        let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.15).unwrap();
+        // Without: radius 31 from 45 to 75 degrees (vertices 12-20).
+        for (i, p) in outline.points.iter().enumerate().take(32) {
+            let r = (p[0] - 100.0).hypot(p[1] - 100.0);
+            assert!(
+                (42.0..50.0).contains(&r),
+                "vertex {i}: radius {r:.2}, expected 42-50"
             );
         }
     }
