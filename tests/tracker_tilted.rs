@@ -209,6 +209,16 @@ fn a_roi_gives_the_object_on_every_tilted_class() {
     }
 }
 
+/// The first left contour's IoU with the truth on `scene`'s first pair,
+/// without hints.
+fn first_iou(scene: &tilted::TiltedScene) -> f64 {
+    let pair = scene.render(0);
+    let r = StereoTracker::new(TrackerParams::default())
+        .process(&pair.left, &pair.right)
+        .unwrap();
+    tilted::left_iou(&pair, &r)
+}
+
 /// The scene where the failure was seen (plate seed 5, looked at while the
 /// rule was made): a faint plate beside a 250-px patch of darker shaded
 /// substrate that touches the frame's edge. The patch scored 0.114 against
@@ -218,11 +228,7 @@ fn a_roi_gives_the_object_on_every_tilted_class() {
 #[test]
 fn a_patch_of_shaded_substrate_is_not_taken_for_the_object() {
     let scene = tilted::scene(Class::Plate, 5, 1);
-    let pair = scene.render(0);
-    let r = StereoTracker::new(TrackerParams::default())
-        .process(&pair.left, &pair.right)
-        .unwrap();
-    let iou = tilted::left_iou(&pair, &r);
+    let iou = first_iou(&scene);
     assert!(iou >= 0.9, "IoU {iou:.3}");
 }
 
@@ -238,11 +244,7 @@ fn a_dark_grain_over_a_flat_substrate_is_found_with_its_whole_rim() {
     let mut scene = tilted::scene(Class::DarkGrain, 6, 1);
     let (w, h) = (scene.width as f64, scene.height as f64);
     scene.substrate = tilted::Substrate::flat(&mut tilted::Rng::new(6), w, h);
-    let pair = scene.render(0);
-    let r = StereoTracker::new(TrackerParams::default())
-        .process(&pair.left, &pair.right)
-        .unwrap();
-    let iou = tilted::left_iou(&pair, &r);
+    let iou = first_iou(&scene);
     assert!(iou >= 0.955, "IoU {iou:.3}");
 }
 
@@ -254,11 +256,7 @@ fn a_dark_grain_over_a_flat_substrate_is_found_with_its_whole_rim() {
 #[test]
 fn a_dark_grain_whose_rim_outruns_the_reach_is_found_with_it() {
     let scene = tilted::scene(Class::DarkGrain, 10, 1);
-    let pair = scene.render(0);
-    let r = StereoTracker::new(TrackerParams::default())
-        .process(&pair.left, &pair.right)
-        .unwrap();
-    let iou = tilted::left_iou(&pair, &r);
+    let iou = first_iou(&scene);
     assert!(iou >= 0.93, "IoU {iou:.3}");
 }
 

@@ -324,6 +324,33 @@ mod tests {
         GrayFrame::new(w, h, 8, data).unwrap()
     }
 
+    /// A 200 x 200 frame whose brightness at distance `r` from (100, 100),
+    /// at `degrees` (image coordinates, y down), is `value(r, degrees)`,
+    /// anti-aliased by 4x4 supersampling.
+    fn radial(value: impl Fn(f64, f64) -> f64) -> GrayFrame {
+        let data = (0..200u32 * 200)
+            .map(|i| {
+                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
+                crate::imageio::pixel_mean(x, y, |px, py| {
+                    let (dx, dy) = (px - 100.0, py - 100.0);
+                    value(dx.hypot(dy), dy.atan2(dx).to_degrees())
+                })
+                .round() as u16
+            })
+            .collect();
+        GrayFrame::new(200, 200, 8, data).unwrap()
+    }
+
+    /// A dark grain's steep side: the core (60) brightens linearly from
+    /// radius 30 to a rim of 200 at `edge`, on a substrate of 140.
+    fn ramp(r: f64, edge: f64) -> f64 {
+        if r > edge {
+            140.0
+        } else {
+            60.0 + 140.0 * ((r - 30.0) / (edge - 30.0)).clamp(0.0, 1.0)
+        }
+    }
+
     fn mean_radius(p: &Polygon) -> f64 {
         let c = p.centroid();
         p.points
@@ -354,21 +381,7 @@ mod tests {
         // rim of 200 at the edge, on a substrate of 140 (a dark grain's
         // steep side). From radius 31 the edge is 9 px out, past a reach
         // of 8 px where the rim is still rising.
-        let data = (0..200u32 * 200)
-            .map(|i| {
-                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
-                crate::imageio::pixel_mean(x, y, |px, py| {
-                    let r = (px - 100.0).hypot(py - 100.0);
-                    if r > 40.0 {
-                        140.0
-                    } else {
-                        60.0 + 140.0 * ((r - 30.0) / 10.0).clamp(0.0, 1.0)
-                    }
-                })
-                .round() as u16
-            })
-            .collect();
-        let frame = GrayFrame::new(200, 200, 8, data).unwrap();
+        let frame = radial(|r, _| ramp(r, 40.0));
         let start = Polygon::circle([100.0, 100.0], 31.0, 96);
         let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.15).unwrap();
         let r = mean_radius(&outline);
@@ -385,25 +398,13 @@ mod tests {
         // both neighbours still rise at the reach and are measured again
         // out to twice as far. Left alone, its outline stayed at radius 31,
         // a notch 13 px deep.
-        let data = (0..200u32 * 200)
-            .map(|i| {
-                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
-                crate::imageio::pixel_mean(x, y, |px, py| {
-                    let (dx, dy) = (px - 100.0, py - 100.0);
-                    let r = dx.hypot(dy);
-                    let degrees = dy.atan2(dx).to_degrees();
-                    if r > 44.0 {
-                        140.0
-                    } else if (35.0..37.0).contains(&r) && (3.0..27.0).contains(&degrees) {
-                        215.0
-                    } else {
-                        60.0 + 140.0 * ((r - 30.0) / 14.0).clamp(0.0, 1.0)
-                    }
-                })
-                .round() as u16
-            })
-            .collect();
-        let frame = GrayFrame::new(200, 200, 8, data).unwrap();
+        let frame = radial(|r, degrees| {
+            if (35.0..37.0).contains(&r) && (3.0..27.0).contains(&degrees) {
+                215.0
+            } else {
+                ramp(r, 44.0)
+            }
+        });
         let start = Polygon::circle([100.0, 100.0], 31.0, 96);
         let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.3).unwrap();
         for (i, p) in outline.points.iter().enumerate().take(8).skip(1) {
@@ -422,30 +423,15 @@ mod tests {
         // twice the 8-px reach from radius 31 the profile never falls back,
         // and those sectors take the growth of the sectors beside them
         // instead of none.
-        let data = (0..200u32 * 200)
-            .map(|i| {
-                let (x, y) = ((i % 200) as f64, (i / 200) as f64);
-                crate::imageio::pixel_mean(x, y, |px, py| {
-                    let (dx, dy) = (px - 100.0, py - 100.0);
-                    let r = dx.hypot(dy);
-                    let degrees = dy.atan2(dx).to_degrees();
-                    let swell = (std::f64::consts::PI * degrees / 120.0).sin().powi(2);
-                    let edge = 44.0
-                        + if (0.0..120.0).contains(&degrees) {
-                            16.0 * swell
-                        } else {
-                            0.0
-                        };
-                    if r > edge {
-                        140.0
-                    } else {
-                        60.0 + 140.0 * ((r - 30.0) / (edge - 30.0)).clamp(0.0, 1.0)
-                    }
-                })
-                .round() as u16
-            })
-            .collect();
-        let frame = GrayFrame::new(200, 200, 8, data).unwrap();
+        let frame = radial(|r, degrees| {
+            let swell = (std::f64::consts::PI * degrees / 120.0).sin().powi(2);
+            let edge = if (0.0..120.0).contains(&degrees) {
+                44.0 + 16.0 * swell
+            } else {
+                44.0
+            };
+            ramp(r, edge)
+        });
         let start = Polygon::circle([100.0, 100.0], 31.0, 96);
         let Grown { outline, .. } = grow_over_rim(&frame, &start, 8.0, 0.15).unwrap();
         // Without: radius 31 from 45 to 75 degrees (vertices 12-20).
