@@ -238,7 +238,7 @@ fn a_patch_of_shaded_substrate_is_not_taken_for_the_object() {
 /// 16 and 19 px. Left on the dark core there, its outline had a notch (IoU
 /// 0.938), and over 20 pairs the grain was `uncertain` 9 times and
 /// `tracked` 2.1-2.6 px off in disparity 3 times, its standard error
-/// 1-3 px. The lone sector takes its neighbours' growth: 0.968.
+/// 1-3 px. That sector now takes its neighbours' growth: 0.968.
 #[test]
 fn a_dark_grain_over_a_flat_substrate_is_found_with_its_whole_rim() {
     let mut scene = tilted::scene(Class::DarkGrain, 6, 1);
