@@ -56,8 +56,9 @@ pub(super) struct Grown {
 /// A sector whose rim still rises at `max_px`, or does not fall back
 /// within it, is measured again out to [`FAR_REACH`] times as far (a large
 /// grain's steep side can show a rim 15 px wide, and the substrate band
-/// then lay on it). A lone sector left without a rim between two grown by
-/// more than half of `max_px` takes their mean. `None` when no sector has
+/// then lay on it); one whose rim still rises there takes the growth of
+/// its measured neighbours. A lone sector left without a rim between two
+/// grown by more than half of `max_px` takes their mean. `None` when no sector has
 /// such a rim, when every sector's bands leave the image, or when the
 /// outline is too small to offset.
 pub(super) fn grow_over_rim(
@@ -105,9 +106,9 @@ pub(super) fn grow_over_rim(
     } else {
         near
     };
-    // A sector whose rim does not fall back within reach keeps no growth;
-    // one not measured takes the mean of the nearest measured sector on
-    // either side.
+    // A sector not measured takes the mean of the nearest measured sector
+    // on either side (no sector is left unfinished here: the second pass
+    // settled them all).
     let value = |g: Sector| match g {
         Sector::Grown(v) => Some(v),
         Sector::Unfinished => Some(0.0),
