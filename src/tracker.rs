@@ -65,7 +65,11 @@ pub const REFUSED_INITS: u32 = 3;
 /// pair seeks its template: no pair of the run verified those moves, and a
 /// left centroid 3 px off is a confident wrong answer once a pair is
 /// `tracked` again (a rod under a bright bar along it slid 4.3 px along its
-/// axis over five such pairs, the next one `tracked`).
+/// axis over five such pairs, the next one `tracked`). A fit's move that
+/// the tracker did not follow counts too: the prediction it kept instead
+/// is no better verified (a needle's tip over a grain, its fits stopped
+/// 5-10 px short on three pairs, the prediction carried on past the
+/// needle's reversal, and the next pair was `tracked` 35 px off).
 pub const MAX_UNVERIFIED_MOVE_PX: f64 = 3.0;
 
 /// Reason of a tracked pair whose object was found again by its template
@@ -1627,6 +1631,9 @@ impl StereoTracker {
                 None
             };
             if let Some(back) = given_back {
+                // The move not followed is not verified either: the run of
+                // uncertain pairs counts it (see MAX_UNVERIFIED_MOVE_PX).
+                candidate.unverified_move_px += back.abs();
                 for pose in [&mut candidate.left, &mut candidate.right] {
                     pose.x -= back * w[0];
                     pose.y -= back * w[1];
@@ -2309,8 +2316,11 @@ impl StereoTracker {
     /// (`reference`: that pair's sector contrasts in this view): no sector
     /// hidden (its inside changed), at most [`REACQUIRE_OCCLUDED_FRACTION`]
     /// of them with a changed contrast, the median sector within 0.7-1.43
-    /// of its first contrast, and its grey against its surroundings within
-    /// [`MIN_GREY_CHANGE`] of its first. With more of it changed, a slender
+    /// of its first contrast, its grey against its surroundings within
+    /// [`MIN_GREY_CHANGE`] of its first, and the sectors that keep their
+    /// contrast fixing its position in its weakest direction with at least
+    /// [`MIN_FIXED_SHARE`] of the information all seen ones give. With more
+    /// of it changed, a slender
     /// object slid along its axis, or something like it, matches as well (a
     /// rod under a bar was taken again 10 px along its axis in one view
     /// only, 1.3 px of disparity off); the object is sought again on the
@@ -2333,7 +2343,29 @@ impl StereoTracker {
         // Sectors before a new backdrop (judged by their inner bands) do
         // not count against it, while most of the outline keeps its
         // contrast.
-        !judged.hidden.contains(&true)
+        // What keeps its contrast must still fix the position about as well
+        // as all that is seen: a border tool's shank slid along its axis
+        // matches everywhere, its tip's few sectors left out as before a new
+        // backdrop (a needle over a grain was taken again 117 px along its
+        // axis, its tip's sectors inside the shank, and `tracked` on).
+        let seen: Vec<bool> = (0..sectors.len())
+            .map(|k| {
+                !(look.contrasts.get(k).is_some_and(|c| c.is_finite())
+                    && reference
+                        .contrasts
+                        .get(k)
+                        .is_some_and(|&c| c.is_finite() && c != 0.0))
+            })
+            .collect();
+        let visible: Vec<bool> = seen
+            .iter()
+            .zip(&judged.occluded)
+            .map(|(&unseen, &occluded)| unseen || occluded)
+            .collect();
+        let fixed = uncertainty::weakest_information(&sectors.visible_arcs(pose, &visible))
+            >= MIN_FIXED_SHARE * uncertainty::weakest_information(&sectors.visible_arcs(pose, &seen));
+        fixed
+            && !judged.hidden.contains(&true)
             && fraction(&judged.occluded) <= REACQUIRE_OCCLUDED_FRACTION.min(occlusion.max_occluded_fraction)
             && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
             && grey_change(reference, &look)
@@ -2958,6 +2990,12 @@ const MIN_GREY_CHANGE: f64 = 0.8;
 /// view beside the bar, was refused at 0.38-0.5 with a limit of 0.25, and
 /// lost for the rest of its run.
 const REACQUIRE_OCCLUDED_FRACTION: f64 = 0.4;
+
+/// Least share of the information on the weakest direction of what is
+/// seen of the outline that the sectors keeping their contrast must carry
+/// for a template found by search to show the object: its position's
+/// standard error in that direction at most doubled.
+const MIN_FIXED_SHARE: f64 = 0.25;
 
 /// How many of the lowest local minima of the template's energy over the
 /// image the search after a loss fits: the first count, then up to the

@@ -263,6 +263,16 @@ pub fn weakest_direction_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
     }
 }
 
+/// How well the `arcs` fix a position in their weakest direction: the
+/// smallest eigenvalue of their geometric information matrix (see
+/// [`weakest_direction_factor`]), pixels of outline; 0 for one straight
+/// edge or none. Its ratio for two sets of arcs is the inverse ratio of
+/// the weakest direction's variances under the same noise.
+pub fn weakest_information(arcs: &[Vec<Point>]) -> f64 {
+    let [lambda_min, _] = symmetric_eigenvalues(information_matrix(arcs));
+    lambda_min.max(0.0)
+}
+
 /// The direction in which the `arcs` fix a position least well: the unit
 /// eigenvector of the smallest eigenvalue of their geometric information
 /// matrix (see [`weakest_direction_factor`]).
@@ -372,6 +382,27 @@ pub fn axis_std(energy: impl Fn(f64) -> f64, m_ref: f64, means: [f64; 2], s: f64
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_slender_outline_without_its_ends_fixes_no_position_along_it() {
+        // A needle's outline: two long sides and a tip cone at x = 60..70.
+        let upper = vec![[0.0, -5.0], [60.0, -5.0]];
+        let cone = vec![[60.0, -5.0], [70.0, 0.0], [60.0, 5.0]];
+        let lower = vec![[60.0, 5.0], [0.0, 5.0]];
+        let whole = weakest_information(&[upper.clone(), cone, lower.clone()]);
+        // The cone's sides, 11.2 px each, with n_x^2 = 0.2 of their length.
+        assert!((whole - 2.0 * 125f64.sqrt() * 0.2).abs() < 1e-9, "{whole}");
+        assert_eq!(weakest_information(&[upper, lower]), 0.0);
+        // A circle of radius r: pi r in every direction.
+        let circle: Vec<Point> = (0..=256)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 256.0;
+                [10.0 * a.cos(), 10.0 * a.sin()]
+            })
+            .collect();
+        let pi_r = 10.0 * std::f64::consts::PI;
+        assert!((weakest_information(&[circle]) - pi_r).abs() < 0.01 * pi_r);
+    }
 
     #[test]
     fn an_arc_of_a_circle_fixes_no_rotation_and_a_straight_edge_does() {

@@ -260,6 +260,28 @@ fn a_dark_grain_whose_rim_outruns_the_reach_is_found_with_it() {
     assert!(iou >= 0.93, "IoU {iou:.3}");
 }
 
+/// The needle of the crossed scene as the object, found with a `roi`
+/// hint and tracked over `pairs`: per tracked pair, its index, the tip's
+/// error against the truth (carried by the contour, x and y) and the
+/// disparity's error.
+fn needle_over_grain(seed: u64, pairs: usize) -> Vec<(usize, [f64; 2], f64)> {
+    let scene = tilted::scene(Class::CrossedTool, seed, pairs);
+    let mut params = TrackerParams::default();
+    params.init.roi = Some(scene.render(0).roi_hint());
+    let mut tracker = StereoTracker::new(params);
+    let mut reference = tilted::ReferencePoint::new(Class::CrossedTool);
+    let mut tracked = Vec::new();
+    for k in 0..pairs {
+        let pair = scene.render(k);
+        let r = tracker.process(&pair.left, &pair.right).unwrap();
+        if matches!(r.status, Status::Tracked | Status::Initialised) {
+            let tip = reference.error(&pair, &r);
+            tracked.push((k, tip, r.disparity_px.unwrap()[0] - pair.disparity_px));
+        }
+    }
+    tracked
+}
+
 /// The needle of the crossed scene as the object (seed 8, looked at while
 /// the rule was made): it comes down 12 px per pair along its axis until
 /// its tip lies over the grain, as bright as itself, then goes back. Its
@@ -274,26 +296,74 @@ fn a_dark_grain_whose_rim_outruns_the_reach_is_found_with_it() {
 #[test]
 fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
     let pairs = 20;
-    let scene = tilted::scene(Class::CrossedTool, 8, pairs);
-    let mut params = TrackerParams::default();
-    params.init.roi = Some(scene.render(0).roi_hint());
-    let mut tracker = StereoTracker::new(params);
-    let mut reference = tilted::ReferencePoint::new(Class::CrossedTool);
-    let (mut tips, mut ds) = (Vec::new(), Vec::new());
-    for k in 0..pairs {
-        let pair = scene.render(k);
-        let r = tracker.process(&pair.left, &pair.right).unwrap();
-        if !matches!(r.status, Status::Tracked | Status::Initialised) {
-            continue;
-        }
-        let e = reference.error(&pair, &r);
-        tips.push((k, e[0].hypot(e[1])));
-        ds.push((k, r.disparity_px.unwrap()[0] - pair.disparity_px));
-    }
-    assert!(tips.len() >= 6, "only {} of {pairs} pairs tracked", tips.len());
-    let off: Vec<_> = tips.iter().filter(|(_, e)| *e > 3.0).collect();
+    let tracked = needle_over_grain(8, pairs);
+    assert!(
+        tracked.len() >= 6,
+        "only {} of {pairs} pairs tracked",
+        tracked.len()
+    );
+    let off: Vec<_> = tracked
+        .iter()
+        .map(|(k, e, _)| (k, e[0].hypot(e[1])))
+        .filter(|(_, e)| *e > 3.0)
+        .collect();
     assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
-    let md = median(&ds.iter().map(|d| d.1).collect::<Vec<_>>());
-    let wrong: Vec<_> = ds.iter().filter(|(_, d)| (d - md).abs() > 1.0).collect();
+    let md = median(&tracked.iter().map(|t| t.2).collect::<Vec<_>>());
+    let wrong: Vec<_> = tracked.iter().filter(|(_, _, d)| (d - md).abs() > 1.0).collect();
     assert!(wrong.is_empty(), "disparity off by more than 1 px: {wrong:.2?}");
+}
+
+/// The same scene, seed 7 (looked at while the rule was made): lost with
+/// its tip over the grain, the needle's template was sought over the image
+/// and taken again where its shank matched, its tip's sectors inside the
+/// shank and left out as before a new backdrop, and `tracked` with the tip
+/// 10.5 px off. A template found by search must now fix its position with
+/// what keeps its contrast. No tracked pair may put the tip more than 3
+/// px from the truth (measured: 1.4 px at most, 11 of 20 pairs tracked).
+#[test]
+fn a_needle_lost_over_a_grain_is_not_found_again_along_its_shank() {
+    let pairs = 20;
+    let tracked = needle_over_grain(7, pairs);
+    assert!(
+        tracked.len() >= 6,
+        "only {} of {pairs} pairs tracked",
+        tracked.len()
+    );
+    let off: Vec<_> = tracked
+        .iter()
+        .map(|(k, e, _)| (k, e[0].hypot(e[1])))
+        .filter(|(_, e)| *e > 3.0)
+        .collect();
+    assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
+}
+
+/// The same scene, seed 4 (looked at while the rule was made): over the
+/// grain the needle's contour stopped short of its tip on pairs 5-6 and
+/// 8-10, each move not followed; the constant-velocity prediction ran on
+/// past the needle's reversal, and pairs 7 and 11 were `tracked` with the
+/// tip 8 and 35 px off, the last on the grain's edge. The moves not
+/// followed now count towards the run's unverified moves, and the needle
+/// is lost and sought instead. No tracked pair may put the tip more than 3
+/// px from the truth after the sequence's median offset (measured: 2.0 px
+/// at most, 6 of 20 pairs tracked). Still off, and listed here: pair 4, its tip touching the
+/// grain, is `tracked` 1.4 px off in disparity at a reported 0.23 px.
+#[test]
+fn a_needle_whose_moves_over_a_grain_are_not_followed_is_lost_not_taken_elsewhere() {
+    let pairs = 20;
+    let tracked = needle_over_grain(4, pairs);
+    assert!(
+        tracked.len() >= 4,
+        "only {} of {pairs} pairs tracked",
+        tracked.len()
+    );
+    let m = [
+        median(&tracked.iter().map(|t| t.1[0]).collect::<Vec<_>>()),
+        median(&tracked.iter().map(|t| t.1[1]).collect::<Vec<_>>()),
+    ];
+    let off: Vec<_> = tracked
+        .iter()
+        .map(|(k, e, _)| (k, (e[0] - m[0]).hypot(e[1] - m[1])))
+        .filter(|(_, e)| *e > 3.0)
+        .collect();
+    assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
 }
