@@ -282,6 +282,31 @@ fn needle_over_grain(seed: u64, pairs: usize) -> Vec<(usize, [f64; 2], f64)> {
     tracked
 }
 
+/// Asserts that at least `min_tracked` of `tracked` (from
+/// [`needle_over_grain`]) have numbers and that none puts the tip more
+/// than 3 px from the truth, after the median offset when `centred`.
+fn assert_tip_held(tracked: &[(usize, [f64; 2], f64)], min_tracked: usize, centred: bool) {
+    assert!(
+        tracked.len() >= min_tracked,
+        "only {} pairs tracked",
+        tracked.len()
+    );
+    let m = if centred {
+        [
+            median(&tracked.iter().map(|t| t.1[0]).collect::<Vec<_>>()),
+            median(&tracked.iter().map(|t| t.1[1]).collect::<Vec<_>>()),
+        ]
+    } else {
+        [0.0; 2]
+    };
+    let off: Vec<_> = tracked
+        .iter()
+        .map(|(k, e, _)| (k, (e[0] - m[0]).hypot(e[1] - m[1])))
+        .filter(|(_, e)| *e > 3.0)
+        .collect();
+    assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
+}
+
 /// The needle of the crossed scene as the object (seed 8, looked at while
 /// the rule was made): it comes down 12 px per pair along its axis until
 /// its tip lies over the grain, as bright as itself, then goes back. Its
@@ -295,19 +320,8 @@ fn needle_over_grain(seed: u64, pairs: usize) -> Vec<(usize, [f64; 2], f64)> {
 /// `uncertain`).
 #[test]
 fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
-    let pairs = 20;
-    let tracked = needle_over_grain(8, pairs);
-    assert!(
-        tracked.len() >= 6,
-        "only {} of {pairs} pairs tracked",
-        tracked.len()
-    );
-    let off: Vec<_> = tracked
-        .iter()
-        .map(|(k, e, _)| (k, e[0].hypot(e[1])))
-        .filter(|(_, e)| *e > 3.0)
-        .collect();
-    assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
+    let tracked = needle_over_grain(8, 20);
+    assert_tip_held(&tracked, 6, false);
     let md = median(&tracked.iter().map(|t| t.2).collect::<Vec<_>>());
     let wrong: Vec<_> = tracked.iter().filter(|(_, _, d)| (d - md).abs() > 1.0).collect();
     assert!(wrong.is_empty(), "disparity off by more than 1 px: {wrong:.2?}");
@@ -322,19 +336,7 @@ fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
 /// px from the truth (measured: 1.4 px at most, 11 of 20 pairs tracked).
 #[test]
 fn a_needle_lost_over_a_grain_is_not_found_again_along_its_shank() {
-    let pairs = 20;
-    let tracked = needle_over_grain(7, pairs);
-    assert!(
-        tracked.len() >= 6,
-        "only {} of {pairs} pairs tracked",
-        tracked.len()
-    );
-    let off: Vec<_> = tracked
-        .iter()
-        .map(|(k, e, _)| (k, e[0].hypot(e[1])))
-        .filter(|(_, e)| *e > 3.0)
-        .collect();
-    assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
+    assert_tip_held(&needle_over_grain(7, 20), 6, false);
 }
 
 /// The same scene, seed 4 (looked at while the rule was made): over the
@@ -349,21 +351,5 @@ fn a_needle_lost_over_a_grain_is_not_found_again_along_its_shank() {
 /// grain, is `tracked` 1.4 px off in disparity at a reported 0.23 px.
 #[test]
 fn a_needle_whose_moves_over_a_grain_are_not_followed_is_lost_not_taken_elsewhere() {
-    let pairs = 20;
-    let tracked = needle_over_grain(4, pairs);
-    assert!(
-        tracked.len() >= 4,
-        "only {} of {pairs} pairs tracked",
-        tracked.len()
-    );
-    let m = [
-        median(&tracked.iter().map(|t| t.1[0]).collect::<Vec<_>>()),
-        median(&tracked.iter().map(|t| t.1[1]).collect::<Vec<_>>()),
-    ];
-    let off: Vec<_> = tracked
-        .iter()
-        .map(|(k, e, _)| (k, (e[0] - m[0]).hypot(e[1] - m[1])))
-        .filter(|(_, e)| *e > 3.0)
-        .collect();
-    assert!(off.is_empty(), "tip off by more than 3 px: {off:.1?}");
+    assert_tip_held(&needle_over_grain(4, 20), 4, true);
 }
