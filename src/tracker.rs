@@ -2359,9 +2359,6 @@ impl StereoTracker {
             occlusion.min_contrast_ratio,
             occlusion.max_contrast_ratio,
         );
-        // Sectors before a new backdrop (judged by their inner bands) do
-        // not count against it, while most of the outline keeps its
-        // contrast.
         // What keeps its contrast must still fix the position about as well
         // as all that is seen: a border tool's shank slid along its axis
         // matches everywhere, its tip's few sectors left out as before a new
@@ -2381,6 +2378,9 @@ impl StereoTracker {
             .zip(&judged.occluded)
             .map(|(&unseen, &occluded)| unseen || occluded)
             .collect();
+        // Sectors before a new backdrop (judged by their inner bands) do
+        // not count against it, while most of the outline keeps its
+        // contrast.
         fixed_share(sectors, pose, &unseen, &left_out) >= MIN_FIXED_SHARE
             && !judged.hidden.contains(&true)
             && fraction(&judged.occluded) <= REACQUIRE_OCCLUDED_FRACTION.min(occlusion.max_occluded_fraction)
@@ -3058,7 +3058,6 @@ fn masked_fit(
     }
 }
 
-/// Fraction of true marks.
 /// The share of the information on the weakest direction of the
 /// sectors seen (not marked in `unseen`) that those not `left_out` keep:
 /// `lambda_min` of their geometric information matrices
@@ -3077,6 +3076,7 @@ fn fixed_share(sectors: &SectorTemplate, pose: Pose, unseen: &[bool], left_out: 
     (uncertainty::weakest_information(&sectors.visible_arcs(pose, left_out)) / seen).min(1.0)
 }
 
+/// Fraction of true marks.
 fn fraction(marks: &[bool]) -> f64 {
     if marks.is_empty() {
         0.0

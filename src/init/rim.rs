@@ -97,8 +97,7 @@ pub(super) fn grow_over_rim(
             .enumerate()
             .map(|(k, &g)| match (g, far.as_ref().map(|f| f[k])) {
                 (Sector::Unfinished, Some(Sector::Grown(f))) if f > 0.5 * max_px => Sector::Grown(f),
-                (Sector::Unfinished, Some(Sector::Unfinished)) => Sector::Unmeasured,
-                (Sector::Grown(0.0), Some(Sector::Unfinished)) => Sector::Unmeasured,
+                (Sector::Unfinished | Sector::Grown(0.0), Some(Sector::Unfinished)) => Sector::Unmeasured,
                 (Sector::Unfinished, _) => Sector::Grown(0.0),
                 (g, _) => g,
             })
