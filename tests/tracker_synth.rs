@@ -1343,15 +1343,21 @@ fn a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed() {
         frames: 20,
         ..SynthConfig::preset(Preset::Combined, Shape::Rod, 118)
     };
-    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
+    assert_caught_and_said(&config, "from its predictions");
+}
+
+/// Tracks `config` without hints and asserts that no pair is confident
+/// wrong and that some pair without numbers has a reason containing `says`.
+fn assert_caught_and_said(config: &SynthConfig, says: &str) {
+    let (errors, centroids, reasons) = errors_and_reasons(config, TrackerParams::default());
     assert_eq!(
         confident_wrong(&errors, &centroids),
         0,
         "confident wrong pairs (untracked: {reasons:#?})"
     );
     assert!(
-        reasons.iter().any(|r| r.contains("from its predictions")),
-        "no run of uncertain pairs ended: {reasons:#?}"
+        reasons.iter().any(|r| r.contains(says)),
+        "no pair without numbers says {says:?}: {reasons:#?}"
     );
 }
 
@@ -1370,16 +1376,7 @@ fn a_position_held_only_by_the_ends_of_what_is_left_out_is_not_tracked() {
         frames: 30,
         ..SynthConfig::preset(Preset::Occluded, Shape::Rod, 2001)
     };
-    let (errors, centroids, reasons) = errors_and_reasons(&config, TrackerParams::default());
-    assert_eq!(
-        confident_wrong(&errors, &centroids),
-        0,
-        "confident wrong pairs (untracked: {reasons:#?})"
-    );
-    assert!(
-        reasons.iter().any(|r| r.contains("weakest direction")),
-        "no pair says what fixes too little: {reasons:#?}"
-    );
+    assert_caught_and_said(&config, "weakest direction");
 }
 
 /// Issue #17: an object found afresh after a loss sets no looser limit on
