@@ -36,26 +36,6 @@ fn median(v: &[f64]) -> f64 {
     }
 }
 
-/// The mask's pixel nearest its centroid.
-fn point_of(mask: &[bool], w: usize) -> [f64; 2] {
-    let pts: Vec<[f64; 2]> = (0..mask.len())
-        .filter(|&i| mask[i])
-        .map(|i| [(i % w) as f64 + 0.5, (i / w) as f64 + 0.5])
-        .collect();
-    let n = pts.len() as f64;
-    let c = [
-        pts.iter().map(|p| p[0]).sum::<f64>() / n,
-        pts.iter().map(|p| p[1]).sum::<f64>() / n,
-    ];
-    *pts.iter()
-        .min_by(|a, b| {
-            (a[0] - c[0])
-                .hypot(a[1] - c[1])
-                .total_cmp(&(b[0] - c[0]).hypot(b[1] - c[1]))
-        })
-        .unwrap()
-}
-
 /// Writes a sequence for `tools/ncc_baseline.py --sequences`.
 fn save(root: &str, class: Class, seed: u64, pairs: &[TiltedPair]) {
     let dir = format!("{root}/{}/{}_{seed}", class.name(), class.name());
@@ -117,7 +97,7 @@ fn main() {
             let mut params = TrackerParams::default();
             match hint.as_deref() {
                 Some("roi") => params.init.roi = Some(rendered[0].roi_hint()),
-                Some("point") => params.init.point = Some(point_of(&rendered[0].left_mask, w)),
+                Some("point") => params.init.point = Some(rendered[0].point_hint()),
                 _ => {}
             }
             let params_copy = params.init.clone();
@@ -125,6 +105,17 @@ fn main() {
             let mut reference = tilted::ReferencePoint::new(class);
             let (mut ds, mut cs, mut stds, mut frames_ok) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for (k, pair) in rendered.iter().enumerate() {
+                if std::env::var("PROBE").is_ok_and(|v| v.split(',').any(|f| f == k.to_string())) {
+                    let init = semdepth::init::initialise(&pair.left, &params_copy);
+                    eprintln!("PROBE pair {k}: hint {:?}", params_copy.point);
+                    match init {
+                        Ok(r) => eprintln!(
+                            "  area {:.0} bbox {:?} source {:?} border {:?} score {:?}\n  diag {:?}",
+                            r.area_px, r.bbox, r.source, r.border, r.score, r.diagnostics
+                        ),
+                        Err(e) => eprintln!("  error {e}"),
+                    }
+                }
                 let r = tracker.process(&pair.left, &pair.right).unwrap();
                 pairs += 1;
                 if k == 0 {

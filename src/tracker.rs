@@ -53,6 +53,12 @@ pub const REACQUIRE_PAIRS: u32 = 10;
 /// and the lost template is sought again. See [`REFUSED_INITS`].
 pub const MIN_SPREAD_RATIO: f64 = 0.85;
 
+/// Least ratio of a lost template's principal spreads (along over across)
+/// for it to count as a tool whose width is compared with a fresh one's
+/// when it is cut by the image border (see [`MIN_SPREAD_RATIO`]): a needle
+/// has 20 or more, a disc cut in half by the border less than 2.
+pub const ELONGATED: f64 = 4.0;
+
 /// Fresh initialisations after a loss refused as unlike the lost object
 /// (see [`MIN_SPREAD_RATIO`]) before the next one is taken as it is: an
 /// object changed beyond recognition for that long is the object as it is
@@ -912,8 +918,12 @@ impl StereoTracker {
     /// After a loss, a fresh template unlike the lost one (a principal
     /// spread off by more than [`MIN_SPREAD_RATIO`]) is refused, up to
     /// [`REFUSED_INITS`] times: the reason of the lost pair, the state set
-    /// to seek the lost template again. A lost object cut by the image
-    /// border is not compared (its visible part changes as it moves); a
+    /// to seek the lost template again. Of a lost object cut by the image
+    /// border only a tool's width is compared (a spread across it at most
+    /// [`ELONGATED`] times smaller than along it): the visible part of a
+    /// tool changes in length as it moves in or out, not in width (a
+    /// needle lost with its tip over a grain was found afresh as needle
+    /// and grain together, 5 px off in disparity, `tracked`); a
     /// fresh one cut by the border, where the lost one was whole, is
     /// refused only when it is larger than the lost object (a spread over
     /// `1 / MIN_SPREAD_RATIO` times its), as the part of it the frame
@@ -923,14 +933,23 @@ impl StereoTracker {
     /// `initialised`).
     fn refuse_unlike_lost(&mut self, template: &RigidTemplate) -> Option<String> {
         let state = self.state.as_mut().filter(|s| s.lost)?;
-        if state.refused_inits >= REFUSED_INITS || !state.template_cuts.is_empty() {
+        if state.refused_inits >= REFUSED_INITS {
             return None;
         }
         let [new_long, new_short] = Polygon::new(template.points.clone()).principal_spreads();
         let [old_long, old_short] = Polygon::new(state.template.clone()).principal_spreads();
         // A fresh spread at most 1 / MIN_SPREAD_RATIO times the lost one's.
         let within = |a: f64, b: f64| MIN_SPREAD_RATIO * a <= b;
-        let (fits, what, why) = if template.cuts.is_empty() {
+        let (fits, what, why) = if !state.template_cuts.is_empty() {
+            if old_long < ELONGATED * old_short {
+                return None;
+            }
+            (
+                within(new_short, old_short) && within(old_short, new_short),
+                "not as wide as the lost tool cut by the image border",
+                "another object, or the tool merged with one",
+            )
+        } else if template.cuts.is_empty() {
             (
                 within(new_long, old_long)
                     && within(old_long, new_long)

@@ -387,6 +387,25 @@ impl TiltedPair {
             ((y1 - y0) as f64 + 2.0 * gy).ceil() as i64 + 1,
         ]
     }
+
+    /// A `point` hint: the centre of body 0's left mask's pixel nearest
+    /// its centroid, where a person clicks.
+    pub fn point_hint(&self) -> [f64; 2] {
+        let w = self.left.width as usize;
+        let pts: Vec<[f64; 2]> = (0..self.left_mask.len())
+            .filter(|&i| self.left_mask[i])
+            .map(|i| [(i % w) as f64 + 0.5, (i / w) as f64 + 0.5])
+            .collect();
+        let n = pts.len() as f64;
+        let c = [
+            pts.iter().map(|p| p[0]).sum::<f64>() / n,
+            pts.iter().map(|p| p[1]).sum::<f64>() / n,
+        ];
+        let d = |p: &[f64; 2]| (p[0] - c[0]).hypot(p[1] - c[1]);
+        *pts.iter()
+            .min_by(|a, b| d(a).total_cmp(&d(b)))
+            .expect("body 0 is in view")
+    }
 }
 
 /// Label of the substrate in the bins.
