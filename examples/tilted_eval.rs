@@ -5,7 +5,7 @@
 //! Env: `ONLY=grain,needle` picks classes, `SEED0=100` the first seed,
 //! `HINT=roi|point` gives the first pair's object as a hint, `FRAMES_OUT=1`
 //! prints every pair, `DUMP=dir` writes the first left image with the
-//! first contour (red) and every pair's left view of the first seed,
+//! first contour (red) and every pair's two views of the first seed,
 //! `SAVE=dir` writes every sequence as `dir/CLASS/CLASS_SEED/` with
 //! `NNNN_left.png`, `NNNN_right.png` and a `truth.json` that
 //! `tools/ncc_baseline.py --sequences dir` reads (the truth's polygon is
@@ -141,16 +141,20 @@ fn main() {
                         }
                     }
                     if seed == seed0 || k == 0 {
-                        let contour = r.left.as_ref().map(|l| l.contour.clone());
-                        let overlays: Vec<Overlay> = contour
-                            .iter()
-                            .map(|c| Overlay {
-                                contour: c,
-                                colour: [255, 0, 0],
-                            })
-                            .collect();
-                        let png = render_png(&pair.left, None, &overlays).unwrap();
-                        std::fs::write(format!("{dir}/{}_{seed}_{k:02}.png", class.name()), png).unwrap();
+                        let views = [("", &pair.left, &r.left), ("_right", &pair.right, &r.right)];
+                        for (suffix, image, fit) in views {
+                            let contour = fit.as_ref().map(|l| l.contour.clone());
+                            let overlays: Vec<Overlay> = contour
+                                .iter()
+                                .map(|c| Overlay {
+                                    contour: c,
+                                    colour: [255, 0, 0],
+                                })
+                                .collect();
+                            let png = render_png(image, None, &overlays).unwrap();
+                            let name = format!("{dir}/{}_{seed}_{k:02}{suffix}.png", class.name());
+                            std::fs::write(name, png).unwrap();
+                        }
                     }
                 }
                 if !matches!(r.status, Status::Tracked | Status::Initialised) {
