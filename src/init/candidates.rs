@@ -39,6 +39,14 @@ use super::{FloatImage, Polarity};
 /// working pixels.
 const EDGE_BAND: u8 = 2;
 
+/// How far from a candidate's outline its edge is sought, working pixels
+/// inwards and outwards: a threshold component of the smoothed image
+/// reaches 2-3 px past the edge of a bright grain with an edge rim (tilted
+/// grain 200: its bands on either side of the outline both lay on the
+/// substrate, a share of 0.02, and a region running out along a scratch
+/// was taken instead).
+const EDGE_REACH: [i32; 2] = [3, 2];
+
 /// Grey levels tried per polarity.
 const LEVELS: usize = 16;
 
@@ -553,16 +561,23 @@ impl WorkArea<'_> {
     }
 
     /// How much of the region's contrast its outline shows as a step: the
-    /// mean grey of the band [`EDGE_BAND`] working pixels wide inside the
+    /// mean grey of a band [`EDGE_BAND`] working pixels wide inside the
     /// outline minus that of the band as wide outside it, over the region's
     /// mean minus the rest of its window's (as in the score), in absolute
-    /// value. About 0.6-1 on an object's edge, more with an edge rim; a
-    /// level line of a smooth gradient (a patch of shaded substrate) shows
-    /// 0.1-0.3. `None` without pixels in a band; pixels past the image
-    /// border belong to neither band.
+    /// value; the largest such share with both bands moved together up to
+    /// [`EDGE_REACH`] px inwards or outwards, as the outline need not lie
+    /// on the edge. About 0.6-1 on an object's edge, more with an edge rim;
+    /// a level line of a smooth gradient (a patch of shaded substrate)
+    /// shows 0.1-0.3 wherever the bands lie. `None` without pixels in a
+    /// band; pixels past the image border belong to no band.
     pub fn edge_share(&self, c: &Candidate) -> Option<f64> {
-        let band = EDGE_BAND;
-        let pad = band as u32 + 1;
+        let band = i32::from(EDGE_BAND);
+        let [reach_in, reach_out] = EDGE_REACH;
+        // Rings one pixel wide by distance from the outline: ring k holds
+        // the pixels -k px inside it for k < 0 and k + 1 px outside it for
+        // k >= 0, k in -inner..outer (stored at k + inner).
+        let (inner, outer) = (reach_in + band, reach_out + band);
+        let pad = outer as u32 + 1;
         let (pw, ph) = (c.width + 2 * pad, c.height + 2 * pad);
         let (iw, ih) = (self.width() as i64, self.height() as i64);
         let global = |x: u32, y: u32| {
@@ -583,35 +598,49 @@ impl WorkArea<'_> {
                 0
             }])
         });
-        let grown = dilate_disk(&padded, band);
-        let shrunk = erode_disk(&padded, band);
+        let shrunk: Vec<GrayImage> = (1..=inner as u8).map(|r| erode_disk(&padded, r)).collect();
+        let grown: Vec<GrayImage> = (1..=outer as u8).map(|r| dilate_disk(&padded, r)).collect();
         let values = self.work.as_raw();
-        let (mut n_in, mut s_in, mut n_out, mut s_out) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+        let mut rings = vec![[0.0f64; 2]; (inner + outer) as usize];
         for y in 0..ph {
             for x in 0..pw {
                 let (gx, gy) = global(x, y);
                 if gx < 0 || gy < 0 || gx >= iw || gy >= ih {
                     continue;
                 }
-                let v = values[(gy * iw + gx) as usize] as f64;
-                let m = padded.get_pixel(x, y)[0] != 0;
-                if m && shrunk.get_pixel(x, y)[0] == 0 {
-                    (n_in, s_in) = (n_in + 1.0, s_in + v);
-                } else if !m && grown.get_pixel(x, y)[0] != 0 {
-                    (n_out, s_out) = (n_out + 1.0, s_out + v);
+                let on = |image: &GrayImage| image.get_pixel(x, y)[0] != 0;
+                let ring = if on(&padded) {
+                    shrunk.iter().position(|s| !on(s)).map(|r| inner - 1 - r as i32)
+                } else {
+                    grown.iter().position(on).map(|r| inner + r as i32)
+                };
+                if let Some(k) = ring {
+                    let v = values[(gy * iw + gx) as usize] as f64;
+                    rings[k as usize][0] += 1.0;
+                    rings[k as usize][1] += v;
                 }
             }
         }
-        if n_in == 0.0 || n_out == 0.0 {
-            return None;
-        }
+        // The mean grey of the rings k0..k0 + band (k0 relative to the
+        // outline, as above).
+        let band_mean = |k0: i32| {
+            let [n, s] = (k0..k0 + band)
+                .map(|k| rings[(k + inner) as usize])
+                .fold([0.0, 0.0], |a, r| [a[0] + r[0], a[1] + r[1]]);
+            (n > 0.0).then(|| s / n)
+        };
         // The region against its window, as in the score.
         let (n_a, s_a) = self.region_sum(c);
         let (n_w, s_w) = self.table.sum(self.score_window(n_a, c.bbox()));
         let rest = (s_w - s_a) / (n_w - n_a).max(1.0);
-        let step = s_in / n_in - s_out / n_out;
         let contrast = s_a / n_a - rest;
-        (contrast != 0.0).then(|| (step / contrast).abs())
+        if contrast == 0.0 {
+            return None;
+        }
+        (-reach_in..=reach_out)
+            .filter_map(|shift| Some(band_mean(shift - band)? - band_mean(shift)?))
+            .map(|step| (step / contrast).abs())
+            .max_by(f64::total_cmp)
     }
 
     /// The score of a region of `n_a` working pixels with grey-value sum
@@ -1185,6 +1214,23 @@ mod tests {
         // 0.7 at its top to 0.3 at 60 px): 0.15-0.25 of the contrast.
         let patch = disc_edge_share(|r| (0.7 - 0.4 * r / 60.0).max(0.3) as f32);
         assert!(patch < super::super::prompted::NO_EDGE_SHARE, "patch: {patch:.2}");
+    }
+
+    #[test]
+    fn an_outline_a_few_pixels_off_the_edge_still_shows_it() {
+        // The disc of radius 20 around an object of radius 17.5 (the
+        // outline 2.5 px outside its edge, as a threshold of the smoothed
+        // image puts it) and of radius 22 (2 px inside): both see the step.
+        for edge in [17.5, 22.0] {
+            let share = disc_edge_share(|r| if r < edge { 0.6 } else { 0.4 });
+            assert!(share > 0.8, "edge at r = {edge}: {share:.2}");
+        }
+        // Nothing nearer than 5 px: the bands find no step.
+        let far = disc_edge_share(|r| if r < 14.0 { 0.6 } else { 0.4 });
+        assert!(
+            far < super::super::prompted::NO_EDGE_SHARE,
+            "edge at r = 14: {far:.2}"
+        );
     }
 
     #[test]
