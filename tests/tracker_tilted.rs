@@ -200,10 +200,7 @@ fn a_roi_gives_the_object_on_every_tilted_class() {
             let pair = scene.render(0);
             let mut params = TrackerParams::default();
             params.init.roi = Some(pair.roi_hint());
-            let r = StereoTracker::new(params)
-                .process(&pair.left, &pair.right)
-                .unwrap();
-            let iou = tilted::left_iou(&pair, &r);
+            let iou = pair_iou(&pair, params);
             assert!(iou >= 0.9, "{} seed {seed}: IoU {iou:.3}", class.name());
         }
     }
@@ -212,11 +209,16 @@ fn a_roi_gives_the_object_on_every_tilted_class() {
 /// The first left contour's IoU with the truth on `scene`'s first pair,
 /// without hints.
 fn first_iou(scene: &tilted::TiltedScene) -> f64 {
-    let pair = scene.render(0);
-    let r = StereoTracker::new(TrackerParams::default())
+    pair_iou(&scene.render(0), TrackerParams::default())
+}
+
+/// The left contour's IoU with the truth when `pair` is a tracker's first,
+/// with `params`.
+fn pair_iou(pair: &tilted::TiltedPair, params: TrackerParams) -> f64 {
+    let r = StereoTracker::new(params)
         .process(&pair.left, &pair.right)
         .unwrap();
-    tilted::left_iou(&pair, &r)
+    tilted::left_iou(pair, &r)
 }
 
 /// A grain pointed out by a click on it (seed 200, looked at while the rule
@@ -232,10 +234,7 @@ fn a_grain_whose_candidate_reaches_past_its_edge_is_not_given_up_for_a_scratch()
     let pair = scene.render(0);
     let mut params = TrackerParams::default();
     params.init.point = Some(pair.point_hint());
-    let r = StereoTracker::new(params)
-        .process(&pair.left, &pair.right)
-        .unwrap();
-    let iou = tilted::left_iou(&pair, &r);
+    let iou = pair_iou(&pair, params);
     assert!(iou >= 0.95, "IoU {iou:.3}");
 }
 
