@@ -946,7 +946,7 @@ impl StereoTracker {
             }
             (
                 within(new_short, old_short) && within(old_short, new_short),
-                "not as wide as the lost tool cut by the image border",
+                "of another width than the lost tool cut by the image border",
                 "another object, or the tool merged with one",
             )
         } else if template.cuts.is_empty() {
