@@ -1624,9 +1624,10 @@ impl StereoTracker {
             let w = left_fit.weakest_direction;
             let along =
                 (left_fit.pose.x - left_predicted.x) * w[0] + (left_fit.pose.y - left_predicted.y) * w[1];
+            let loose = position_std > MAX_POSITION_STD_PX;
             let unfixed = left_fit.fixed_share < MIN_HELD_SHARE;
-            let given_back = if position_std > MAX_POSITION_STD_PX || unfixed {
-                result.mark_lost(if position_std > MAX_POSITION_STD_PX {
+            let given_back = if loose || unfixed {
+                result.mark_lost(if loose {
                     format!(
                         "{UNCERTAIN}: what is visible of the left outline fixes the object's position only to {position_std:.1} px in one direction (limit {MAX_POSITION_STD_PX} px){GOES_ON}"
                     )
@@ -1750,11 +1751,7 @@ impl StereoTracker {
                 .map(Option::is_none)
                 .collect()
         };
-        let left_out: Vec<bool> = unseen
-            .iter()
-            .enumerate()
-            .map(|(k, &u)| u || fit.occluded.get(k).copied().unwrap_or(false))
-            .collect();
+        let left_out = either(&unseen, &fit.occluded);
         let arcs = sectors.visible_arcs(pose, &left_out);
         let weakest = (
             uncertainty::weakest_direction_factor(&arcs, u),
@@ -2392,16 +2389,12 @@ impl StereoTracker {
                         .is_some_and(|&c| c.is_finite() && c != 0.0))
             })
             .collect();
-        let left_out: Vec<bool> = unseen
-            .iter()
-            .zip(&judged.occluded)
-            .map(|(&unseen, &occluded)| unseen || occluded)
-            .collect();
-        // Sectors before a new backdrop (judged by their inner bands) do
-        // not count against it, while most of the outline keeps its
-        // contrast.
+        let left_out = either(&unseen, &judged.occluded);
         fixed_share(sectors, pose, &unseen, &left_out) >= MIN_FIXED_SHARE
             && !judged.hidden.contains(&true)
+            // Sectors before a new backdrop (judged by their inner bands)
+            // do not count against it, while most of the outline keeps its
+            // contrast.
             && fraction(&judged.occluded) <= REACQUIRE_OCCLUDED_FRACTION.min(occlusion.max_occluded_fraction)
             && (0.7..=1.0 / 0.7).contains(&judged.median_ratio)
             && grey_change(reference, &look)
@@ -3093,6 +3086,16 @@ fn fixed_share(sectors: &SectorTemplate, pose: Pose, unseen: &[bool], left_out: 
         return 1.0;
     }
     (uncertainty::weakest_information(&sectors.visible_arcs(pose, left_out)) / seen).min(1.0)
+}
+
+/// Per sector of `marks`, whether it or the same sector of `more` is
+/// marked (a sector past the end of `more` is not).
+fn either(marks: &[bool], more: &[bool]) -> Vec<bool> {
+    marks
+        .iter()
+        .enumerate()
+        .map(|(k, &m)| m || more.get(k).copied().unwrap_or(false))
+        .collect()
 }
 
 /// Fraction of true marks.
