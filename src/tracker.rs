@@ -78,6 +78,14 @@ pub const REFUSED_INITS: u32 = 3;
 /// needle's reversal, and the next pair was `tracked` 35 px off).
 pub const MAX_UNVERIFIED_MOVE_PX: f64 = 3.0;
 
+/// Share of the standard error's limit ([`TrackerParams::std_limit`]) a
+/// pair must keep under to end a run of `uncertain` pairs: a fit that has
+/// just been doubtful and comes back at the edge of the limit is as likely
+/// still doubtful (a needle's right view, its tip beyond the template's,
+/// was `uncertain` at 0.56 px, then `tracked` at 0.38 px 4.0 px off, then
+/// `uncertain` at 0.41 px).
+pub const RETURN_STD_SHARE: f64 = 0.9;
+
 /// Reason of a tracked pair whose object was found again by its template
 /// after a loss.
 pub const REACQUIRED: &str = "reacquired";
@@ -535,6 +543,10 @@ pub struct TrackerState {
     /// [`MAX_UNVERIFIED_MOVE_PX`]); 0 after a pair with numbers.
     #[serde(default)]
     pub unverified_move_px: f64,
+    /// True while the pairs since the last one with numbers were
+    /// `uncertain` (see [`RETURN_STD_SHARE`]).
+    #[serde(default)]
+    pub uncertain_run: bool,
     /// The disparity's standard error on the pair that initialised the
     /// object, pixels (0: not known, as in states stored before it was
     /// kept); see [`TrackerParams::max_disparity_std_px`].
@@ -772,13 +784,20 @@ impl StereoTracker {
             }
         };
         let first = self.state.as_ref().map_or(0.0, |s| s.first_disparity_std_px);
-        let limit = self.params.std_limit(first);
+        let in_run = self.state.as_ref().is_some_and(|s| s.uncertain_run);
+        let full = self.params.std_limit(first);
+        let limit = if in_run { RETURN_STD_SHARE * full } else { full };
         if let Some(std) = result
             .disparity_std_px
             .filter(|&std| std > limit && result.status != Status::Lost)
         {
+            let run = if in_run {
+                format!(", {RETURN_STD_SHARE} of it to end a run of uncertain pairs")
+            } else {
+                String::new()
+            };
             result.mark_lost(format!(
-                "{UNCERTAIN}: the disparity's standard error is {std:.2} px (limit {limit:.2} px: max_disparity_std_px {:.2}, or more for an object whose first pair exceeded it; its first pair's {first:.2} px){GOES_ON}",
+                "{UNCERTAIN}: the disparity's standard error is {std:.2} px (limit {limit:.2} px: max_disparity_std_px {:.2}, or more for an object whose first pair exceeded it; its first pair's {first:.2} px{run}){GOES_ON}",
                 self.params.max_disparity_std_px
             ));
         }
@@ -797,6 +816,7 @@ impl StereoTracker {
         };
         let uncertain = result.status == Status::Lost
             && result.reason.as_deref().is_some_and(|r| r.starts_with(UNCERTAIN));
+        state.uncertain_run = uncertain;
         let Some(predicted) = predicted.filter(|_| uncertain) else {
             state.unverified_move_px = 0.0;
             return;
@@ -812,6 +832,7 @@ impl StereoTracker {
             }
             state.lost = true;
             state.unverified_move_px = 0.0;
+            state.uncertain_run = false;
         }
     }
 
@@ -1090,6 +1111,7 @@ impl StereoTracker {
             missed_searches: 0,
             refused_inits: 0,
             unverified_move_px: 0.0,
+            uncertain_run: false,
             first_disparity_std_px: 0.0,
             unmeasured_velocity: true,
         };

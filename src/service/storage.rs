@@ -1398,6 +1398,7 @@ mod tests {
             missed_searches: (i % 3) as u32,
             refused_inits: (i % 2) as u32,
             unverified_move_px: 0.5 * f,
+            uncertain_run: i % 2 == 1,
             unmeasured_velocity: i % 5 == 4,
             first_disparity_std_px: 0.25 * f,
         }
