@@ -148,10 +148,12 @@ fn a_grain_above_a_rough_substrate_is_held() {
 /// A grain darker than the substrate, its steep side a bright rim up to
 /// 15 px wide (the outline must take it in: the dark centre alone was
 /// found at IoU 0.62-0.87 and tracked up to 1.8 px off). Measured RMS
-/// 0.26 px, std ratio 0.96, 6 of 60 pairs `uncertain`.
+/// 0.23 px, std ratio 1.05, 9 of 60 pairs `uncertain` (its standard error
+/// lies near the limit, and a run of `uncertain` pairs must end under 0.9
+/// of it: 6 of 60 before, at RMS 0.26 px).
 #[test]
 fn a_dark_grain_is_held_with_its_bright_rim() {
-    check(Class::DarkGrain, 0.12, 0.35, [1.0 / 1.5, 1.5]);
+    check(Class::DarkGrain, 0.16, 0.35, [1.0 / 1.5, 1.5]);
 }
 
 /// A needle entering from a border, in and out along its axis: measured
@@ -350,6 +352,12 @@ fn assert_disparity_held(tracked: &[(usize, [f64; 2], f64)]) {
     assert!(wrong.is_empty(), "disparity off by more than 1 px: {wrong:.2?}");
 }
 
+/// [`assert_tip_held`] and [`assert_disparity_held`] together.
+fn assert_held(tracked: &[(usize, [f64; 2], f64)], min_tracked: usize, centred: bool) {
+    assert_tip_held(tracked, min_tracked, centred);
+    assert_disparity_held(tracked);
+}
+
 /// The needle of the crossed scene as the object (seed 8, looked at while
 /// the rule was made): it comes down 12 px per pair along its axis until
 /// its tip lies over the grain, as bright as itself, then goes back. Its
@@ -363,9 +371,7 @@ fn assert_disparity_held(tracked: &[(usize, [f64; 2], f64)]) {
 /// `uncertain`).
 #[test]
 fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
-    let tracked = needle_over_grain(8, 20);
-    assert_tip_held(&tracked, 6, false);
-    assert_disparity_held(&tracked);
+    assert_held(&needle_over_grain(8, 20), 6, false);
 }
 
 /// The same scene, seed 7 (looked at while the rule was made): lost with
@@ -407,9 +413,7 @@ fn a_needle_whose_moves_over_a_grain_are_not_followed_is_lost_not_taken_elsewher
 /// (measured: pairs 0-4 and 19 tracked, within 0.6 px and 0.2 px).
 #[test]
 fn a_needle_found_afresh_together_with_the_grain_it_touches_is_refused() {
-    let tracked = needle_over_grain_with(3, 20, Hint::Point);
-    assert_tip_held(&tracked, 5, true);
-    assert_disparity_held(&tracked);
+    assert_held(&needle_over_grain_with(3, 20, Hint::Point), 5, true);
 }
 
 /// The same scene, seed 208 (looked at while the rule was made): the
@@ -424,9 +428,7 @@ fn a_needle_found_afresh_together_with_the_grain_it_touches_is_refused() {
 /// 0.2 px and 1.3 px).
 #[test]
 fn a_needle_back_at_the_edge_of_its_limit_after_uncertain_pairs_is_not_tracked() {
-    let tracked = needle_over_grain(208, 20);
-    assert_tip_held(&tracked, 6, true);
-    assert_disparity_held(&tracked);
+    assert_held(&needle_over_grain(208, 20), 6, true);
 }
 
 /// The same scene, seed 201, the needle pointed out by a click (looked at
@@ -441,7 +443,5 @@ fn a_needle_back_at_the_edge_of_its_limit_after_uncertain_pairs_is_not_tracked()
 /// and 0.1 px).
 #[test]
 fn a_needle_found_again_whose_slide_is_not_followed_counts_it() {
-    let tracked = needle_over_grain_with(201, 20, Hint::Point);
-    assert_tip_held(&tracked, 8, true);
-    assert_disparity_held(&tracked);
+    assert_held(&needle_over_grain_with(201, 20, Hint::Point), 8, true);
 }
