@@ -543,8 +543,9 @@ pub struct TrackerState {
     /// [`MAX_UNVERIFIED_MOVE_PX`]); 0 after a pair with numbers.
     #[serde(default)]
     pub unverified_move_px: f64,
-    /// True while the pairs since the last one with numbers were
-    /// `uncertain` (see [`RETURN_STD_SHARE`]).
+    /// True from an `uncertain` pair until a pair with numbers, or until
+    /// the run's unverified moves lose the object (see
+    /// [`RETURN_STD_SHARE`]).
     #[serde(default)]
     pub uncertain_run: bool,
     /// The disparity's standard error on the pair that initialised the
