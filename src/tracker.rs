@@ -557,8 +557,8 @@ pub struct TrackerState {
     /// a tracking step measures the left view's velocity: the prediction
     /// is the last pose, so an `uncertain` pair's move from it is the
     /// object's own motion as much as a slide, and does not count towards
-    /// [`MAX_UNVERIFIED_MOVE_PX`]; a move the step did not follow still
-    /// does.
+    /// [`MAX_UNVERIFIED_MOVE_PX`]; a move the step did not follow on a
+    /// pair whose object a search found still does.
     #[serde(default)]
     pub unmeasured_velocity: bool,
 }
@@ -803,17 +803,24 @@ impl StereoTracker {
                 self.params.max_disparity_std_px
             ));
         }
-        self.bound_unverified_moves(&mut result, predicted);
+        self.bound_unverified_moves(&mut result, predicted, searching);
         Ok(result)
     }
 
     /// Adds how far an `uncertain` pair moved the left contour from its
     /// prediction (`predicted`, None after a loss or while the velocity is
-    /// unmeasured) to the run's sum, which already holds any move the step
-    /// did not follow; past [`MAX_UNVERIFIED_MOVE_PX`] the object counts as
-    /// lost, which the reason says, and the next pair seeks its template. A
-    /// pair with numbers ends the run.
-    fn bound_unverified_moves(&mut self, result: &mut PairResult, predicted: Option<Pose>) {
+    /// unmeasured) to the run's sum; past [`MAX_UNVERIFIED_MOVE_PX`] the
+    /// object counts as lost, which the reason says, and the next pair
+    /// seeks its template. A pair with numbers ends the run. The sum holds
+    /// any move the step did not follow, except on the pair after an
+    /// initialisation, whose outline the whole object placed (a rod whose
+    /// end went under a bar slid 5 px along its axis there; not followed,
+    /// the next pairs were right); on a pair whose object a search found
+    /// (`searched`), where only the template's match placed it, that move
+    /// counts (a needle found again with its tip over a grain slid 5.9 px
+    /// along its axis; not followed, and not counted, the next pair was
+    /// `tracked` with the tip 8.4 px off).
+    fn bound_unverified_moves(&mut self, result: &mut PairResult, predicted: Option<Pose>, searched: bool) {
         let Some(state) = self.state.as_mut().filter(|s| !s.lost) else {
             return;
         };
@@ -824,8 +831,10 @@ impl StereoTracker {
             state.unverified_move_px = 0.0;
             return;
         }
-        if let Some(predicted) = predicted {
-            state.unverified_move_px += dist(predicted.center(), state.left.center());
+        match predicted {
+            Some(predicted) => state.unverified_move_px += dist(predicted.center(), state.left.center()),
+            None if !searched => state.unverified_move_px = 0.0,
+            None => {}
         }
         if state.unverified_move_px > MAX_UNVERIFIED_MOVE_PX {
             if let Some(reason) = result.reason.as_mut() {
@@ -1691,11 +1700,8 @@ impl StereoTracker {
             };
             if let Some(back) = given_back {
                 // The move not followed is not verified either: the run of
-                // uncertain pairs counts it (see MAX_UNVERIFIED_MOVE_PX), on
-                // a pair after a search too (a needle found again with its
-                // tip over a grain slid 5.9 px along its axis; not
-                // followed, and not counted, the next pair was `tracked`
-                // with the tip 8.4 px off).
+                // uncertain pairs counts it (see MAX_UNVERIFIED_MOVE_PX and
+                // `bound_unverified_moves`, which says when).
                 candidate.unverified_move_px += back.abs();
                 for pose in [&mut candidate.left, &mut candidate.right] {
                     pose.x -= back * w[0];
