@@ -434,10 +434,10 @@ fn a_needle_back_at_the_edge_of_its_limit_after_uncertain_pairs_is_not_tracked()
 /// The same scene, seed 201, the needle pointed out by a click (looked at
 /// while the rule was made): found again by its template after a loss,
 /// with its tip over the grain, the needle's fit slid 5.9 px along its
-/// axis; the move was not followed, but after a search it was not counted
-/// towards the run of unverified moves either, and the next pair was
-/// `tracked` with the tip 8.4 px off. A move not followed now counts on a
-/// pair after a search too. No tracked pair may put the tip more than 3
+/// axis; the move was not followed, but on a search's pair it was not
+/// counted towards the run of unverified moves either, and the next pair
+/// was `tracked` with the tip 8.4 px off. A move not followed now counts
+/// on the pair a search found the object on. No tracked pair may put the tip more than 3
 /// px from the truth, nor the disparity more than 1 px off, after the
 /// sequence's median offsets (measured: 11 pairs tracked, within 0.9 px
 /// and 0.1 px).
