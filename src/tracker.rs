@@ -1878,11 +1878,7 @@ impl StereoTracker {
             );
             let risen_here = risen_on_their_own(reference.contrasts, &look);
             if risen_here.iter().zip(&fit.occluded).any(|(r, o)| *r && !o) {
-                let doubt: Vec<bool> = risen_here
-                    .iter()
-                    .zip(&fit.occluded)
-                    .map(|(r, o)| *r || *o)
-                    .collect();
+                let doubt = either(&risen_here, &fit.occluded);
                 if fraction(&doubt) > MAX_MASKED_FRACTION {
                     unplaced = true;
                 } else {
