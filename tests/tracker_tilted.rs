@@ -240,6 +240,25 @@ fn a_grain_whose_candidate_reaches_past_its_edge_is_not_given_up_for_a_scratch()
     assert!(iou >= 0.95, "IoU {iou:.3}");
 }
 
+/// A grain whose best candidate, a threshold component of the image
+/// smoothed at 3 px, lies 2-3 px outside its edge all round (seed 7,
+/// looked at while the rule was made): beyond the 1.5 px the edge fit
+/// moves an outline, and with the grain's wide rim its step carried less
+/// than half the contrast of the strips beside it, so the outline stayed
+/// there (IoU 0.829, without hints and with a click on it). It is now
+/// moved as a whole towards the edge first: 0.97.
+#[test]
+fn a_grain_whose_outline_lies_beyond_its_rim_is_moved_onto_its_edge() {
+    let scene = tilted::scene(Class::Grain, 7, 1);
+    let pair = scene.render(0);
+    let mut pointed = TrackerParams::default();
+    pointed.init.point = Some(pair.point_hint());
+    for (hint, params) in [("none", TrackerParams::default()), ("point", pointed)] {
+        let iou = pair_iou(&pair, params);
+        assert!(iou >= 0.95, "hint {hint}: IoU {iou:.3}");
+    }
+}
+
 /// The scene where the failure was seen (plate seed 5, looked at while the
 /// rule was made): a faint plate beside a 250-px patch of darker shaded
 /// substrate that touches the frame's edge. The patch scored 0.114 against
