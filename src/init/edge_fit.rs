@@ -266,7 +266,7 @@ pub fn fitted_to_edge(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, 
             Fit::Moved(moved, mean) => return Some((moved, moved_by + mean)),
             Fit::Beyond(sign) => {
                 let by = sign * MAX_SHIFT_PX;
-                start = offset(&start, by);
+                start = start.offset_along(&start.moving_average(4).outward_normals(), by);
                 moved_by += by;
             }
         }
@@ -278,6 +278,24 @@ pub fn fitted_to_edge(frame: &GrayFrame, contour: &Polygon) -> Option<(Polygon, 
 /// `MAX_SHIFT_PX` towards an edge beyond its reach.
 const FAR_STEPS: usize = 2;
 
+/// Where a profile's edge lies ([`Profile::shift`]).
+enum Located {
+    /// At this shift from the outline, pixels (negative: inwards).
+    At(f64),
+    /// Beyond the scan, outwards (+1) or inwards (-1).
+    Beyond(f64),
+}
+
+impl Located {
+    /// The shift, when the edge lies within the scan.
+    fn within(self) -> Option<f64> {
+        match self {
+            Located::At(shift) => Some(shift),
+            Located::Beyond(_) => None,
+        }
+    }
+}
+
 /// What one pass of [`fitted_to_edge`] found.
 enum Fit {
     /// The outline moved onto the edge, and the mean shift.
@@ -285,20 +303,6 @@ enum Fit {
     /// The whole outline's best shift lies at the end of the scan, outwards
     /// (+1) or inwards (-1): the edge is further away.
     Beyond(f64),
-}
-
-/// `contour` with every vertex moved by `by` pixels along its outward
-/// normal (negative: inwards).
-fn offset(contour: &Polygon, by: f64) -> Polygon {
-    let normals = contour.moving_average(4).outward_normals();
-    Polygon::new(
-        contour
-            .points
-            .iter()
-            .zip(&normals)
-            .map(|(p, q)| [p[0] + by * q[0], p[1] + by * q[1]])
-            .collect(),
-    )
 }
 
 /// One pass of [`fitted_to_edge`].
@@ -315,13 +319,13 @@ fn fitted_once(frame: &GrayFrame, contour: &Polygon, whole_share: f64) -> Option
     } = measured;
     let (n, count) = (contour.len(), sums.len());
     let model = whole.fitted_model();
-    let overall = match whole.shift(&model, whole_share) {
-        Some(shift) => shift,
+    let overall = match whole.shift(&model, whole_share)? {
+        Located::At(shift) => shift,
         // Only a brighter object's: a darker one's outline runs over its
         // bright rim (see `super::rim`), and its dark core inside the rim
         // reads as an edge further in.
-        None if whole.inner > whole.outer => return whole.beyond(&model, whole_share).map(Fit::Beyond),
-        None => return None,
+        Located::Beyond(sign) if whole.inner > whole.outer => return Some(Fit::Beyond(sign)),
+        Located::Beyond(_) => return None,
     };
     let shifts: Vec<f64> = (0..count)
         .map(|k| {
@@ -339,7 +343,9 @@ fn fitted_once(frame: &GrayFrame, contour: &Polygon, whole_share: f64) -> Option
                         let w = (half + 1 - j.abs_diff(half)) as f64;
                         pooled.add(&sums[(count + k + j - half) % count], w);
                     }
-                    Profile::new(&pooled, object_level)?.shift(&model, STEP_SHARE)
+                    Profile::new(&pooled, object_level)?
+                        .shift(&model, STEP_SHARE)
+                        .and_then(Located::within)
                 })
                 // Too noisy to measure alone: the whole outline's shift.
                 .unwrap_or(overall)
@@ -485,42 +491,24 @@ impl Profile {
         self.scan(model).iter().map(|r| r.0).fold(f64::INFINITY, f64::min)
     }
 
-    /// The residuals of the scan and the best shift's index, when the step
-    /// there has the object's sign and at least `step_share` of its
-    /// contrast with the surroundings.
-    fn located(&self, model: &Model, step_share: f64) -> Option<(Vec<(f64, f64)>, usize)> {
+    /// Where `model` fits best, when the step there is the object's (its
+    /// sign, and at least `step_share` of its contrast with the
+    /// surroundings): the shift, when it lies inside the scan and is known
+    /// within [`MAX_SHIFT_STD_PX`] (the curvature of the residual over the
+    /// noise variance is the shift's Fisher information), or the direction
+    /// of an edge beyond the scan, when the best shift is at an end of it.
+    fn shift(&self, model: &Model, step_share: f64) -> Option<Located> {
         let sse = self.scan(model);
-        let (best, &(_, height)) = sse.iter().enumerate().min_by(|a, b| a.1 .0.total_cmp(&b.1 .0))?;
+        let (best, &(s0, height)) = sse.iter().enumerate().min_by(|a, b| a.1 .0.total_cmp(&b.1 .0))?;
         let contrast = self.inner - self.outer;
         if height * contrast <= 0.0 || height.abs() < step_share * contrast.abs() {
             return None;
         }
-        Some((sse, best))
-    }
-
-    /// The direction (+1 outwards, -1 inwards) of an edge beyond the scan:
-    /// the best shift at an end of it (see [`Profile::located`]).
-    fn beyond(&self, model: &Model, step_share: f64) -> Option<f64> {
-        let (sse, best) = self.located(model, step_share)?;
         if best == 0 {
-            Some(-1.0)
-        } else if best + 1 == sse.len() {
-            Some(1.0)
-        } else {
-            None
+            return Some(Located::Beyond(-1.0));
         }
-    }
-
-    /// The shift where `model` fits best, when the step there is the
-    /// object's ([`Profile::located`]) and the shift is known within
-    /// [`MAX_SHIFT_STD_PX`]:
-    /// the curvature of the residual over the noise variance is the
-    /// shift's Fisher information.
-    fn shift(&self, model: &Model, step_share: f64) -> Option<f64> {
-        let (sse, best) = self.located(model, step_share)?;
-        let s0 = sse[best].0;
-        if best == 0 || best + 1 == sse.len() {
-            return None;
+        if best + 1 == sse.len() {
+            return Some(Located::Beyond(1.0));
         }
         let (a, c) = (sse[best - 1].0, sse[best + 1].0);
         let curvature = (a - 2.0 * s0 + c) / (GRID_PX * GRID_PX);
@@ -529,7 +517,7 @@ impl Profile {
         }
         // Parabola through the residuals around the best shift.
         let offset = (0.5 * (a - c) / (a - 2.0 * s0 + c)).clamp(-0.5, 0.5);
-        Some((best as f64 + offset) * GRID_PX - MAX_SHIFT_PX)
+        Some(Located::At((best as f64 + offset) * GRID_PX - MAX_SHIFT_PX))
     }
 
     /// The model that fits best: the grid's best, its width and then its
