@@ -18,6 +18,7 @@
 //! - [`strips`]: strips of substrate a free fit keeps inside an outline, cut out and fitted again.
 //! - [`calib`]: calibrations from disparity (px) to height z (um): geometric or least-squares fit.
 //! - [`uncertainty`]: standard error of a fitted position along the disparity axis (sandwich estimate from the energy's curvature and the pixel noise).
+//! - [`scatter`]: how much more a run's disparities scatter from pair to pair than their fits say (a Birge ratio on second differences).
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
 //! - [`session`]: a session's named objects measured on every pair, their heights through one calibration and the heights between them.
 //! - [`display`]: 8-bit PNG renderings of frames with contours drawn over them (the live view's images).
@@ -40,6 +41,7 @@ pub mod occlusion;
 pub mod prefilter;
 pub mod region;
 pub mod report;
+pub mod scatter;
 pub mod service;
 pub mod session;
 pub mod strips;

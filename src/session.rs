@@ -12,7 +12,11 @@
 //! `sqrt(s_a^2 + s_b^2)`: the two disparities are fitted on disjoint parts
 //! of the images, so their pixel noise is independent, while what the two
 //! share (the frames' drift and line jitter, the calibration's intercept)
-//! cancels in the difference. `dz_um` and `dz_std_um` come from
+//! cancels in the difference. The `s` are the fits' own standard errors,
+//! not scaled by each object's run ([`crate::scatter`]): an error the two
+//! objects share (both drifting alike across the pixel grid) scatters each
+//! disparity but not their difference, and the difference's own run
+//! cannot tell a tool's steps of a few standard errors from noise. `dz_um` and `dz_std_um` come from
 //! [`Calibration::dz_for_pair`], which adds a fitted calibration's
 //! coefficient uncertainty at the two disparities together.
 
@@ -126,7 +130,8 @@ pub struct Relative {
     pub to: String,
     /// `from`'s disparity across the tilt axis minus `to`'s, pixels.
     pub disparity_axis_px: Option<f64>,
-    /// Standard error of `disparity_axis_px`, pixels.
+    /// Standard error of `disparity_axis_px`, pixels: the two fits' own
+    /// in quadrature (see the module docs).
     pub disparity_std_px: Option<f64>,
     /// `from`'s height minus `to`'s, micrometres.
     pub dz_um: Option<f64>,
@@ -333,8 +338,19 @@ impl Session {
                 }
             }
         }
-        let relative = relative_heights(&objects, calibration);
         let frame = self.frames;
+        // Each object's fits' own standard error on this pair, which its
+        // tracker keeps as the last pair of its run.
+        let fit_stds: Vec<Option<f64>> = self
+            .objects
+            .iter()
+            .map(|o| {
+                let last = o.tracker.state().and_then(|s| s.disparity_run.last());
+                last.filter(|m| m.frame + 1 == o.tracker.frames())
+                    .map(|m| m.std_px)
+            })
+            .collect();
+        let relative = relative_heights(&objects, &fit_stds, calibration);
         self.frames += 1;
         Ok(Measurement {
             frame,
@@ -345,16 +361,29 @@ impl Session {
 }
 
 /// Every ordered pair of distinct objects (see the module docs).
-pub fn relative_heights(objects: &[ObjectResult], calibration: Option<&Calibration>) -> Vec<Relative> {
+/// `fit_stds` holds each object's fits' own standard error on this pair
+/// (None: its reported one).
+pub fn relative_heights(
+    objects: &[ObjectResult],
+    fit_stds: &[Option<f64>],
+    calibration: Option<&Calibration>,
+) -> Vec<Relative> {
     let measured = |r: &PairResult| {
         matches!(r.status, Status::Initialised | Status::Tracked)
             .then_some(())
             .and(r.disparity_px.zip(r.disparity_axis_px))
     };
+    let fit_std = |i: usize| {
+        fit_stds
+            .get(i)
+            .copied()
+            .flatten()
+            .or(objects[i].result.disparity_std_px)
+    };
     let mut out = Vec::new();
-    for a in objects {
-        for b in objects {
-            if a.name == b.name {
+    for (i, a) in objects.iter().enumerate() {
+        for (j, b) in objects.iter().enumerate() {
+            if i == j {
                 continue;
             }
             let mut rel = Relative {
@@ -367,7 +396,7 @@ pub fn relative_heights(objects: &[ObjectResult], calibration: Option<&Calibrati
             };
             if let (Some((da, aa)), Some((db, ab))) = (measured(&a.result), measured(&b.result)) {
                 rel.disparity_axis_px = Some(aa - ab);
-                let stds = a.result.disparity_std_px.zip(b.result.disparity_std_px);
+                let stds = fit_std(i).zip(fit_std(j));
                 rel.disparity_std_px = stds.map(|(sa, sb)| sa.hypot(sb));
                 if let Some(c) = calibration {
                     let meta = a.result.metadata.as_ref();

@@ -29,6 +29,7 @@ use crate::occlusion::{
 };
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
+use crate::scatter::{DisparityRun, Measured};
 use crate::strips::refit_without_strips;
 use crate::uncertainty;
 
@@ -184,9 +185,10 @@ pub struct TrackerParams {
     /// otherwise none. 0: never smooth.
     #[schema(minimum = 0.0, maximum = 4.0)]
     pub prefilter_sigma_px: Option<f64>,
-    /// A pair whose disparity standard error (`disparity_std_px`) exceeds
-    /// this many pixels is reported `lost` with reason `uncertain`, without
-    /// numbers; tracking goes on from its poses. Default 0.4: a `tracked`
+    /// A pair whose fits' own disparity standard error (`disparity_std_px`
+    /// before a run's scatter scales it) exceeds this many pixels is
+    /// reported `lost` with reason `uncertain`, without numbers; tracking
+    /// goes on from its poses. Default 0.4: a `tracked`
     /// disparity is then within 1 px of the truth at 2.5 standard errors.
     /// Such pairs are the ones where too little of an occluded outline is
     /// left to fix the position. An object whose first pair (after a loss,
@@ -374,8 +376,10 @@ pub struct PairResult {
     pub angle_diff_rad: Option<f64>,
     /// Height from the calibration, micrometres; null without one.
     pub z_um: Option<f64>,
-    /// Standard error of `disparity_axis_px`, pixels (see
-    /// [`crate::uncertainty`]); null when the pair is not tracked.
+    /// Standard error of `disparity_axis_px`, pixels: the fits' own (see
+    /// [`crate::uncertainty`]), scaled up once a run of pairs shows their
+    /// disparities scatter more than that (see [`crate::scatter`]); null
+    /// when the pair is not tracked.
     #[serde(default)]
     pub disparity_std_px: Option<f64>,
     /// Standard error of `z_um`, micrometres: `disparity_std_px` through the
@@ -561,6 +565,11 @@ pub struct TrackerState {
     /// pair whose object a search found still does.
     #[serde(default)]
     pub unmeasured_velocity: bool,
+    /// The run's last pairs with numbers, whose scatter scales each pair's
+    /// standard error (see [`crate::scatter`]); empty in states stored
+    /// before it was kept, and after an initialisation.
+    #[serde(default, skip_serializing_if = "DisparityRun::is_empty")]
+    pub disparity_run: DisparityRun,
 }
 
 impl TrackerState {
@@ -804,7 +813,32 @@ impl StereoTracker {
             ));
         }
         self.bound_unverified_moves(&mut result, predicted, searching);
+        self.scale_by_scatter(&mut result);
         Ok(result)
+    }
+
+    /// Scales a pair with numbers' standard error by how much more the
+    /// run's disparities scatter than their fits say ([`crate::scatter`]),
+    /// then adds the pair to the run. After the limit of
+    /// [`TrackerParams::max_disparity_std_px`], which judges the pair's own
+    /// fits: a run's scatter does not make its pairs `uncertain`.
+    fn scale_by_scatter(&mut self, result: &mut PairResult) {
+        let Some(state) = self.state.as_mut().filter(|s| !s.lost) else {
+            return;
+        };
+        if !matches!(result.status, Status::Tracked | Status::Initialised) {
+            return;
+        }
+        let (Some(std), Some(axis)) = (result.disparity_std_px, result.disparity_axis_px) else {
+            return;
+        };
+        let factor = state.disparity_run.factor();
+        state.disparity_run.push(Measured {
+            frame: result.frame,
+            disparity_px: axis,
+            std_px: std,
+        });
+        result.disparity_std_px = Some(std * factor);
     }
 
     /// Adds how far an `uncertain` pair moved the left contour from its
@@ -1128,6 +1162,7 @@ impl StereoTracker {
             uncertain_run: false,
             first_disparity_std_px: 0.0,
             unmeasured_velocity: true,
+            disparity_run: DisparityRun::default(),
         };
         let [left_bands, right_bands] = noise_bands(
             &state,

@@ -31,7 +31,9 @@
 //!
 //! What this leaves out (the template not matching the outline exactly,
 //! sub-pixel discretisation) is the tracker's floor
-//! ([`crate::tracker::DISPARITY_STD_FLOOR_PX`]). A fit with sectors left out
+//! ([`crate::tracker::DISPARITY_STD_FLOOR_PX`]) and, once a run of pairs
+//! shows it, the factor by which their disparities scatter more than the
+//! fits say ([`crate::scatter`]). A fit with sectors left out
 //! (hidden, or before a new backdrop) also carries the bias of the partly
 //! covered sectors next to them, which the noise does not show: the
 //! tracker adds, in quadrature, how far the pose moves along the axis when

@@ -1341,6 +1341,7 @@ mod tests {
     use crate::calib::{build, CalibrationSpec, GeometricSpec};
     use crate::fit::Pose;
     use crate::geometry::HalfPlane;
+    use crate::scatter::{DisparityRun, Measured};
     use crate::tracker::{TrackerParams, TrackerState};
 
     fn calibration(pixel_size_um: f64) -> Calibration {
@@ -1401,6 +1402,17 @@ mod tests {
             uncertain_run: i % 2 == 1,
             unmeasured_velocity: i % 5 == 4,
             first_disparity_std_px: 0.25 * f,
+            disparity_run: {
+                let mut run = DisparityRun::default();
+                for k in 0..i % 4 {
+                    run.push(Measured {
+                        frame: i + k,
+                        disparity_px: 26.25 + 0.5 * k as f64,
+                        std_px: 0.05 + 0.01 * f,
+                    });
+                }
+                run
+            },
         }
     }
 
