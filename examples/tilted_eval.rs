@@ -103,7 +103,8 @@ fn main() {
             let params_copy = params.init.clone();
             let mut tracker = StereoTracker::new(params);
             let mut reference = tilted::ReferencePoint::new(class);
-            let (mut ds, mut cs, mut stds, mut frames_ok) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+            let (mut ds, mut cs, mut stds, mut frames_ok, mut truths) =
+                (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for (k, pair) in rendered.iter().enumerate() {
                 if std::env::var("PROBE").is_ok_and(|v| v.split(',').any(|f| f == k.to_string())) {
                     let init = semdepth::init::initialise(&pair.left, &params_copy);
@@ -176,6 +177,7 @@ fn main() {
                 cs.push(e);
                 stds.push(r.disparity_std_px.unwrap_or(f64::NAN));
                 frames_ok.push(k);
+                truths.push(pair.disparity_px);
                 if frames_out {
                     eprintln!(
                         "  {} {seed} pair {k}: occluded {:.2} / {:.2}, reason {:?}",
@@ -204,10 +206,11 @@ fn main() {
                 wrong += bad as usize;
                 if frames_out || bad {
                     eprintln!(
-                        "  {} {seed} pair {}: disparity error {e:+.3} (std {:.3}) centroid error {ce:.2} (raw {:+.1}, {:+.1}){}",
+                        "  {} {seed} pair {}: disparity error {e:+.3} (std {:.3}) truth {:.3} centroid error {ce:.2} (raw {:+.1}, {:+.1}){}",
                         class.name(),
                         frames_ok[i],
                         stds[i],
+                        truths[i],
                         cs[i][0],
                         cs[i][1],
                         if bad { "  CONFIDENT WRONG" } else { "" }

@@ -50,9 +50,14 @@ impl Figures {
 /// Tracks [`PAIRS`] pairs of `class` for every seed, with a `roi` around
 /// the object on the first pair or without hints.
 fn track(class: Class, roi: bool) -> Figures {
+    track_pairs(class, roi, PAIRS)
+}
+
+/// [`track`] over `pairs` pairs.
+fn track_pairs(class: Class, roi: bool, pairs: usize) -> Figures {
     let mut f = Figures::default();
     for seed in SEEDS {
-        let scene = tilted::scene(class, seed, PAIRS);
+        let scene = tilted::scene(class, seed, pairs);
         let mut params = TrackerParams::default();
         if roi {
             params.init.roi = Some(scene.render(0).roi_hint());
@@ -60,7 +65,7 @@ fn track(class: Class, roi: bool) -> Figures {
         let mut tracker = StereoTracker::new(params);
         let mut reference = tilted::ReferencePoint::new(class);
         let (mut ds, mut cs, mut stds, mut ks) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        for k in 0..PAIRS {
+        for k in 0..pairs {
             let pair = scene.render(k);
             let r = tracker.process(&pair.left, &pair.right).unwrap();
             f.pairs += 1;
@@ -139,7 +144,7 @@ fn check_figures(class: Class, f: Figures, max_untracked: f64, max_rms: f64, std
 }
 
 /// A bright grain drifting above a rough, grooved substrate: measured RMS
-/// 0.040 px, std ratio 1.21, nothing untracked.
+/// 0.040 px, std ratio 1.31 (1.21 from the fits alone), nothing untracked.
 #[test]
 fn a_grain_above_a_rough_substrate_is_held() {
     check(Class::Grain, 0.0, 0.08, [1.0 / 1.5, 1.5]);
@@ -148,7 +153,7 @@ fn a_grain_above_a_rough_substrate_is_held() {
 /// A grain darker than the substrate, its steep side a bright rim up to
 /// 15 px wide (the outline must take it in: the dark centre alone was
 /// found at IoU 0.62-0.87 and tracked up to 1.8 px off). Measured RMS
-/// 0.23 px, std ratio 1.05, 9 of 60 pairs `uncertain` (its standard error
+/// 0.23 px, std ratio 1.06, 9 of 60 pairs `uncertain` (its standard error
 /// lies near the limit, and a run of `uncertain` pairs must end under 0.9
 /// of it: 6 of 60 before, at RMS 0.26 px).
 #[test]
@@ -157,16 +162,34 @@ fn a_dark_grain_is_held_with_its_bright_rim() {
 }
 
 /// A needle entering from a border, in and out along its axis: measured
-/// RMS 0.060 px, std ratio 0.67 (the round shank's shading differs between
-/// the views, which the standard error does not know of: the issue's
-/// factor 1.5 is only just met).
+/// RMS 0.060 px, std ratio 0.85 (0.67 from the fits alone: the round
+/// shank's shading differs between the views, which a single fit does not
+/// see; the run's scatter does, from its ninth pair on).
 #[test]
 fn a_needle_entering_from_the_border_is_held() {
-    check(Class::Needle, 0.0, 0.12, [0.6, 1.5]);
+    check(Class::Needle, 0.0, 0.12, [1.0 / 1.5, 1.5]);
+}
+
+/// The needle over 30 pairs: its round shank's shading differs between the
+/// views, a mismatch the fits' standard errors do not see (mean reported
+/// over the error RMS 0.68 from the fits alone), but that scatters the
+/// disparity from pair to pair; once the run shows that scatter, each
+/// pair's standard error is scaled by it (`semdepth::scatter`). Measured
+/// RMS 0.058 px, std ratio 1.07. The lower bound, 0.8, fails the fits
+/// alone.
+#[test]
+fn a_needles_standard_error_grows_with_the_scatter_its_fits_do_not_see() {
+    check_figures(
+        Class::Needle,
+        track_pairs(Class::Needle, false, 30),
+        0.0,
+        0.12,
+        [0.8, 1.5],
+    );
 }
 
 /// A flat plate whose walls show on opposite sides in the two views:
-/// measured RMS 0.107 px, std ratio 1.16. Without the rule that an outline
+/// measured RMS 0.107 px, std ratio 1.21. Without the rule that an outline
 /// must show an edge, seed 5 of this class was a patch of shaded substrate
 /// tracked as the object, 0.7-7.5 px off.
 #[test]
@@ -177,7 +200,7 @@ fn a_plate_with_walls_is_held() {
 /// A grain with a needle sweeping in over part of it (up to half its
 /// radius past its centre) at 15-35 px above it, with its own disparity;
 /// the grain is given by a `roi` (without hints the needle, the larger
-/// object, may be taken). Measured RMS 0.073 px, std ratio 0.94, nothing
+/// object, may be taken). Measured RMS 0.073 px, std ratio 0.99, nothing
 /// untracked.
 #[test]
 fn a_grain_under_a_passing_needle_is_held() {
