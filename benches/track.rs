@@ -9,12 +9,15 @@
 //! the edge's width first (`semdepth::prefilter`); and the pair after a
 //! loss (`reacquire_pair`: the lost template sought over the whole left
 //! image, then along the right view's epipolar line, and the tracking step
-//! from where it was found).
+//! from where it was found); and the factor a run's scatter gives a
+//! tracked pair's standard error over a full window
+//! (`scatter_factor_full_run`, `semdepth::scatter`), part of every step.
 //! Target (tracker issue): a 1024x768 pair under 1 ms on one core (goal 0.5 ms).
 //! `python3 tools/bench_report.py track` prints medians and ratios.
 
 use criterion::{black_box, criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion};
 use semdepth::imageio::GrayFrame;
+use semdepth::scatter::{DisparityRun, Measured};
 use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams, REACQUIRED};
 
@@ -115,6 +118,18 @@ fn bench_track(c: &mut Criterion) {
             )
         });
     }
+    let mut run = DisparityRun::default();
+    for k in 0..40u64 {
+        // A ramp with a deterministic scatter of about 0.05 px.
+        let wobble = 0.05 * ((k * 7919 % 13) as f64 / 6.0 - 1.0);
+        run.push(Measured {
+            frame: k,
+            disparity_px: 3.0 + 0.7 * k as f64 + wobble,
+            std_px: 0.015,
+        });
+    }
+    assert!(run.factor() > 1.0, "the run scales its standard error");
+    group.bench_function("scatter_factor_full_run", |b| b.iter(|| black_box(&run).factor()));
     group.finish();
 }
 
