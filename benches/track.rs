@@ -120,7 +120,7 @@ fn bench_track(c: &mut Criterion) {
     }
     let mut run = DisparityRun::default();
     for k in 0..40u64 {
-        // A ramp with a deterministic scatter of about 0.05 px.
+        // A ramp with a deterministic scatter of up to 0.05 px.
         let wobble = 0.05 * ((k * 7919 % 13) as f64 / 6.0 - 1.0);
         run.push(Measured {
             frame: k,

@@ -96,22 +96,24 @@ impl DisparityRun {
 
     /// The factor (>= 1) the next pair's standard error is scaled by.
     pub fn factor(&self) -> f64 {
-        let pairs: Vec<Measured> = self.pairs.iter().copied().collect();
-        let z: Vec<f64> = pairs
-            .windows(3)
-            .filter(|w| w[1].frame == w[0].frame + 1 && w[2].frame == w[1].frame + 1)
-            .map(|w| {
-                let s = w[2].disparity_px - 2.0 * w[1].disparity_px + w[0].disparity_px;
-                let v = w[0].std_px.powi(2) + 4.0 * w[1].std_px.powi(2) + w[2].std_px.powi(2);
-                s / v.sqrt()
+        let p = &self.pairs;
+        let (n, sum) = p
+            .iter()
+            .zip(p.iter().skip(1))
+            .zip(p.iter().skip(2))
+            .filter(|((a, b), c)| b.frame == a.frame + 1 && c.frame == b.frame + 1)
+            .map(|((a, b), c)| {
+                let s = c.disparity_px - 2.0 * b.disparity_px + a.disparity_px;
+                let v = a.std_px.powi(2) + 4.0 * b.std_px.powi(2) + c.std_px.powi(2);
+                s * s / v
             })
-            .filter(|z| z.abs() < MOTION_Z)
-            .collect();
-        if z.len() < MIN_DIFFERENCES {
+            .filter(|z2| *z2 < MOTION_Z * MOTION_Z)
+            .fold((0usize, 0.0), |(n, sum), z2| (n + 1, sum + z2));
+        if n < MIN_DIFFERENCES {
             return 1.0;
         }
-        let n = z.len() as f64;
-        let chi2 = z.iter().map(|z| z * z).sum::<f64>() / n / truncated_second_moment(MOTION_Z);
+        let n = n as f64;
+        let chi2 = sum / n / truncated_second_moment(MOTION_Z);
         (chi2 - (Z2_VARIANCE / n).sqrt()).max(1.0).sqrt()
     }
 }
