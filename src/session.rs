@@ -16,9 +16,10 @@
 //! not scaled by each object's run ([`crate::scatter`]): an error the two
 //! objects share (both drifting alike across the pixel grid) scatters each
 //! disparity but not their difference, and the difference's own run
-//! cannot tell a tool's steps of a few standard errors from noise. `dz_um` and `dz_std_um` come from
-//! [`Calibration::dz_for_pair`], which adds a fitted calibration's
-//! coefficient uncertainty at the two disparities together.
+//! cannot tell a tool's steps of a few standard errors from noise. `dz_um`
+//! and `dz_std_um` come from [`Calibration::dz_for_pair`], which adds a
+//! fitted calibration's coefficient uncertainty at the two disparities
+//! together.
 
 use serde::{Deserialize, Serialize};
 

@@ -631,12 +631,11 @@ impl Storage {
                 .check()
                 .map_err(|e| StorageError::WritesFailing(e.to_string()))?;
         }
-        let failing = self.inner.stats.write_failure.lock().ok().and_then(|f| f.clone());
-        if let Some(reason) = failing {
+        if let Some(reason) = self.inner.stats.failure() {
             // Try a write that needs room (two pages), rolled back by
             // deleting it; it succeeds once space is freed.
             self.durable(|c| {
-                c.execute("INSERT INTO write_probe (body) VALUES (zeroblob(8192))", [])?;
+                c.execute(ROOM_PROBE, [])?;
                 c.execute("DELETE FROM write_probe", [])?;
                 Ok(())
             })
@@ -735,6 +734,10 @@ impl Storage {
         let _ = self.inner.writer.send(WriterMsg::Panic);
     }
 }
+
+/// A write that needs room for two pages, into the table kept for it: how
+/// `/readyz` and the pair writer tell whether a full database has room again.
+const ROOM_PROBE: &str = "INSERT INTO write_probe (body) VALUES (zeroblob(8192))";
 
 /// Ordered migrations: `MIGRATIONS[i]` takes `user_version` i to i + 1.
 const MIGRATIONS: &[&str] = &[
@@ -908,8 +911,8 @@ impl WriterConn {
         Ok(value)
     }
 
-    /// True when a write of two pages fits (tried in a transaction that is
-    /// rolled back).
+    /// True when [`ROOM_PROBE`] fits (tried in a transaction that is rolled
+    /// back).
     fn has_room(&mut self) -> bool {
         let Ok(tx) = self
             .conn
@@ -917,9 +920,7 @@ impl WriterConn {
         else {
             return false;
         };
-        let fits = tx
-            .execute("INSERT INTO write_probe (body) VALUES (zeroblob(8192))", [])
-            .is_ok();
+        let fits = tx.execute(ROOM_PROBE, []).is_ok();
         fits && tx.rollback().is_ok()
     }
 
@@ -963,8 +964,7 @@ impl WriterConn {
         // pages (as `/readyz` probes) must fit first. Otherwise a pair a
         // little smaller than the one refused may fit where it did not, and
         // a full database stores and refuses pairs by turns.
-        let failing = stats.write_failure.lock().ok().and_then(|f| f.clone());
-        if let Some(reason) = failing.filter(|_| !self.has_room()) {
+        if let Some(reason) = stats.failure().filter(|_| !self.has_room()) {
             for (pair, reply) in batch {
                 self.behind.insert(pair.session_id.clone());
                 let _ = reply.send(Err(StorageError::WritesFailing(reason.clone())));
@@ -1033,6 +1033,11 @@ impl WriterConn {
 }
 
 impl Stats {
+    /// The last failed write's error, until a write succeeds.
+    fn failure(&self) -> Option<String> {
+        self.write_failure.lock().ok().and_then(|f| f.clone())
+    }
+
     fn write_succeeded(&self) {
         if let Ok(mut f) = self.write_failure.lock() {
             *f = None;
@@ -1636,10 +1641,6 @@ mod tests {
         assert_eq!(rows, 5);
     }
 
-    /// A session without a retention of its own keeps the server's
-    /// default number of results, not all of them (the documented
-    /// `--retention`; before, such sessions kept every result, and four
-    /// streams filled a 9.5 GB disk in 19 minutes).
     /// Once a pair fails for want of room, a much smaller one is refused
     /// too until two pages are free: a full database does not store and
     /// refuse pairs by turns (the first refused pair, 40 KB, leaves room a
@@ -1684,6 +1685,10 @@ mod tests {
         s.close().await.unwrap();
     }
 
+    /// A session without a retention of its own keeps the server's
+    /// default number of results, not all of them (the documented
+    /// `--retention`; before, such sessions kept every result, and four
+    /// streams filled a 9.5 GB disk in 19 minutes).
     #[tokio::test]
     async fn sessions_without_their_own_retention_keep_the_default() {
         let dir = tempfile::tempdir().unwrap();
