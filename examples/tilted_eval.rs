@@ -13,7 +13,8 @@
 //! `LINE_NOISE=0` removes the per-line offsets and `DOSE_SCALE=16`
 //! multiplies the dose, to separate the shot noise's share of an error
 //! from the rest; `FLAT=1` puts the bodies over a flat substrate
-//! (`Substrate::flat`).
+//! (`Substrate::flat`); `STATIC=k` holds every body at its pose of pair
+//! `k`, so the pairs differ by their noise alone.
 //! "Confident wrong": a tracked pair off by more than 1 px in disparity or
 //! 3 px in the left reference point (centre, or the needle's tip carried by
 //! the contour), after removing the sequence's median offsets.
@@ -85,6 +86,12 @@ fn main() {
             if std::env::var("FLAT").is_ok() {
                 let (w, h) = (scene.width as f64, scene.height as f64);
                 scene.substrate = tilted::Substrate::flat(&mut tilted::Rng::new(seed), w, h);
+            }
+            if let Ok(v) = std::env::var("STATIC") {
+                let k: usize = v.parse().unwrap();
+                for body in &mut scene.bodies {
+                    body.poses = vec![body.poses[k]; nframes];
+                }
             }
             if let Ok(v) = std::env::var("DOSE_SCALE") {
                 scene.imaging.dose *= v.parse::<f64>().unwrap();
