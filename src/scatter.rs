@@ -221,8 +221,8 @@ mod tests {
     /// standard errors of a second difference at the fits' correct 0.05
     /// px), as our generator's occluded scenes do: the jumps that fall
     /// under the cut are taken out at the density beyond it, and the mean
-    /// factor of a full window stays under 1.25 (1.30 with the cut alone,
-    /// 1.50 with the cut at 4).
+    /// factor of a full window stays under 1.2 (measured 1.15; 1.27 with
+    /// the cut alone, 1.44 with the cut at 4).
     #[test]
     fn a_height_that_jumps_is_not_taken_for_noise() {
         let full: Vec<f64> = (0..50)
@@ -242,7 +242,7 @@ mod tests {
             })
             .collect();
         let m = mean(&full);
-        assert!((1.0..1.25).contains(&m), "mean factor {m:.3}");
+        assert!((1.0..1.2).contains(&m), "mean factor {m:.3}");
     }
 
     /// Until [`MIN_DIFFERENCES`] second differences of consecutive pairs
