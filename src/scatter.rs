@@ -39,11 +39,10 @@
 //!
 //! The factor is 1 until [`MIN_DIFFERENCES`] second differences count under
 //! the cut, the turns' share taken out; a pair without numbers breaks the
-//! run of consecutive pairs. The pair's
-//! own disparity does not enter its factor. Scatter far beyond the
-//! reported errors is partly left out as motion: without the shrink, an
-//! under-report of 1.5 times gives a factor of 1.40, of 2 times 1.63, of 3
-//! times 1.82.
+//! run of consecutive pairs. The pair's own disparity does not enter its
+//! factor. Scatter far beyond the reported errors is partly left out as
+//! motion: without the shrink, an under-report of 1.5 times gives a factor
+//! of 1.40, of 2 times 1.63, of 3 times 1.82.
 
 use std::collections::VecDeque;
 
@@ -174,8 +173,11 @@ mod tests {
             .collect()
     }
 
-    fn mean(v: &[f64]) -> f64 {
-        v.iter().sum::<f64>() / v.len() as f64
+    /// The mean factor of a full window (pairs 32-39 of a 40-pair run) over
+    /// the runs `run(seed)` gives for seeds 0-49 (see [`factors`]).
+    fn mean_of_full_windows(run: impl Fn(u64) -> Vec<f64>) -> f64 {
+        let full: Vec<f64> = (0..50).flat_map(|seed| run(seed).split_off(32)).collect();
+        full.iter().sum::<f64>() / full.len() as f64
     }
 
     /// Fits whose standard errors are right are scaled by little: over 50
@@ -184,10 +186,7 @@ mod tests {
     /// the ratio itself back).
     #[test]
     fn right_standard_errors_are_scaled_by_little() {
-        let full: Vec<f64> = (0..50)
-            .flat_map(|seed| factors(seed, 40, |k| 3.0 + 0.7 * k as f64, 0.05, 0.05).split_off(32))
-            .collect();
-        let m = mean(&full);
+        let m = mean_of_full_windows(|seed| factors(seed, 40, |k| 3.0 + 0.7 * k as f64, 0.05, 0.05));
         assert!((1.0..1.1).contains(&m), "mean factor {m:.3}");
     }
 
@@ -196,10 +195,7 @@ mod tests {
     /// 1.35-1.75 of the true 1.67.
     #[test]
     fn under_reported_noise_scales_the_standard_error() {
-        let full: Vec<f64> = (0..50)
-            .flat_map(|seed| factors(seed, 40, |k| 3.0 - 0.3 * k as f64, 0.1, 0.06).split_off(32))
-            .collect();
-        let m = mean(&full);
+        let m = mean_of_full_windows(|seed| factors(seed, 40, |k| 3.0 - 0.3 * k as f64, 0.1, 0.06));
         assert!((1.35..1.75).contains(&m), "mean factor {m:.3}");
     }
 
@@ -210,10 +206,7 @@ mod tests {
     #[test]
     fn turns_of_the_motion_are_not_taken_for_noise() {
         let triangle = |k: u64| [-4.786, -3.406, -2.025, -2.932, -4.312, -5.692][(k % 6) as usize];
-        let full: Vec<f64> = (0..50)
-            .flat_map(|seed| factors(seed, 40, triangle, 0.02, 0.02).split_off(32))
-            .collect();
-        let m = mean(&full);
+        let m = mean_of_full_windows(|seed| factors(seed, 40, triangle, 0.02, 0.02));
         assert!((1.0..1.15).contains(&m), "mean factor {m:.3}");
     }
 
@@ -225,23 +218,20 @@ mod tests {
     /// the cut alone, 1.44 with the cut at 4).
     #[test]
     fn a_height_that_jumps_is_not_taken_for_noise() {
-        let full: Vec<f64> = (0..50)
-            .flat_map(|seed| {
-                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1000 + seed);
-                let jump = Normal::new(0.0, 1.0).unwrap();
-                let mut height = 0.0;
-                let walk: Vec<f64> = (0..40)
-                    .map(|k| {
-                        if k % 3 == 0 {
-                            height += jump.sample(&mut rng);
-                        }
-                        0.7 * k as f64 + height
-                    })
-                    .collect();
-                factors(seed, 40, |k| walk[k as usize], 0.05, 0.05).split_off(32)
-            })
-            .collect();
-        let m = mean(&full);
+        let m = mean_of_full_windows(|seed| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1000 + seed);
+            let jump = Normal::new(0.0, 1.0).unwrap();
+            let mut height = 0.0;
+            let walk: Vec<f64> = (0..40)
+                .map(|k| {
+                    if k % 3 == 0 {
+                        height += jump.sample(&mut rng);
+                    }
+                    0.7 * k as f64 + height
+                })
+                .collect();
+            factors(seed, 40, |k| walk[k as usize], 0.05, 0.05)
+        });
         assert!((1.0..1.2).contains(&m), "mean factor {m:.3}");
     }
 
