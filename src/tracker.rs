@@ -1798,8 +1798,9 @@ impl StereoTracker {
     }
 
     /// [`Self::measure_std`]'s standard error along the axis, without the
-    /// masked runs' shift, and the visible outline's
-    /// [`uncertainty::weakest_direction_factor`].
+    /// masked runs' shift (the marginal one: the curvature's conditional
+    /// figure times [`uncertainty::marginal_factor`]), and the visible
+    /// outline's [`uncertainty::weakest_direction_factor`] relative to it.
     fn axis_std(
         &self,
         frame: &GrayFrame,
@@ -1825,8 +1826,20 @@ impl StereoTracker {
         };
         let left_out = either(&unseen, &fit.occluded);
         let arcs = sectors.visible_arcs(pose, &left_out);
+        // The fit moves the outline across the axis too: the curvature
+        // along it alone gives the conditional standard error, and the
+        // marginal one is larger for a slender outline at an angle to the
+        // axis. Not for a fit with hidden sectors, whose figure already
+        // carries the masked runs' shift, an estimate of their bias that
+        // over-reports (README, "How sure a number is"); nor where the
+        // arcs fix no position in some direction, which the weakest
+        // direction's checks judge instead.
+        let marginal = Some(uncertainty::marginal_factor(&arcs, u))
+            .filter(|f| f.is_finite() && !fit.occluded.contains(&true))
+            .unwrap_or(1.0);
         let weakest = (
-            uncertainty::weakest_direction_factor(&arcs, u),
+            // Relative to the marginal standard error this returns.
+            uncertainty::weakest_direction_factor(&arcs, u) / marginal,
             uncertainty::weakest_direction(&arcs),
             fixed_share(sectors, pose, &unseen, &left_out),
         );
@@ -1845,13 +1858,19 @@ impl StereoTracker {
             let means = [a.mean(), b.mean()];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| sectors.masked_energy(sums, shifted(d), &fit.occluded, m_ref);
-            (uncertainty::axis_std(energy, m_ref, means, s, sigma), weakest)
+            (
+                marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma),
+                weakest,
+            )
         } else {
             let terms = template.energy_at(sums, pose, &self.params.energy);
             let means = [terms.mean_inside, terms.mean_outside];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| template.energy_at(sums, shifted(d), &self.params.energy).energy;
-            (uncertainty::axis_std(energy, m_ref, means, s, sigma), weakest)
+            (
+                marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma),
+                weakest,
+            )
         }
     }
 
@@ -2950,8 +2969,10 @@ struct ImageFit {
     /// noise's.
     risen_shift_px: f64,
     /// How much less well the visible outline fixes the pose in its
-    /// weakest direction than along the disparity axis
-    /// ([`uncertainty::weakest_direction_factor`]; 1 until measured).
+    /// weakest direction than along the disparity axis: the standard
+    /// error there over `axis_std_px`
+    /// ([`uncertainty::weakest_direction_factor`] over
+    /// [`uncertainty::marginal_factor`]; 1 until measured).
     weakest_factor: f64,
     /// That direction, a unit vector ([`uncertainty::weakest_direction`];
     /// along x until measured).

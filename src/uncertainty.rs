@@ -29,6 +29,15 @@
 //! moves with it; in a tracking step the cut stays put
 //! ([`crate::fit::RigidTemplate::fixed_at`]) and adds nothing.
 //!
+//! `D''` is the curvature along `u` with the position across `u` held,
+//! while the fit moves the outline in both directions: a slender outline
+//! at an angle to the axis trades a shift along `u` for one along its own
+//! length. For a fit without hidden sectors the tracker multiplies the
+//! result by [`marginal_factor`], the ratio of the marginal to the
+//! conditional standard error for the outline's geometric information
+//! matrix (1 for a compact outline); a fit with hidden sectors keeps the
+//! conditional figure, as its bias term below already over-reports.
+//!
 //! What this leaves out (the template not matching the outline exactly,
 //! sub-pixel discretisation) is the tracker's floor
 //! ([`crate::tracker::DISPARITY_STD_FLOOR_PX`]) and, once a run of pairs
@@ -298,6 +307,33 @@ pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
     }
 }
 
+/// By how much the fit's standard error along `u` exceeds the one
+/// [`axis_std`] measures: `sqrt(J_uu (J^-1)_uu)` for the geometric
+/// information matrix `J` of a translation (see
+/// [`weakest_direction_factor`]). [`axis_std`] takes the energy's
+/// curvature along `u` with the position across `u` held, a conditional
+/// variance proportional to `1 / J_uu`; the fit moves the outline both
+/// ways, so its estimate along `u` has the marginal variance, proportional
+/// to `(J^-1)_uu`. For an outline whose information along and across its
+/// long axis is `a` and `b`, at an angle `alpha` to `u`, the square of the
+/// factor is `cos^4 + sin^4 + cos^2 sin^2 (a / b + b / a)`: 1 for a circle
+/// and for a slender outline along or across `u`, 1.55 for a 60 x 8 px
+/// rectangle at 45 degrees. At least 1 and at most
+/// [`weakest_direction_factor`]; infinite when the arcs fix no position
+/// along some direction.
+pub fn marginal_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
+    let [xx, xy, yy] = information_matrix(arcs);
+    let det = xx * yy - xy * xy;
+    let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
+    let inv_uu = yy * u[0] * u[0] - 2.0 * xy * u[0] * u[1] + xx * u[1] * u[1];
+    // As in `weakest_direction_factor`: below a millionth, rounding.
+    if det <= 1e-6 * (xx + yy) * (xx + yy) {
+        f64::INFINITY
+    } else {
+        (j_uu * inv_uu / det).sqrt().max(1.0)
+    }
+}
+
 /// How poorly the `arcs` fix a rigid pose's rotation about `centre`: the
 /// rotation's entry of the inverse of the information matrix of (x, y,
 /// theta), the integral of `J J^T` with `J = (n_x, n_y, (p - centre) x n)`
@@ -404,6 +440,52 @@ mod tests {
             .collect();
         let pi_r = 10.0 * std::f64::consts::PI;
         assert!((weakest_information(&[circle]) - pi_r).abs() < 0.01 * pi_r);
+    }
+
+    #[test]
+    fn a_slender_outline_at_an_angle_to_the_axis_is_fixed_less_well_along_it() {
+        // A closed rectangle of `length` x `width` px at `angle` (rad).
+        let rectangle = |length: f64, width: f64, angle: f64| -> Vec<Point> {
+            let (s, c) = angle.sin_cos();
+            [
+                [0.0, 0.0],
+                [length, 0.0],
+                [length, width],
+                [0.0, width],
+                [0.0, 0.0],
+            ]
+            .iter()
+            .map(|p| [c * p[0] - s * p[1], s * p[0] + c * p[1]])
+            .collect()
+        };
+        let u = [1.0, 0.0];
+        // Along its length: a = 2 * 8 (the ends), b = 2 * 60 (the sides).
+        let (a, b) = (16.0f64, 120.0f64);
+        let diagonal = marginal_factor(&[rectangle(60.0, 8.0, std::f64::consts::FRAC_PI_4)], u);
+        let expected = (0.5 + 0.25 * (a / b + b / a)).sqrt();
+        assert!(
+            (diagonal - expected).abs() < 1e-9,
+            "{diagonal} against {expected}"
+        );
+        assert!((diagonal - 1.552).abs() < 1e-3, "{diagonal}");
+        // Along and across the axis, and a circle: the curvature along `u`
+        // alone is the whole story.
+        for angle in [0.0, std::f64::consts::FRAC_PI_2] {
+            let f = marginal_factor(&[rectangle(60.0, 8.0, angle)], u);
+            assert!((f - 1.0).abs() < 1e-9, "{angle}: {f}");
+        }
+        let circle: Vec<Point> = (0..=256)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 256.0;
+                [10.0 * a.cos(), 10.0 * a.sin()]
+            })
+            .collect();
+        assert!((marginal_factor(&[circle], u) - 1.0).abs() < 1e-6);
+        // Never above the weakest direction's factor; a lone straight edge
+        // at an angle fixes nothing along it.
+        let tilted = [rectangle(60.0, 8.0, 0.3)];
+        assert!(marginal_factor(&tilted, u) <= weakest_direction_factor(&tilted, u) + 1e-12);
+        assert!(marginal_factor(&[vec![[0.0, 0.0], [40.0, 30.0]]], u).is_infinite());
     }
 
     #[test]
