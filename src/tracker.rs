@@ -1834,8 +1834,9 @@ impl StereoTracker {
         // over-reports (README, "How sure a number is"); nor where the
         // arcs fix no position in some direction, which the weakest
         // direction's checks judge instead.
+        let occluded = fit.occluded.contains(&true);
         let marginal = Some(uncertainty::marginal_factor(&arcs, u))
-            .filter(|f| f.is_finite() && !fit.occluded.contains(&true))
+            .filter(|f| f.is_finite() && !occluded)
             .unwrap_or(1.0);
         let weakest = (
             // Relative to the marginal standard error this returns.
@@ -1853,15 +1854,12 @@ impl StereoTracker {
         };
         let m_ref = sums.reference_mean();
         let s = uncertainty::weighted_length(&arcs, u);
-        if fit.occluded.contains(&true) {
+        if occluded {
             let (a, b) = sectors.visible_bands(sums, pose, &fit.occluded);
             let means = [a.mean(), b.mean()];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| sectors.masked_energy(sums, shifted(d), &fit.occluded, m_ref);
-            (
-                marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma),
-                weakest,
-            )
+            (uncertainty::axis_std(energy, m_ref, means, s, sigma), weakest)
         } else {
             let terms = template.energy_at(sums, pose, &self.params.energy);
             let means = [terms.mean_inside, terms.mean_outside];

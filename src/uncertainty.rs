@@ -265,7 +265,7 @@ pub fn weighted_length(arcs: &[Vec<Point>], u: Point) -> f64 {
 pub fn weakest_direction_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
     let [xx, xy, yy] = information_matrix(arcs);
     let [lambda_min, _] = symmetric_eigenvalues([xx, xy, yy]);
-    let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
+    let j_uu = quadratic_form([xx, xy, yy], u);
     // Below a millionth of the total, the smallest eigenvalue is rounding.
     if lambda_min <= 1e-6 * (xx + yy) {
         f64::INFINITY
@@ -324,8 +324,9 @@ pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
 pub fn marginal_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
     let [xx, xy, yy] = information_matrix(arcs);
     let det = xx * yy - xy * xy;
-    let j_uu = xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1];
-    let inv_uu = yy * u[0] * u[0] - 2.0 * xy * u[0] * u[1] + xx * u[1] * u[1];
+    let j_uu = quadratic_form([xx, xy, yy], u);
+    // The adjugate's form: (J^-1)_uu times det J.
+    let inv_uu = quadratic_form([yy, -xy, xx], u);
     // As in `weakest_direction_factor`: below a millionth, rounding.
     if det <= 1e-6 * (xx + yy) * (xx + yy) {
         f64::INFINITY
@@ -372,6 +373,11 @@ fn pose_information(arcs: &[Vec<Point>], centre: Point) -> [[f64; 3]; 3] {
         }
     }
     m
+}
+
+/// `u^T M u` for the symmetric 2x2 matrix `M = [xx, xy, yy]`.
+fn quadratic_form([xx, xy, yy]: [f64; 3], u: Point) -> f64 {
+    xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1]
 }
 
 /// The geometric information matrix of the `arcs` for a translation, the
