@@ -4,7 +4,7 @@
 use semdepth::geometry::mask_iou;
 use semdepth::geometry::Polygon;
 use semdepth::init::{initialise, InitParams};
-use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
+use semdepth::synth::{edge_shift_bound, iou_chance, Preset, Scene, Shape, SynthConfig};
 use semdepth::tracker::{Status, StereoTracker, TrackerParams};
 
 /// IoU a case must reach to count as a success (issue #2).
@@ -123,15 +123,21 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
 /// it, the first pair's left contour (the tracker's, as a user sees it) has
 /// IoU >= 0.95 with the frame-clipped truth in at least 95% of the cases on
 /// every scene class (4 shapes x 5 unseen seeds x 2 hints; failures are
-/// listed). Not reached for blurred objects, held at what was measured on
-/// seeds 500-504: 0.90 (rods under a 2-px blur at low dose, IoU 0.93-0.95,
-/// their outline 0.3-0.6 px outside or inside the edge, which the edge fit
-/// cannot measure there). The other classes reach it on these seeds (dark
-/// 0.95, 0.90 before its rim was grown from a finer core; relief 0.975,
-/// 0.95 before its strips of substrate were cut out); on seeds 600-604,
-/// 700-704 and 800-804 relief gives 0.95, 0.975 and 1.00 (a sphere's
-/// shaded side cut off, a spike along a grain boundary), blurred 0.95,
-/// 0.825 and 0.80 (rods only), dark 0.975, 1.00 and 1.00.
+/// listed). Not reachable for blurred objects: a 15-25 px wide rod needs
+/// its outline within 0.35-0.6 px of the edge, and under a 2-px blur at
+/// 15-30 electrons, with the blur's width and the edge rim unknown, one
+/// view places it no better than 0.3-1.2 px ([`edge_shift_bound`], the
+/// Cramér-Rao bound). The share of these scenes an unbiased estimator at
+/// that bound would bring to IoU >= 0.95 is 0.86; the test asserts that it
+/// is under 0.95, so the exception holds only while the images cannot tell
+/// the edge, and holds the class to what was measured: 0.90. The other
+/// classes reach 0.95 on these seeds (dark 0.95, 0.90 before its rim was
+/// grown from a finer core; relief 0.975, 0.95 before its strips of
+/// substrate were cut out); on seeds 600-604, 700-704 and 800-804 relief
+/// gives 0.95, 0.975 and 1.00 (a sphere's shaded side cut off, a spike
+/// along a grain boundary), blurred 0.95, 0.825 and 0.80 (rods only, where
+/// the bound allows 0.92, 0.92 and 0.89 on seeds 500-509, 700-709 and
+/// 800-809), dark 0.975, 1.00 and 1.00.
 #[test]
 fn hinted_objects_are_found_on_every_scene_class() {
     for preset in Preset::ALL {
@@ -140,10 +146,13 @@ fn hinted_objects_are_found_on_every_scene_class() {
             _ => 0.95,
         };
         let mut failures = Vec::new();
-        let mut total = 0usize;
+        let (mut total, mut reachable) = (0usize, 0.0);
         for shape in Shape::ALL {
             for seed in 500..505 {
                 let (pair, w, h, truth) = first_frame(preset, shape, seed);
+                let config = SynthConfig::preset(preset, shape, seed);
+                reachable += edge_shift_bound(&config, &pair.truth.left.polygon)
+                    .map_or(1.0, |b| iou_chance(&pair.truth.left.polygon, b.unknown, 0.95));
                 let point = pair.truth.left.point_hint(w, h).expect("object visible");
                 for (hint, params) in [
                     (
@@ -179,6 +188,19 @@ fn hinted_objects_are_found_on_every_scene_class() {
                     }
                 }
             }
+        }
+        // Two hints per scene.
+        let reachable = 2.0 * reachable / total as f64;
+        eprintln!(
+            "{}: share reachable at the edge's bound {reachable:.3}",
+            preset.name()
+        );
+        if required < 0.95 {
+            assert!(
+                reachable < 0.95,
+                "{}: the bound allows {reachable:.3}: require 0.95",
+                preset.name()
+            );
         }
         assert_success_rate(preset, &failures, total, 0.95, required);
     }

@@ -19,6 +19,7 @@
 //! }
 //! ```
 
+mod bound;
 mod config;
 mod noise;
 mod output;
@@ -33,6 +34,7 @@ mod truth;
 #[cfg(test)]
 mod tests;
 
+pub use bound::{edge_shift_bound, iou_chance, EdgeBound};
 pub use config::{
     BorderEntry, BorderSide, Clutter, Disparity, Fibres, Motion, Noise, Occlusion, Preset, Relief, Shape,
     SynthConfig, ZPattern, BORDER_MARGIN, MAX_SIDE, MIN_OBJECT_PX, MIN_SIDE,
