@@ -1790,8 +1790,15 @@ impl StereoTracker {
         fit: &mut ImageFit,
         bands: uncertainty::NoiseBands,
     ) {
-        let (std, (factor, direction, share)) = self.axis_std(frame, sums, template, sectors, fit, bands);
-        fit.axis_std_px = std.hypot(fit.mask_shift_px);
+        let ((std, difference), (factor, direction, share)) =
+            self.axis_std(frame, sums, template, sectors, fit, bands);
+        // The masked runs' shift less what the noise alone moves it by: the
+        // fit with the runs grown is the less efficient of the two, and
+        // their difference has the difference of their variances.
+        let bias = (fit.mask_shift_px.powi(2) - difference * std * std)
+            .max(0.0)
+            .sqrt();
+        fit.axis_std_px = std.hypot(bias);
         fit.weakest_factor = factor;
         fit.weakest_direction = direction;
         fit.fixed_share = share;
@@ -1799,8 +1806,11 @@ impl StereoTracker {
 
     /// [`Self::measure_std`]'s standard error along the axis, without the
     /// masked runs' shift (the marginal one: the curvature's conditional
-    /// figure times [`uncertainty::marginal_factor`]), and the visible
-    /// outline's [`uncertainty::weakest_direction_factor`] relative to it.
+    /// figure times [`uncertainty::marginal_factor`]) and, for a fit with
+    /// hidden sectors, the variance the noise alone gives that shift
+    /// relative to its square ([`uncertainty::difference_variance`]); and
+    /// the visible outline's [`uncertainty::weakest_direction_factor`]
+    /// relative to it.
     fn axis_std(
         &self,
         frame: &GrayFrame,
@@ -1809,7 +1819,7 @@ impl StereoTracker {
         sectors: &SectorTemplate,
         fit: &ImageFit,
         bands: uncertainty::NoiseBands,
-    ) -> (f64, (f64, Point, f64)) {
+    ) -> ((f64, f64), (f64, Point, f64)) {
         let t = self.params.tilt_axis_deg.to_radians();
         let u = [t.sin(), -t.cos()];
         let pose = fit.pose;
@@ -1831,13 +1841,22 @@ impl StereoTracker {
         // marginal one is larger for a slender outline at an angle to the
         // axis. Not for a fit with hidden sectors, whose figure already
         // carries the masked runs' shift, an estimate of their bias that
-        // over-reports (README, "How sure a number is"); nor where the
+        // still over-reports (README, "How sure a number is"); nor where the
         // arcs fix no position in some direction, which the weakest
         // direction's checks judge instead.
         let occluded = fit.occluded.contains(&true);
         let marginal = Some(uncertainty::marginal_factor(&arcs, u))
             .filter(|f| f.is_finite() && !occluded)
             .unwrap_or(1.0);
+        // The variance of the masked runs' shift that the noise alone
+        // gives (see `measure_std`), relative to the conditional one.
+        let wider = crate::occlusion::grown(&fit.occluded);
+        let difference = if occluded && wider != fit.occluded {
+            let fewer = sectors.visible_arcs(pose, &either(&unseen, &wider));
+            uncertainty::difference_variance(&arcs, &fewer, u)
+        } else {
+            0.0
+        };
         let weakest = (
             // Relative to the marginal standard error this returns.
             uncertainty::weakest_direction_factor(&arcs, u) / marginal,
@@ -1845,7 +1864,7 @@ impl StereoTracker {
             fixed_share(sectors, pose, &unseen, &left_out),
         );
         let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward(template), bands) else {
-            return (f64::NAN, weakest);
+            return ((f64::NAN, difference), weakest);
         };
         let shifted = |d: f64| Pose {
             x: pose.x + d * u[0],
@@ -1859,14 +1878,20 @@ impl StereoTracker {
             let means = [a.mean(), b.mean()];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| sectors.masked_energy(sums, shifted(d), &fit.occluded, m_ref);
-            (uncertainty::axis_std(energy, m_ref, means, s, sigma), weakest)
+            (
+                (uncertainty::axis_std(energy, m_ref, means, s, sigma), difference),
+                weakest,
+            )
         } else {
             let terms = template.energy_at(sums, pose, &self.params.energy);
             let means = [terms.mean_inside, terms.mean_outside];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| template.energy_at(sums, shifted(d), &self.params.energy).energy;
             (
-                marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma),
+                (
+                    marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma),
+                    difference,
+                ),
                 weakest,
             )
         }

@@ -46,7 +46,8 @@
 //! (hidden, or before a new backdrop) also carries the bias of the partly
 //! covered sectors next to them, which the noise does not show: the
 //! tracker adds, in quadrature, how far the pose moves along the axis when
-//! each left-out run grows by one sector. The calibration against the
+//! each left-out run grows by one sector, less the part of that shift the
+//! noise alone explains ([`difference_variance`]). The calibration against the
 //! synthetic suites is in README.md.
 
 use crate::geometry::{symmetric_eigenvalues, Point};
@@ -335,6 +336,28 @@ pub fn marginal_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
     }
 }
 
+/// The variance of the difference between the positions along `u` fitted
+/// on `arcs` and on `fewer` of them (a subset), in units of the
+/// conditional variance along `u` from `arcs` (the energy's curvature):
+/// `J_uu(arcs) ((J_fewer^-1)_uu - (J_arcs^-1)_uu)`, the translation's
+/// marginal variances under the same noise per unit of outline. The
+/// difference of an efficient estimate and a less efficient one has the
+/// difference of their variances (Hausman, 1978). Infinite when `fewer`
+/// fixes no position along some direction.
+pub fn difference_variance(arcs: &[Vec<Point>], fewer: &[Vec<Point>], u: Point) -> f64 {
+    let inverse_uu = |m: [f64; 3]| {
+        let [xx, xy, yy] = m;
+        let det = xx * yy - xy * xy;
+        if det <= 1e-6 * (xx + yy) * (xx + yy) {
+            f64::INFINITY
+        } else {
+            quadratic_form([yy, -xy, xx], u) / det
+        }
+    };
+    let all = information_matrix(arcs);
+    (quadratic_form(all, u) * (inverse_uu(information_matrix(fewer)) - inverse_uu(all))).max(0.0)
+}
+
 /// How poorly the `arcs` fix a rigid pose's rotation about `centre`: the
 /// rotation's entry of the inverse of the information matrix of (x, y,
 /// theta), the integral of `J J^T` with `J = (n_x, n_y, (p - centre) x n)`
@@ -446,6 +469,33 @@ mod tests {
             .collect();
         let pi_r = 10.0 * std::f64::consts::PI;
         assert!((weakest_information(&[circle]) - pi_r).abs() < 0.01 * pi_r);
+    }
+
+    /// Half a circle has half its information in every direction: a fit on
+    /// it has twice the variance, and its difference from the whole
+    /// circle's fit the variance of one (Hausman). The same arcs differ by
+    /// nothing; arcs that fix nothing along the axis, without bound.
+    #[test]
+    fn the_difference_of_two_fits_has_the_difference_of_their_variances() {
+        let arc = |from: f64, to: f64| -> Vec<Point> {
+            (0..=256)
+                .map(|k| {
+                    let a = from + (to - from) * k as f64 / 256.0;
+                    [10.0 * a.cos(), 10.0 * a.sin()]
+                })
+                .collect()
+        };
+        let pi = std::f64::consts::PI;
+        let whole = [arc(0.0, 2.0 * pi)];
+        let half = [arc(-pi / 2.0, pi / 2.0)];
+        for u in [[1.0, 0.0], [0.6, -0.8]] {
+            let d = difference_variance(&whole, &half, u);
+            assert!((d - 1.0).abs() < 1e-3, "{u:?}: {d}");
+            assert!(difference_variance(&whole, &whole, u).abs() < 1e-9);
+        }
+        // Two straight sides along x fix nothing along x.
+        let sides = [vec![[-10.0, -3.0], [10.0, -3.0]], vec![[10.0, 3.0], [-10.0, 3.0]]];
+        assert!(difference_variance(&whole, &sides, [1.0, 0.0]).is_infinite());
     }
 
     #[test]
