@@ -1849,9 +1849,10 @@ impl StereoTracker {
             .filter(|f| f.is_finite() && !occluded)
             .unwrap_or(1.0);
         // The variance of the masked runs' shift that the noise alone
-        // gives (see `measure_std`), relative to the conditional one.
-        let wider = crate::occlusion::grown(&fit.occluded);
-        let difference = if occluded && wider != fit.occluded {
+        // gives (see `measure_std`), relative to the conditional one; the
+        // shift, where measured, is with the runs grown by one sector.
+        let difference = if fit.mask_shift_px > 0.0 {
+            let wider = crate::occlusion::grown(&fit.occluded);
             let fewer = sectors.visible_arcs(pose, &either(&unseen, &wider));
             uncertainty::difference_variance(&arcs, &fewer, u)
         } else {

@@ -323,16 +323,10 @@ pub fn isotropy(arcs: &[Vec<Point>]) -> f64 {
 /// [`weakest_direction_factor`]; infinite when the arcs fix no position
 /// along some direction.
 pub fn marginal_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
-    let [xx, xy, yy] = information_matrix(arcs);
-    let det = xx * yy - xy * xy;
-    let j_uu = quadratic_form([xx, xy, yy], u);
-    // The adjugate's form: (J^-1)_uu times det J.
-    let inv_uu = quadratic_form([yy, -xy, xx], u);
-    // As in `weakest_direction_factor`: below a millionth, rounding.
-    if det <= 1e-6 * (xx + yy) * (xx + yy) {
-        f64::INFINITY
-    } else {
-        (j_uu * inv_uu / det).sqrt().max(1.0)
+    let j = information_matrix(arcs);
+    match inverse_form(j, u) {
+        inverse if inverse.is_finite() => (quadratic_form(j, u) * inverse).sqrt().max(1.0),
+        _ => f64::INFINITY,
     }
 }
 
@@ -345,17 +339,8 @@ pub fn marginal_factor(arcs: &[Vec<Point>], u: Point) -> f64 {
 /// difference of their variances (Hausman, 1978). Infinite when `fewer`
 /// fixes no position along some direction.
 pub fn difference_variance(arcs: &[Vec<Point>], fewer: &[Vec<Point>], u: Point) -> f64 {
-    let inverse_uu = |m: [f64; 3]| {
-        let [xx, xy, yy] = m;
-        let det = xx * yy - xy * xy;
-        if det <= 1e-6 * (xx + yy) * (xx + yy) {
-            f64::INFINITY
-        } else {
-            quadratic_form([yy, -xy, xx], u) / det
-        }
-    };
     let all = information_matrix(arcs);
-    (quadratic_form(all, u) * (inverse_uu(information_matrix(fewer)) - inverse_uu(all))).max(0.0)
+    (quadratic_form(all, u) * (inverse_form(information_matrix(fewer), u) - inverse_form(all, u))).max(0.0)
 }
 
 /// How poorly the `arcs` fix a rigid pose's rotation about `centre`: the
@@ -401,6 +386,19 @@ fn pose_information(arcs: &[Vec<Point>], centre: Point) -> [[f64; 3]; 3] {
 /// `u^T M u` for the symmetric 2x2 matrix `M = [xx, xy, yy]`.
 fn quadratic_form([xx, xy, yy]: [f64; 3], u: Point) -> f64 {
     xx * u[0] * u[0] + 2.0 * xy * u[0] * u[1] + yy * u[1] * u[1]
+}
+
+/// `u^T M^-1 u` for the symmetric 2x2 matrix `M = [xx, xy, yy]` (the
+/// adjugate's form over the determinant); infinite where `M` is singular
+/// to rounding (as in `weakest_direction_factor`: a determinant below a
+/// millionth of the squared trace).
+fn inverse_form([xx, xy, yy]: [f64; 3], u: Point) -> f64 {
+    let det = xx * yy - xy * xy;
+    if det <= 1e-6 * (xx + yy) * (xx + yy) {
+        f64::INFINITY
+    } else {
+        quadratic_form([yy, -xy, xx], u) / det
+    }
 }
 
 /// The geometric information matrix of the `arcs` for a translation, the

@@ -23,7 +23,7 @@
 //! at 15-30 electrons, with the blur's width given 0.1-0.35 px.
 
 use super::SynthConfig;
-use crate::geometry::Polygon;
+use crate::geometry::{segment_distance, Polygon};
 
 /// Lower bounds on the standard error (pixels) of the whole outline's shift
 /// onto the edge, from one view ([`edge_shift_bound`]).
@@ -182,13 +182,7 @@ fn inradius(polygon: &Polygon, width: u32, height: u32) -> f64 {
             let q = [(k % w) as f64, (k / w) as f64];
             edges
                 .iter()
-                .map(|(a, b)| {
-                    let d = [b[0] - a[0], b[1] - a[1]];
-                    let s = (((q[0] - a[0]) * d[0] + (q[1] - a[1]) * d[1])
-                        / (d[0] * d[0] + d[1] * d[1]).max(1e-12))
-                    .clamp(0.0, 1.0);
-                    (q[0] - a[0] - s * d[0]).hypot(q[1] - a[1] - s * d[1])
-                })
+                .map(|&(a, b)| segment_distance(q, a, b))
                 .fold(f64::INFINITY, f64::min)
         })
         .fold(0.0, f64::max)
