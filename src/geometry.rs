@@ -168,6 +168,18 @@ impl Polygon {
         }
     }
 
+    /// Area of the part of the enclosed area within `length` of its
+    /// farthest point along the unit vector `direction`: the shape of an
+    /// end, say a tool's free end (its tip), whatever the part behind it.
+    pub fn end_area(&self, direction: Point, length: f64) -> f64 {
+        let along = |p: &Point| direction[0] * p[0] + direction[1] * p[1];
+        let far = self.points.iter().map(along).fold(f64::NEG_INFINITY, f64::max);
+        if !far.is_finite() {
+            return 0.0;
+        }
+        Polygon::new(HalfPlane::new(direction, far - length).clip(&self.points)).area()
+    }
+
     /// Bounding box as (min x, min y, max x, max y).
     pub fn bounds(&self) -> [f64; 4] {
         self.points.iter().fold(
@@ -680,6 +692,24 @@ mod tests {
         let [long, short] = rot.principal_spreads();
         assert!((long - 10.0 / 12f64.sqrt()).abs() < 1e-9, "{long}");
         assert!((short - 4.0 / 12f64.sqrt()).abs() < 1e-9, "{short}");
+    }
+
+    #[test]
+    fn end_area_is_the_area_near_the_far_end() {
+        // A 40 x 10 bar ending in a triangle 10 long: within 10 of the tip
+        // lies the triangle (50), within 20 the triangle and 10 of bar.
+        let tool = Polygon::new(vec![
+            [0.0, 0.0],
+            [40.0, 0.0],
+            [50.0, 5.0],
+            [40.0, 10.0],
+            [0.0, 10.0],
+        ]);
+        assert!((tool.end_area([1.0, 0.0], 10.0) - 50.0).abs() < 1e-9);
+        assert!((tool.end_area([1.0, 0.0], 20.0) - 150.0).abs() < 1e-9);
+        // The other end is square.
+        assert!((tool.end_area([-1.0, 0.0], 10.0) - 100.0).abs() < 1e-9);
+        assert_eq!(Polygon::new(vec![]).end_area([1.0, 0.0], 10.0), 0.0);
     }
 
     #[test]

@@ -988,11 +988,14 @@ impl StereoTracker {
     /// spread off by more than [`MIN_SPREAD_RATIO`]) is refused, up to
     /// [`REFUSED_INITS`] times: the reason of the lost pair, the state set
     /// to seek the lost template again. Of a lost object cut by the image
-    /// border only a tool's width is compared (a spread across it at most
+    /// border only a tool's width and free end are compared (a spread across it at most
     /// [`ELONGATED`] times smaller than along it): the visible part of a
     /// tool changes in length as it moves in or out, not in width (a
     /// needle lost with its tip over a grain was found afresh as needle
-    /// and grain together, 5 px off in disparity, `tracked`); a
+    /// and grain together, 5 px off in disparity, `tracked`), and its free
+    /// end (the area within its width of the tip, by the same ratio: found
+    /// afresh with a patch of the grain's rim at its tip, the needle's
+    /// disparity was 1.4 px off, `tracked`); a
     /// fresh one cut by the border, where the lost one was whole, is
     /// refused only when it is larger than the lost object (a spread over
     /// `1 / MIN_SPREAD_RATIO` times its), as the part of it the frame
@@ -1013,24 +1016,41 @@ impl StereoTracker {
             if old_long < ELONGATED * old_short {
                 return None;
             }
-            (
-                within(new_short, old_short) && within(old_short, new_short),
-                "of another width than the lost tool cut by the image border",
-                "another object, or the tool merged with one",
-            )
+            let width = within(new_short, old_short) && within(old_short, new_short);
+            // Its free end, over the length of its width (a bar's width is
+            // sqrt(12) times its spread across).
+            let length = 12f64.sqrt() * old_short;
+            let ends = (
+                free_end_area(&state.template, &state.template_cuts, length),
+                free_end_area(&template.points, &template.cuts, length),
+            );
+            match ends {
+                (Some(old_end), Some(new_end)) if width && !(within(new_end, old_end) && within(old_end, new_end)) => (
+                    false,
+                    format!(
+                        "a tool cut by the image border whose free end is unlike the lost one's ({new_end:.0} px² against {old_end:.0} px² within {length:.1} px of it)"
+                    ),
+                    "the tool merged with what its tip touches",
+                ),
+                _ => (
+                    width,
+                    "of another width than the lost tool cut by the image border".into(),
+                    "another object, or the tool merged with one",
+                ),
+            }
         } else if template.cuts.is_empty() {
             (
                 within(new_long, old_long)
                     && within(old_long, new_long)
                     && within(new_short, old_short)
                     && within(old_short, new_short),
-                "unlike the lost one",
+                "unlike the lost one".into(),
                 "part of it, or another object",
             )
         } else {
             (
                 within(new_long, old_long) && within(new_short, old_short),
-                "cut by the image border and larger than the lost one",
+                "cut by the image border and larger than the lost one".into(),
                 "another object, or the object merged with one",
             )
         };
@@ -3389,6 +3409,26 @@ fn hidden_end(sectors: &SectorTemplate, fit: &ImageFit, w: Point) -> Option<f64>
         .collect();
     let mean = hidden.iter().sum::<f64>() / hidden.len() as f64;
     (mean.abs() > 0.5 * reach).then_some(mean)
+}
+
+/// Area of an elongated template's part within `length` of its free end
+/// (the end of its long axis away from the image border's cuts); None
+/// without cuts, or when they lie along its length.
+fn free_end_area(points: &[Point], cuts: &[HalfPlane], length: f64) -> Option<f64> {
+    let polygon = Polygon::new(points.to_vec());
+    let (s, c) = polygon.orientation().sin_cos();
+    // The cuts' normals point into the image, away from where the tool
+    // goes on unseen: its free end lies that way along its axis.
+    let inward = cuts
+        .iter()
+        .fold([0.0, 0.0], |a, h| [a[0] + h.normal[0], a[1] + h.normal[1]]);
+    let towards = c * inward[0] + s * inward[1];
+    let norm = inward[0].hypot(inward[1]);
+    if norm == 0.0 || towards.abs() < 0.5 * norm {
+        return None;
+    }
+    let sign = towards.signum();
+    Some(polygon.end_area([sign * c, sign * s], length))
 }
 
 fn lost_result(frame: u64, reason: String) -> PairResult {
