@@ -213,9 +213,10 @@ fn main() {
                 wrong += bad as usize;
                 if frames_out || bad {
                     eprintln!(
-                        "  {} {seed} pair {}: disparity error {e:+.3} (std {:.3}) truth {:.3} centroid error {ce:.2} (raw {:+.1}, {:+.1}){}",
+                        "  {} {seed} pair {}: disparity error {e:+.3} (raw {:+.3}, std {:.3}) truth {:.3} centroid error {ce:.2} (raw {:+.1}, {:+.1}){}",
                         class.name(),
                         frames_ok[i],
+                        ds[i],
                         stds[i],
                         truths[i],
                         cs[i][0],
