@@ -1008,35 +1008,46 @@ impl StereoTracker {
         if state.refused_inits >= REFUSED_INITS {
             return None;
         }
-        let [new_long, new_short] = Polygon::new(template.points.clone()).principal_spreads();
-        let [old_long, old_short] = Polygon::new(state.template.clone()).principal_spreads();
+        let new_polygon = Polygon::new(template.points.clone());
+        let old_polygon = Polygon::new(state.template.clone());
+        let [new_long, new_short] = new_polygon.principal_spreads();
+        let [old_long, old_short] = old_polygon.principal_spreads();
         // A fresh spread at most 1 / MIN_SPREAD_RATIO times the lost one's.
         let within = |a: f64, b: f64| MIN_SPREAD_RATIO * a <= b;
         let (fits, what, why) = if !state.template_cuts.is_empty() {
             if old_long < ELONGATED * old_short {
                 return None;
             }
-            let width = within(new_short, old_short) && within(old_short, new_short);
             // Its free end, over the length of its width (a bar's width is
             // sqrt(12) times its spread across).
             let length = 12f64.sqrt() * old_short;
-            let ends = (
-                free_end_area(&state.template, &state.template_cuts, length),
-                free_end_area(&template.points, &template.cuts, length),
-            );
-            match ends {
-                (Some(old_end), Some(new_end)) if width && !(within(new_end, old_end) && within(old_end, new_end)) => (
+            let old_axis = {
+                let (s, c) = old_polygon.orientation().sin_cos();
+                [c, s]
+            };
+            let ends = || {
+                Some((
+                    free_end_area(&old_polygon, old_axis, &state.template_cuts, length)?,
+                    free_end_area(&new_polygon, template.axis, &template.cuts, length)?,
+                ))
+            };
+            if !(within(new_short, old_short) && within(old_short, new_short)) {
+                (
                     false,
-                    format!(
-                        "a tool cut by the image border whose free end is unlike the lost one's ({new_end:.0} px² against {old_end:.0} px² within {length:.1} px of it)"
-                    ),
-                    "the tool merged with what its tip touches",
-                ),
-                _ => (
-                    width,
                     "of another width than the lost tool cut by the image border".into(),
                     "another object, or the tool merged with one",
-                ),
+                )
+            } else {
+                match ends() {
+                    Some((old_end, new_end)) if !(within(new_end, old_end) && within(old_end, new_end)) => (
+                        false,
+                        format!(
+                            "a tool cut by the image border whose free end is unlike the lost one's ({new_end:.0} px² against {old_end:.0} px² within {length:.1} px of it)"
+                        ),
+                        "the tool merged with what its tip touches",
+                    ),
+                    _ => (true, String::new(), ""),
+                }
             }
         } else if template.cuts.is_empty() {
             (
@@ -1552,7 +1563,7 @@ impl StereoTracker {
                     // short of the tip, `tracked` at 0.16 px).
                     Some(found) if fixing => {
                         let disparity = [found.pose.x - left_pose.x, found.pose.y - left_pose.y];
-                        let again = self.fit_view(
+                        let mut again = self.fit_view(
                             right,
                             &right_at_disparity(left_pose, disparity),
                             state.right_look(),
@@ -1566,7 +1577,6 @@ impl StereoTracker {
                         // grain, 3.6 px off, its search's fit at 0.66 px
                         // and the refit at 0.39 px, under the limit).
                         if again.terms.energy.is_finite() {
-                            let mut again = again;
                             if found.axis_std_px > again.axis_std_px {
                                 again.axis_std_px = found.axis_std_px;
                             }
@@ -3446,11 +3456,9 @@ fn hidden_end(sectors: &SectorTemplate, fit: &ImageFit, w: Point) -> Option<f64>
 }
 
 /// Area of an elongated template's part within `length` of its free end
-/// (the end of its long axis away from the image border's cuts); None
-/// without cuts, or when they lie along its length.
-fn free_end_area(points: &[Point], cuts: &[HalfPlane], length: f64) -> Option<f64> {
-    let polygon = Polygon::new(points.to_vec());
-    let (s, c) = polygon.orientation().sin_cos();
+/// (the end of its long `axis`, a unit vector, away from the image
+/// border's cuts); None without cuts, or when they lie along its length.
+fn free_end_area(polygon: &Polygon, [c, s]: Point, cuts: &[HalfPlane], length: f64) -> Option<f64> {
     // The cuts' normals point into the image, away from where the tool
     // goes on unseen: its free end lies that way along its axis.
     let inward = cuts
