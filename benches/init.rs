@@ -9,9 +9,9 @@
 //! `python3 tools/bench_report.py init` prints medians and ratios.
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion};
-use semdepth::imageio::GrayFrame;
-use semdepth::init::{fitted_to_edge, initialise, InitParams};
-use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
+use semdepth_core::imageio::GrayFrame;
+use semdepth_core::init::{fitted_to_edge, initialise, InitParams};
+use semdepth_core::synth::{Preset, Scene, Shape, SynthConfig};
 
 /// The left frame and a `roi` hint around its object.
 fn frame(width: u32, height: u32) -> (GrayFrame, [i64; 4]) {

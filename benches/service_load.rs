@@ -47,9 +47,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures_util::{SinkExt, StreamExt};
-use semdepth::imageio::GrayFrame;
-use semdepth::synth::{Preset, Shape, SynthConfig};
-use semdepth::tracker::{StereoTracker, TrackerParams};
+use semdepth_core::imageio::GrayFrame;
+use semdepth_core::synth::{Preset, Shape, SynthConfig};
+use semdepth_core::tracker::{StereoTracker, TrackerParams};
 use serde_json::{json, Value};
 use tokio::sync::Barrier;
 use tokio_tungstenite::tungstenite::{Bytes, Message};
@@ -258,7 +258,7 @@ fn render(pool: usize) -> Data {
         frames: pool,
         ..SynthConfig::preset(Preset::Clean, Shape::Blob, 1).with_size(WIDTH, HEIGHT)
     };
-    let frames: Vec<(GrayFrame, GrayFrame)> = semdepth::synth::frames(&config)
+    let frames: Vec<(GrayFrame, GrayFrame)> = semdepth_core::synth::frames(&config)
         .expect("valid synthetic configuration")
         .map(|p| (p.left, p.right))
         .collect();

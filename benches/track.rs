@@ -6,20 +6,20 @@
 //! reference measured in the same run, one pass summing every pixel of both
 //! images (`reference_sum`); at 1024x768 also the step on a defocus-blurred
 //! low-dose blob (`track_pair_blurred`), where both images are smoothed to
-//! the edge's width first (`semdepth::prefilter`); and the pair after a
+//! the edge's width first (`semdepth_core::prefilter`); and the pair after a
 //! loss (`reacquire_pair`: the lost template sought over the whole left
 //! image, then along the right view's epipolar line, and the tracking step
 //! from where it was found); and the factor a run's scatter gives a
 //! tracked pair's standard error over a full window
-//! (`scatter_factor_full_run`, `semdepth::scatter`), part of every step.
+//! (`scatter_factor_full_run`, `semdepth_core::scatter`), part of every step.
 //! Target (tracker issue): a 1024x768 pair under 1 ms on one core (goal 0.5 ms).
 //! `python3 tools/bench_report.py track` prints medians and ratios.
 
 use criterion::{black_box, criterion_group, criterion_main, BatchSize, BenchmarkId, Criterion};
-use semdepth::imageio::GrayFrame;
-use semdepth::scatter::{DisparityRun, Measured};
-use semdepth::synth::{Preset, Scene, Shape, SynthConfig};
-use semdepth::tracker::{Status, StereoTracker, TrackerParams, REACQUIRED};
+use semdepth_core::imageio::GrayFrame;
+use semdepth_core::scatter::{DisparityRun, Measured};
+use semdepth_core::synth::{Preset, Scene, Shape, SynthConfig};
+use semdepth_core::tracker::{Status, StereoTracker, TrackerParams, REACQUIRED};
 
 const SIZES: [(u32, u32); 3] = [(640, 480), (1024, 768), (2048, 2048)];
 

@@ -4,7 +4,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use semdepth::imageio::{decode, DecodeLimits};
+use semdepth_core::imageio::{decode, DecodeLimits};
 
 fuzz_target!(|data: &[u8]| {
     // Small limits keep each run fast; the checks are the same as the
@@ -18,5 +18,5 @@ fuzz_target!(|data: &[u8]| {
         assert!(frame.width as usize * frame.height as usize == frame.data.len());
         assert!(frame.width <= limits.max_width && frame.height <= limits.max_height);
     }
-    let _ = semdepth::meta::read_meta(data);
+    let _ = semdepth_core::meta::read_meta(data);
 });

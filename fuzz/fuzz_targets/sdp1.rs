@@ -4,7 +4,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use semdepth::imageio::DecodeLimits;
+use semdepth_core::imageio::DecodeLimits;
 use semdepth::service::ws::parse_pair_message;
 
 fuzz_target!(|data: &[u8]| {

@@ -16,7 +16,7 @@ use tokio_tungstenite::tungstenite::Message;
 use super::CliError;
 use crate::service::state::ServiceConfig;
 use crate::service::wire::encode_pair_message;
-use crate::synth::{frames, Preset, Shape, SynthConfig};
+use semdepth_core::synth::{frames, Preset, Shape, SynthConfig};
 
 /// Arguments of `semdepth demo`.
 #[derive(Debug, Args)]

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::{exactly, CliError};
-use crate::imageio::{read_file, DecodeLimits};
-use crate::init::{initialise, InitParams, Polarity};
-use crate::tracker::{StereoTracker, TrackerParams};
+use semdepth_core::imageio::{read_file, DecodeLimits};
+use semdepth_core::init::{initialise, InitParams, Polarity};
+use semdepth_core::tracker::{StereoTracker, TrackerParams};
 
 /// Arguments of `semdepth init`.
 #[derive(Debug, Args)]
@@ -81,8 +81,12 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         contour_spacing_px: args.contour_spacing,
     };
     let result = initialise(&frame, &params).map_err(|e| match e {
-        crate::init::InitError::InvalidParams(_) => CliError::input(format!("error[{}]: {e}", e.code())),
-        crate::init::InitError::InvalidHint { .. } => super::hint_error(&e, |field| format!("--{field}")),
+        semdepth_core::init::InitError::InvalidParams(_) => {
+            CliError::input(format!("error[{}]: {e}", e.code()))
+        }
+        semdepth_core::init::InitError::InvalidHint { .. } => {
+            super::hint_error(&e, |field| format!("--{field}"))
+        }
         _ => CliError::with_code(
             3,
             format!(
@@ -141,8 +145,8 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
 
 /// Draws the contour (white, with a black halo) over an 8-bit copy of the image.
 fn write_overlay(
-    frame: &crate::imageio::GrayFrame,
-    contour: &crate::geometry::Polygon,
+    frame: &semdepth_core::imageio::GrayFrame,
+    contour: &semdepth_core::geometry::Polygon,
     path: &std::path::Path,
 ) -> Result<(), CliError> {
     use imageproc::drawing::draw_line_segment_mut;

@@ -8,8 +8,8 @@ use clap::Args;
 use serde::Serialize;
 
 use super::CliError;
-use crate::imageio::ImageInputError;
-use crate::meta::{read_meta, ImageMeta};
+use semdepth_core::imageio::ImageInputError;
+use semdepth_core::meta::{read_meta, ImageMeta};
 
 /// Largest file read, in bytes (1 GiB): far above any SEM image, and a
 /// bound on what a mistaken path (a disk image, a device) can cost.

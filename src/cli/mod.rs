@@ -77,8 +77,8 @@ impl std::fmt::Display for CliError {
     }
 }
 
-impl From<crate::imageio::ImageInputError> for CliError {
-    fn from(e: crate::imageio::ImageInputError) -> Self {
+impl From<semdepth_core::imageio::ImageInputError> for CliError {
+    fn from(e: semdepth_core::imageio::ImageInputError) -> Self {
         Self::input(format!("error[{}]: {e}", e.code()))
     }
 }
@@ -86,9 +86,9 @@ impl From<crate::imageio::ImageInputError> for CliError {
 /// An invalid hint (`roi`, `point`) as an input error (exit 2),
 /// `error[invalid_hint]: invalid SOURCE: ...`, where `source` names where
 /// the hint came from: the flag (`--roi`) or the params file's field.
-pub fn hint_error(e: &crate::init::InitError, source: impl Fn(&str) -> String) -> CliError {
+pub fn hint_error(e: &semdepth_core::init::InitError, source: impl Fn(&str) -> String) -> CliError {
     match e {
-        crate::init::InitError::InvalidHint { field, message } => CliError::input(format!(
+        semdepth_core::init::InitError::InvalidHint { field, message } => CliError::input(format!(
             "error[{}]: invalid {}: {message}",
             e.code(),
             source(field)

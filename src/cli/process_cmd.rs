@@ -10,13 +10,13 @@ use std::time::{Duration, Instant};
 use clap::{Args, ValueEnum};
 
 use super::{exactly, hint_error, CliError};
-use crate::calib::{from_json, Calibration};
-use crate::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
-use crate::init::{InitError, Polarity};
-use crate::meta::{read_meta, ImageMeta};
-use crate::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
-use crate::session::{check_object_name, Measurement, Session, SessionObject};
-use crate::tracker::{PairResult, Status, TrackError, TrackerParams};
+use semdepth_core::calib::{from_json, Calibration};
+use semdepth_core::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
+use semdepth_core::init::{InitError, Polarity};
+use semdepth_core::meta::{read_meta, ImageMeta};
+use semdepth_core::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
+use semdepth_core::session::{check_object_name, Measurement, Session, SessionObject};
+use semdepth_core::tracker::{PairResult, Status, TrackError, TrackerParams};
 
 /// Image extensions recognised in the folder (compared case-insensitively).
 pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "jpg", "jpeg", "bmp"];
@@ -444,7 +444,7 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-/// The image and what its microscope metadata say (see [`crate::meta`]).
+/// The image and what its microscope metadata say (see [`semdepth_core::meta`]).
 fn read_image(path: &Path, limits: &DecodeLimits) -> Result<(GrayFrame, ImageMeta), CliError> {
     // The I/O error names the path already.
     let bytes = read_bytes(path).map_err(|e| CliError::input(format!("error[{}]: {e}", e.code())))?;

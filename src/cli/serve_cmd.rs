@@ -9,13 +9,13 @@ use std::time::Duration;
 use clap::{Args, ValueEnum};
 
 use super::CliError;
-use crate::imageio::DecodeLimits;
 use crate::service::state::{
     ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_LIVE_VIEW_MIB,
     DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_INFLIGHT_MIB, DEFAULT_MAX_MESSAGE_MIB,
     DEFAULT_MAX_SESSIONS, DEFAULT_MIN_FREE_DISK_MIB, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION,
     DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
 };
+use semdepth_core::imageio::DecodeLimits;
 
 /// Log output format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]

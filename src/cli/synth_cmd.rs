@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::CliError;
-use crate::synth::{write_sequence, Preset, Shape, SynthConfig, SynthError};
+use semdepth_core::synth::{write_sequence, Preset, Shape, SynthConfig, SynthError};
 
 /// Arguments of `semdepth synth`.
 #[derive(Debug, Args)]

@@ -7,7 +7,7 @@ use axum::http::StatusCode;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use crate::calib::{build, Sample};
+use semdepth_core::calib::{build, Sample};
 
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
 use super::model::{
@@ -300,7 +300,7 @@ pub async fn add_sample(state: &AppState, id: &str, sample: Sample) -> Result<Ca
 async fn refit(
     state: &AppState,
     id: &str,
-    change: impl FnOnce(&mut crate::calib::Calibration) -> Result<(), crate::calib::CalibError>,
+    change: impl FnOnce(&mut semdepth_core::calib::Calibration) -> Result<(), semdepth_core::calib::CalibError>,
 ) -> Result<CalibrationView, ApiError> {
     // Serialise refits of one calibration: two concurrent changes must not
     // both start from the same sample list.

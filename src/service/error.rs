@@ -13,10 +13,10 @@ use serde::de::DeserializeOwned;
 use serde::Serialize;
 use utoipa::ToSchema;
 
-use crate::calib::CalibError;
-use crate::imageio::ImageInputError;
-use crate::init::InitError;
-use crate::tracker::TrackError;
+use semdepth_core::calib::CalibError;
+use semdepth_core::imageio::ImageInputError;
+use semdepth_core::init::InitError;
+use semdepth_core::tracker::TrackError;
 
 use super::storage::StorageError;
 
@@ -230,9 +230,9 @@ impl From<TrackError> for ApiError {
     }
 }
 
-impl From<crate::session::SessionError> for ApiError {
-    fn from(e: crate::session::SessionError) -> Self {
-        use crate::session::SessionError as E;
+impl From<semdepth_core::session::SessionError> for ApiError {
+    fn from(e: semdepth_core::session::SessionError) -> Self {
+        use semdepth_core::session::SessionError as E;
         let status = match &e {
             E::InvalidName(_) => StatusCode::BAD_REQUEST,
             E::UnknownObject(_) => StatusCode::NOT_FOUND,

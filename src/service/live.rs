@@ -25,9 +25,9 @@ use serde::Deserialize;
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
-use crate::display::{render_png, shrink_factor, Overlay, LOST_COLOUR, PALETTE};
-use crate::imageio::GrayFrame;
-use crate::tracker::Status;
+use semdepth_core::display::{render_png, shrink_factor, Overlay, LOST_COLOUR, PALETTE};
+use semdepth_core::imageio::GrayFrame;
+use semdepth_core::tracker::Status;
 
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
 use super::model::FrameResult;

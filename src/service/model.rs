@@ -4,13 +4,13 @@
 use serde::{Deserialize, Deserializer, Serialize};
 use utoipa::ToSchema;
 
-use crate::calib::{
+use semdepth_core::calib::{
     CalibrationSpec, FitSpec, GeometricSpec, PixelSizeSource, Sample, VergenceSource, DEFAULT_FIT_DEGREE,
     DEFAULT_TILT_AXIS_DEG,
 };
-use crate::init::InitParams;
-use crate::session::{ObjectResult, Relative};
-use crate::tracker::{PairResult, TrackerParams};
+use semdepth_core::init::InitParams;
+use semdepth_core::session::{ObjectResult, Relative};
+use semdepth_core::tracker::{PairResult, TrackerParams};
 
 use super::error::ApiError;
 use super::storage::{CalibrationRecord, ObjectRecord, SessionRecord};
@@ -280,7 +280,7 @@ pub struct ObjectCreate {
     pub point: Option<[f64; 2]>,
     /// The object against its surroundings; default `any`.
     #[serde(default)]
-    pub polarity: Option<crate::init::Polarity>,
+    pub polarity: Option<semdepth_core::init::Polarity>,
     /// Smallest expected area, pixels.
     #[serde(default)]
     pub min_area_px: Option<f64>,
@@ -314,7 +314,7 @@ pub struct ObjectView {
     /// See `roi`.
     pub point: Option<[f64; 2]>,
     /// See `roi`.
-    pub polarity: crate::init::Polarity,
+    pub polarity: semdepth_core::init::Polarity,
     /// See `roi`.
     pub min_area_px: Option<f64>,
     /// See `roi`.
@@ -643,16 +643,16 @@ pub struct FrameResult {
 impl FrameResult {
     /// The objects' measurements as the library gives them (a result
     /// stored before objects existed: its one object, named `object`).
-    pub fn measurement(&self) -> crate::session::Measurement {
+    pub fn measurement(&self) -> semdepth_core::session::Measurement {
         let objects = if self.objects.is_empty() {
             vec![ObjectResult {
-                name: crate::session::DEFAULT_OBJECT_NAME.into(),
+                name: semdepth_core::session::DEFAULT_OBJECT_NAME.into(),
                 result: self.result.clone(),
             }]
         } else {
             self.objects.clone()
         };
-        crate::session::Measurement {
+        semdepth_core::session::Measurement {
             frame: self.result.frame,
             objects,
             relative: self.relative.clone(),

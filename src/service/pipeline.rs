@@ -14,11 +14,11 @@ use axum::extract::{FromRequest, Request};
 use axum::http::StatusCode;
 use tokio::sync::{OwnedMutexGuard, OwnedSemaphorePermit};
 
-use crate::calib::Calibration;
-use crate::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
-use crate::meta::{read_meta, ImageMeta};
-use crate::session::{Measurement, Session as Objects};
-use crate::tracker::TrackerParams;
+use semdepth_core::calib::Calibration;
+use semdepth_core::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
+use semdepth_core::meta::{read_meta, ImageMeta};
+use semdepth_core::session::{Measurement, Session as Objects};
+use semdepth_core::tracker::TrackerParams;
 
 use super::budget::{Reservation, DECODED_BYTES_PER_PIXEL};
 use super::error::ApiError;
@@ -74,7 +74,7 @@ impl PairInput {
     /// Decodes both images and reads their microscope metadata (raw
     /// samples carry none). CPU-heavy: call on the blocking pool.
     pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
-        let side = |which: &str, e: crate::imageio::ImageInputError| {
+        let side = |which: &str, e: semdepth_core::imageio::ImageInputError| {
             let mut err = ApiError::from(e);
             err.message = format!("{which} image: {}", err.message);
             err
@@ -327,7 +327,7 @@ fn track_locked(
     let session_id = session.id.as_str();
     let queue = ms(received.elapsed());
     // The session measures every object across its calibration's tilt
-    // axis (see `crate::session`).
+    // axis (see `semdepth_core::session`).
     // Objects that initialise or search are tracked side by side on the
     // worker slots that are idle now (each thread holds one), one after the
     // other otherwise.
@@ -347,7 +347,7 @@ fn track_locked(
     let any_lost = measured
         .objects
         .iter()
-        .any(|o| o.result.status == crate::tracker::Status::Lost);
+        .any(|o| o.result.status == semdepth_core::tracker::Status::Lost);
     core.state = if any_lost {
         tracing::info!(
             session = session_id,
@@ -562,9 +562,11 @@ fn frame_result(
 /// objects). Repeating its contours there cost 13-16% of one WebSocket's
 /// pairs/s (service_load ws_one, 677-717 against 805-839 pairs/s,
 /// alternating runs).
-fn named_only(objects: Vec<crate::session::ObjectResult>) -> Vec<crate::session::ObjectResult> {
+fn named_only(
+    objects: Vec<semdepth_core::session::ObjectResult>,
+) -> Vec<semdepth_core::session::ObjectResult> {
     match objects.as_slice() {
-        [only] if only.name == crate::session::DEFAULT_OBJECT_NAME => Vec::new(),
+        [only] if only.name == semdepth_core::session::DEFAULT_OBJECT_NAME => Vec::new(),
         _ => objects,
     }
 }

@@ -13,11 +13,11 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use crate::calib::{axis_component, Sample};
-use crate::init::{InitError, InitParams, Polarity};
-use crate::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
-use crate::session::{Session as Objects, SessionObject};
-use crate::tracker::TrackerParams;
+use semdepth_core::calib::{axis_component, Sample};
+use semdepth_core::init::{InitError, InitParams, Polarity};
+use semdepth_core::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
+use semdepth_core::session::{Session as Objects, SessionObject};
+use semdepth_core::tracker::TrackerParams;
 
 use super::calibrations::{add_sample, check_name};
 use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
@@ -841,12 +841,12 @@ fn reinited(
 
 fn merge_params(
     base: TrackerParams,
-    init: Option<crate::init::InitParams>,
+    init: Option<semdepth_core::init::InitParams>,
     tracker: Option<TrackerParams>,
 ) -> Result<TrackerParams, ApiError> {
     let mut params = match tracker {
         Some(t) => {
-            if init.is_some() && t.init != base.init && t.init != crate::init::InitParams::default() {
+            if init.is_some() && t.init != base.init && t.init != semdepth_core::init::InitParams::default() {
                 return Err(ApiError::bad_request(
                     "conflicting_parameters",
                     "both \"init\" and \"tracker.init\" are given (expected the initialisation parameters once, as \"init\")",

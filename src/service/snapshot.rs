@@ -22,8 +22,8 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-use crate::session::DEFAULT_OBJECT_NAME;
-use crate::tracker::{TrackerParams, TrackerState};
+use semdepth_core::session::DEFAULT_OBJECT_NAME;
+use semdepth_core::tracker::{TrackerParams, TrackerState};
 
 /// Version written by this build.
 pub const SNAPSHOT_VERSION: u64 = 2;

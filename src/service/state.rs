@@ -10,9 +10,9 @@ use tokio::sync::{Mutex, OwnedMutexGuard, Semaphore};
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use crate::calib::{Calibration, MetaWatch};
-use crate::imageio::DecodeLimits;
-use crate::tracker::{StereoTracker, TrackerParams};
+use semdepth_core::calib::{Calibration, MetaWatch};
+use semdepth_core::imageio::DecodeLimits;
+use semdepth_core::tracker::{StereoTracker, TrackerParams};
 
 use super::error::ApiError;
 use super::metrics::Metrics;
@@ -321,7 +321,7 @@ pub struct SessionCore {
     pub updated_at: String,
     /// The objects and their trackers (parameters, contour and pose,
     /// frame counts).
-    pub session: crate::session::Session,
+    pub session: semdepth_core::session::Session,
     /// Disparity of the latest pair that was not lost.
     pub latest_disparity_px: Option<[f64; 2]>,
     /// Set when the session is deleted, so that streams still holding it stop.
@@ -338,7 +338,7 @@ impl SessionCore {
         calibration_id: Option<String>,
         retention: Option<u64>,
         keep: bool,
-        objects: crate::session::Session,
+        objects: semdepth_core::session::Session,
         now: String,
     ) -> Self {
         Self {
@@ -456,21 +456,21 @@ impl Inner {
 /// The library session of stored objects (names checked when they were
 /// stored; a set that no longer forms a session, which storage refuses to
 /// read, would fall back to its first object).
-fn session_of(objects: Vec<ObjectRecord>, frames: u64) -> crate::session::Session {
+fn session_of(objects: Vec<ObjectRecord>, frames: u64) -> semdepth_core::session::Session {
     let build = |objects: Vec<ObjectRecord>| {
         objects
             .into_iter()
-            .map(|o| crate::session::SessionObject {
+            .map(|o| semdepth_core::session::SessionObject {
                 name: o.name,
                 tracker: StereoTracker::from_state(o.params, o.tracker_state, o.frames),
             })
             .collect::<Vec<_>>()
     };
     let first = objects.first().cloned();
-    crate::session::Session::new(build(objects), frames).unwrap_or_else(|e| {
+    semdepth_core::session::Session::new(build(objects), frames).unwrap_or_else(|e| {
         tracing::error!("stored objects do not form a session ({e}); keeping the first");
         let params = first.map(|o| o.params).unwrap_or_default();
-        let mut session = crate::session::Session::single(params);
+        let mut session = semdepth_core::session::Session::single(params);
         session.set_frames(frames);
         session
     })

@@ -69,7 +69,7 @@ use rusqlite::config::DbConfig;
 use rusqlite::{params, Connection, OpenFlags, OptionalExtension, TransactionBehavior};
 use tokio::sync::oneshot;
 
-use crate::calib::Calibration;
+use semdepth_core::calib::Calibration;
 
 pub use super::snapshot::ObjectRecord;
 use super::snapshot::{encode_definitions, encode_states_checked};
@@ -1370,11 +1370,11 @@ fn from_i64(value: i64, kind: &str, id: &str, what: &str) -> Result<u64, Storage
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::{build, CalibrationSpec, GeometricSpec};
-    use crate::fit::Pose;
-    use crate::geometry::HalfPlane;
-    use crate::scatter::{DisparityRun, Measured};
-    use crate::tracker::{TrackerParams, TrackerState};
+    use semdepth_core::calib::{build, CalibrationSpec, GeometricSpec};
+    use semdepth_core::fit::Pose;
+    use semdepth_core::geometry::HalfPlane;
+    use semdepth_core::scatter::{DisparityRun, Measured};
+    use semdepth_core::tracker::{TrackerParams, TrackerState};
 
     fn calibration(pixel_size_um: f64) -> Calibration {
         build(CalibrationSpec::Geometric(GeometricSpec {

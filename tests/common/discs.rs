@@ -4,7 +4,7 @@
 //! initialisation may take either disc; a `roi` around one must pick it.
 #![allow(dead_code)]
 
-use semdepth::imageio::GrayFrame;
+use semdepth_core::imageio::GrayFrame;
 
 /// Image size of the scene, pixels.
 pub const WIDTH: u32 = 320;

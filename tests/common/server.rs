@@ -7,9 +7,9 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use semdepth::imageio::GrayFrame;
 use semdepth::service::state::ServiceConfig;
-use semdepth::synth::{frames, Preset, Shape, SynthConfig, SynthPair};
+use semdepth_core::imageio::GrayFrame;
+use semdepth_core::synth::{frames, Preset, Shape, SynthConfig, SynthPair};
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 
