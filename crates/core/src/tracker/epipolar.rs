@@ -1,0 +1,147 @@
+//! The right view searched along its epipolar line: on the first pair from
+//! the left pose, later when its disparity jumped.
+
+use crate::energy::INTENSITY_OFFSET;
+use crate::fit::{fit_rigid_on_line, place, Pose, RigidParams, RigidTemplate};
+use crate::geometry::Point;
+use crate::imageio::GrayFrame;
+use crate::occlusion::SectorTemplate;
+use crate::region::{PixelRect, PrefixSums};
+use crate::uncertainty;
+
+use super::view_fit::{ImageFit, ViewSearch};
+use super::StereoTracker;
+
+impl StereoTracker {
+    /// The right view searched along the whole epipolar line from the left
+    /// pose ([`StereoTracker::search_right`]) and fitted in full on the line
+    /// from what the search found (a masked fit walks back along the weak
+    /// edge that misled the first), when its energy is lower than
+    /// `current`'s.
+    pub(super) fn searched_right(
+        &self,
+        right: &GrayFrame,
+        (template, sectors): &(RigidTemplate, SectorTemplate),
+        (left, last_disparity): (Pose, Point),
+        current: &ImageFit,
+        search: ViewSearch,
+        bands: uncertainty::NoiseBands,
+    ) -> Option<ImageFit> {
+        let pose = self
+            .search_right(right, template, left, Some(last_disparity))
+            .filter(|&pose| self.lower_energy(right, template, pose, current.pose))?;
+        let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
+        let rigid = RigidParams {
+            coarse_step_px: 1.0,
+            rotate: search.rotate,
+            ..self.params.rigid.clone()
+        };
+        let out = fit_rigid_on_line(
+            &sums,
+            template,
+            pose,
+            &self.params.energy,
+            &rigid,
+            search.line,
+            rigid.search_radius_px,
+        );
+        let mut fit = ImageFit::full(out.pose, out.terms);
+        if !self.lower_energy(right, template, fit.pose, current.pose) {
+            return None;
+        }
+        self.measure_std(right, &sums, (template, sectors), &mut fit, bands);
+        Some(fit)
+    }
+
+    /// Searches the right image along the disparity axis for the template
+    /// placed at the left pose: a scan in 2-px steps over
+    /// +-`max_disparity_px` with the decimated contour, then rigid fits from
+    /// the three best local minima; returns the lowest-energy pose.
+    /// `last_disparity`: on a later pair with [`TrackerParams::epipolar`],
+    /// the last pair's disparity, whose offset along the tilt axis the
+    /// search keeps: it scans the line through the left pose plus that
+    /// offset, and the fits move only along it. On the first pair (None)
+    /// the fits are free, to find that offset (a free fit during tracking
+    /// went 22 px off the line onto a bright bar beside a rod, crossing
+    /// seed 118, and was reported `tracked`).
+    pub(super) fn search_right(
+        &self,
+        right: &GrayFrame,
+        template: &RigidTemplate,
+        left: Pose,
+        last_disparity: Option<Point>,
+    ) -> Option<Pose> {
+        let energy = &self.params.energy;
+        let max_d = self.params.max_disparity_px;
+        let t = self.params.tilt_axis_deg.to_radians();
+        // Unit vector across the tilt axis (the disparity direction).
+        let dir = [t.sin(), -t.cos()];
+        let kept = last_disparity.filter(|_| self.params.epipolar).map(|[dx, dy]| {
+            let along = dx * dir[0] + dy * dir[1];
+            [dx - along * dir[0], dy - along * dir[1]]
+        });
+        let left = match kept {
+            Some([ox, oy]) => Pose {
+                x: left.x + ox,
+                y: left.y + oy,
+                ..left
+            },
+            None => left,
+        };
+        let [x0, y0, x1, y1] = template.reach(left, 8.0);
+        let (ex, ey) = (dir[0].abs() * max_d, dir[1].abs() * max_d);
+        let rect = PixelRect::covering(x0 - ex, y0 - ey, x1 + ex, y1 + ey, right.width, right.height)?;
+        let sums = PrefixSums::new(right, rect, INTENSITY_OFFSET);
+        let steps = (max_d / 2.0).ceil() as i64;
+        let scan: Vec<(f64, f64)> = (-steps..=steps)
+            .map(|k| {
+                let d = (k as f64 * 2.0).clamp(-max_d, max_d);
+                let pose = Pose {
+                    x: left.x + d * dir[0],
+                    y: left.y + d * dir[1],
+                    theta: left.theta,
+                };
+                let placed = place(&template.coarse, pose);
+                (
+                    d,
+                    template
+                        .energy_of(&sums, &placed, pose, template.coarse_length, energy)
+                        .energy,
+                )
+            })
+            .collect();
+        let mut minima: Vec<(f64, f64)> = (0..scan.len())
+            .filter(|&i| {
+                let e = scan[i].1;
+                e.is_finite() && (i == 0 || scan[i - 1].1 >= e) && (i + 1 == scan.len() || scan[i + 1].1 > e)
+            })
+            .map(|i| scan[i])
+            .collect();
+        minima.sort_by(|a, b| a.1.total_cmp(&b.1));
+        minima.truncate(3);
+        // The left pose itself (zero disparity) is always a candidate.
+        if !minima.iter().any(|m| m.0 == 0.0) {
+            minima.push((0.0, f64::NAN));
+        }
+        let rigid = RigidParams {
+            coarse_step_px: 2.0,
+            rotate: self.params.rigid.rotate && self.params.right_rotation,
+            ..self.params.rigid.clone()
+        };
+        minima
+            .iter()
+            .map(|&(d, _)| {
+                let start = Pose {
+                    x: left.x + d * dir[0],
+                    y: left.y + d * dir[1],
+                    theta: left.theta,
+                };
+                let line = kept.map(|_| dir);
+                let out = fit_rigid_on_line(&sums, template, start, energy, &rigid, line, f64::INFINITY);
+                (out.pose, out.terms)
+            })
+            .filter(|(_, terms)| terms.energy.is_finite())
+            .min_by(|a, b| a.1.energy.total_cmp(&b.1.energy))
+            .map(|(pose, _)| pose)
+    }
+}
