@@ -326,7 +326,7 @@ impl ObjectView {
         let init = &o.params.init;
         let state = match &o.tracker_state {
             None => "awaiting_first_pair",
-            Some(s) if s.lost => "lost",
+            Some(s) if s.is_lost() => "lost",
             Some(_) => "tracking",
         };
         Self {

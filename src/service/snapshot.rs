@@ -22,8 +22,11 @@
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+use semdepth_core::fit::Pose;
+use semdepth_core::geometry::{HalfPlane, Point};
+use semdepth_core::scatter::DisparityRun;
 use semdepth_core::session::DEFAULT_OBJECT_NAME;
-use semdepth_core::tracker::{TrackerParams, TrackerState};
+use semdepth_core::tracker::{Phase, TrackerParams, TrackerState, REACQUIRE_PAIRS};
 
 /// Version written by this build.
 pub const SNAPSHOT_VERSION: u64 = 2;
@@ -39,6 +42,130 @@ pub struct ObjectRecord {
     pub frames: u64,
     /// Where its tracker stands; None before its first pair or after a reset.
     pub tracker_state: Option<TrackerState>,
+}
+
+/// A tracker's state as stored: flat fields, each added one read with its
+/// default, so that a state written by any release since version 1 reads.
+/// The tracker's phase is stored as the flags it was once kept as.
+#[derive(Serialize, Deserialize)]
+struct StoredState {
+    template: Vec<Point>,
+    left: Pose,
+    right: Pose,
+    reference_contrast: f64,
+    first_disparity_axis_px: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    first_disparity_px: Option<Point>,
+    width: u32,
+    height: u32,
+    /// Not [`Phase::Tracking`].
+    lost: bool,
+    #[serde(default)]
+    left_velocity: [f64; 3],
+    #[serde(default)]
+    left_sector_contrasts: Vec<f64>,
+    #[serde(default)]
+    right_sector_contrasts: Vec<f64>,
+    #[serde(default)]
+    left_sector_inner: Vec<f64>,
+    #[serde(default)]
+    right_sector_inner: Vec<f64>,
+    #[serde(default)]
+    template_cuts: Vec<HalfPlane>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    outline: Vec<Point>,
+    #[serde(default)]
+    prefilter_sigma_px: f64,
+    /// [`Phase::Searching`]'s `missed`; [`REACQUIRE_PAIRS`] for
+    /// [`Phase::Reinitialising`].
+    #[serde(default)]
+    missed_searches: u32,
+    #[serde(default)]
+    refused_inits: u32,
+    /// [`TrackerState::uncertain_run`]'s moves (0 outside a run).
+    #[serde(default)]
+    unverified_move_px: f64,
+    /// Whether [`TrackerState::uncertain_run`] is set.
+    #[serde(default)]
+    uncertain_run: bool,
+    #[serde(default)]
+    first_disparity_std_px: f64,
+    /// Not [`Phase::Tracking`]'s `velocity_measured`.
+    #[serde(default)]
+    unmeasured_velocity: bool,
+    #[serde(default, skip_serializing_if = "DisparityRun::is_empty")]
+    disparity_run: DisparityRun,
+}
+
+impl From<&TrackerState> for StoredState {
+    fn from(s: &TrackerState) -> Self {
+        let (lost, missed_searches, unmeasured_velocity) = match s.phase {
+            Phase::Tracking { velocity_measured } => (false, 0, !velocity_measured),
+            Phase::Searching { missed } => (true, missed, true),
+            Phase::Reinitialising => (true, REACQUIRE_PAIRS, true),
+        };
+        Self {
+            template: s.template.clone(),
+            left: s.left,
+            right: s.right,
+            reference_contrast: s.reference_contrast,
+            first_disparity_axis_px: s.first_disparity_axis_px,
+            first_disparity_px: s.first_disparity_px,
+            width: s.width,
+            height: s.height,
+            lost,
+            left_velocity: s.left_velocity,
+            left_sector_contrasts: s.left_sector_contrasts.clone(),
+            right_sector_contrasts: s.right_sector_contrasts.clone(),
+            left_sector_inner: s.left_sector_inner.clone(),
+            right_sector_inner: s.right_sector_inner.clone(),
+            template_cuts: s.template_cuts.clone(),
+            outline: s.outline.clone(),
+            prefilter_sigma_px: s.prefilter_sigma_px,
+            missed_searches,
+            refused_inits: s.refused_inits,
+            unverified_move_px: s.uncertain_run.unwrap_or(0.0),
+            uncertain_run: s.uncertain_run.is_some(),
+            first_disparity_std_px: s.first_disparity_std_px,
+            unmeasured_velocity,
+            disparity_run: s.disparity_run.clone(),
+        }
+    }
+}
+
+impl From<StoredState> for TrackerState {
+    fn from(s: StoredState) -> Self {
+        let phase = match (s.lost, s.missed_searches) {
+            (false, _) => Phase::Tracking {
+                velocity_measured: !s.unmeasured_velocity,
+            },
+            (true, missed) if missed < REACQUIRE_PAIRS => Phase::Searching { missed },
+            (true, _) => Phase::Reinitialising,
+        };
+        Self {
+            template: s.template,
+            left: s.left,
+            right: s.right,
+            reference_contrast: s.reference_contrast,
+            first_disparity_axis_px: s.first_disparity_axis_px,
+            first_disparity_px: s.first_disparity_px,
+            width: s.width,
+            height: s.height,
+            phase,
+            left_velocity: s.left_velocity,
+            left_sector_contrasts: s.left_sector_contrasts,
+            right_sector_contrasts: s.right_sector_contrasts,
+            left_sector_inner: s.left_sector_inner,
+            right_sector_inner: s.right_sector_inner,
+            template_cuts: s.template_cuts,
+            outline: s.outline,
+            prefilter_sigma_px: s.prefilter_sigma_px,
+            refused_inits: s.refused_inits,
+            uncertain_run: s.uncertain_run.then_some(s.unverified_move_px),
+            first_disparity_std_px: s.first_disparity_std_px,
+            disparity_run: s.disparity_run,
+        }
+    }
 }
 
 #[derive(Serialize, Deserialize)]
@@ -91,7 +218,11 @@ pub fn encode_states(objects: &[ObjectRecord]) -> Result<String, serde_json::Err
             Ok(StateOf {
                 name: o.name.clone(),
                 frames: o.frames,
-                state: o.tracker_state.as_ref().map(serde_json::to_value).transpose()?,
+                state: o
+                    .tracker_state
+                    .as_ref()
+                    .map(|s| serde_json::to_value(StoredState::from(s)))
+                    .transpose()?,
             })
         })
         .collect::<Result<_, serde_json::Error>>()?;
@@ -109,7 +240,7 @@ pub fn encode_states_checked(objects: &[ObjectRecord]) -> Result<String, String>
     let read: States = serde_json::from_str(&text).map_err(|e| e.to_string())?;
     for (object, stored) in objects.iter().zip(read.objects) {
         if let (Some(_), Some(state)) = (&object.tracker_state, stored.state) {
-            serde_json::from_value::<TrackerState>(state)
+            serde_json::from_value::<StoredState>(state)
                 .map_err(|e| format!("object {:?}: {e}", object.name))?;
         }
     }
@@ -270,8 +401,8 @@ fn lenient_state(stored: Value, object: &str, notes: &mut Vec<String>) -> Option
     if stored.is_null() {
         return None;
     }
-    match serde_json::from_value(stored) {
-        Ok(s) => Some(s),
+    match serde_json::from_value::<StoredState>(stored) {
+        Ok(s) => Some(s.into()),
         Err(e) => {
             notes.push(format!(
                 "object {object:?}: stored tracker state no longer reads ({e}); it initialises again on its next pair"

@@ -1374,7 +1374,7 @@ mod tests {
     use semdepth_core::fit::Pose;
     use semdepth_core::geometry::HalfPlane;
     use semdepth_core::scatter::{DisparityRun, Measured};
-    use semdepth_core::tracker::{TrackerParams, TrackerState};
+    use semdepth_core::tracker::{Phase, TrackerParams, TrackerState};
 
     fn calibration(pixel_size_um: f64) -> Calibration {
         build(CalibrationSpec::Geometric(GeometricSpec {
@@ -1419,7 +1419,15 @@ mod tests {
             first_disparity_px: Some([26.25, 0.5]),
             width: 64,
             height: 48,
-            lost: i % 7 == 6,
+            phase: match i % 7 {
+                6 => Phase::Searching {
+                    missed: (i % 3) as u32,
+                },
+                5 => Phase::Reinitialising,
+                _ => Phase::Tracking {
+                    velocity_measured: i % 5 != 4,
+                },
+            },
             left_velocity: [1.0, -0.5, 0.01],
             left_sector_contrasts: vec![0.1, 0.2, 1.0 / 3.0],
             right_sector_contrasts: vec![0.3, f],
@@ -1428,11 +1436,8 @@ mod tests {
             template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
             outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
             prefilter_sigma_px: 0.5 * f,
-            missed_searches: (i % 3) as u32,
             refused_inits: (i % 2) as u32,
-            unverified_move_px: 0.5 * f,
-            uncertain_run: i % 2 == 1,
-            unmeasured_velocity: i % 5 == 4,
+            uncertain_run: (i % 2 == 1).then_some(0.5 * f),
             first_disparity_std_px: 0.25 * f,
             disparity_run: {
                 let mut run = DisparityRun::default();

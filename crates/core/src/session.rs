@@ -263,7 +263,7 @@ impl Session {
     /// one WebSocket on 2 cores gave 534 pairs/s side by side against 689
     /// one after the other (BENCHMARKS.md).
     pub fn useful_threads(&self) -> usize {
-        let searching = |o: &SessionObject| o.tracker.state().is_none_or(|s| s.lost);
+        let searching = |o: &SessionObject| o.tracker.state().is_none_or(|s| s.is_lost());
         if self.objects.len() > 1 && self.objects.iter().any(searching) {
             self.objects.len()
         } else {

@@ -2,7 +2,7 @@
 //! the left pose, later when its disparity jumped.
 
 use crate::energy::INTENSITY_OFFSET;
-use crate::fit::{fit_rigid_on_line, place, Pose, RigidParams, RigidTemplate};
+use crate::fit::{fit_rigid, Pose, RigidSearch, RigidTemplate};
 use crate::geometry::Point;
 use crate::imageio::GrayFrame;
 use crate::occlusion::SectorTemplate;
@@ -31,19 +31,18 @@ impl StereoTracker {
             .search_right(right, template, left, Some(last_disparity))
             .filter(|&pose| self.lower_energy(right, template, pose, current.pose))?;
         let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-        let rigid = RigidParams {
-            coarse_step_px: 1.0,
-            rotate: search.rotate,
-            ..self.params.rigid.clone()
-        };
-        let out = fit_rigid_on_line(
+        let out = fit_rigid(
             &sums,
             template,
             pose,
             &self.params.energy,
-            &rigid,
-            search.line,
-            rigid.search_radius_px,
+            &self.params.rigid,
+            RigidSearch {
+                coarse_step_px: 1.0,
+                rotate: search.rotate,
+                line: search.line,
+                within_px: self.params.rigid.search_radius_px,
+            },
         );
         let mut fit = ImageFit::full(out.pose, out.terms);
         if !self.lower_energy(right, template, fit.pose, current.pose) {
@@ -92,52 +91,26 @@ impl StereoTracker {
         let (ex, ey) = (dir[0].abs() * max_d, dir[1].abs() * max_d);
         let rect = PixelRect::covering(x0 - ex, y0 - ey, x1 + ex, y1 + ey, right.width, right.height)?;
         let sums = PrefixSums::new(right, rect, INTENSITY_OFFSET);
-        let steps = (max_d / 2.0).ceil() as i64;
-        let scan: Vec<(f64, f64)> = (-steps..=steps)
-            .map(|k| {
-                let d = (k as f64 * 2.0).clamp(-max_d, max_d);
-                let pose = Pose {
-                    x: left.x + d * dir[0],
-                    y: left.y + d * dir[1],
-                    theta: left.theta,
-                };
-                let placed = place(&template.coarse, pose);
-                (
-                    d,
-                    template
-                        .energy_of(&sums, &placed, pose, template.coarse_length, energy)
-                        .energy,
-                )
-            })
-            .collect();
-        let mut minima: Vec<(f64, f64)> = (0..scan.len())
-            .filter(|&i| {
-                let e = scan[i].1;
-                e.is_finite() && (i == 0 || scan[i - 1].1 >= e) && (i + 1 == scan.len() || scan[i + 1].1 > e)
-            })
-            .map(|i| scan[i])
-            .collect();
-        minima.sort_by(|a, b| a.1.total_cmp(&b.1));
-        minima.truncate(3);
+        let mut starts = template.lowest_along_line(&sums, energy, left, dir, max_d, 3);
         // The left pose itself (zero disparity) is always a candidate.
-        if !minima.iter().any(|m| m.0 == 0.0) {
-            minima.push((0.0, f64::NAN));
+        if !starts.contains(&0.0) {
+            starts.push(0.0);
         }
-        let rigid = RigidParams {
+        let search = RigidSearch {
             coarse_step_px: 2.0,
             rotate: self.params.rigid.rotate && self.params.right_rotation,
-            ..self.params.rigid.clone()
+            line: kept.map(|_| dir),
+            within_px: f64::INFINITY,
         };
-        minima
+        starts
             .iter()
-            .map(|&(d, _)| {
+            .map(|&d| {
                 let start = Pose {
                     x: left.x + d * dir[0],
                     y: left.y + d * dir[1],
                     theta: left.theta,
                 };
-                let line = kept.map(|_| dir);
-                let out = fit_rigid_on_line(&sums, template, start, energy, &rigid, line, f64::INFINITY);
+                let out = fit_rigid(&sums, template, start, energy, &self.params.rigid, search);
                 (out.pose, out.terms)
             })
             .filter(|(_, terms)| terms.energy.is_finite())

@@ -5,7 +5,7 @@
 use crate::calib::axis_component;
 use crate::energy::EnergyTerms;
 use crate::fit::{
-    fit_free_within, fit_rigid, free_fit_tables, place, Pose, RigidParams, RigidTemplate, MIN_FREE_VERTICES,
+    fit_free_within, fit_rigid, free_fit_tables, place, Pose, RigidSearch, RigidTemplate, MIN_FREE_VERTICES,
 };
 use crate::geometry::{polygon_iou, Point, Polygon};
 use crate::imageio::GrayFrame;
@@ -19,7 +19,7 @@ use crate::strips::refit_without_strips;
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
 use super::result::{lost_result, PairResult, Status};
-use super::state::TrackerState;
+use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
 use super::view_fit::ImageFit;
 use super::StereoTracker;
@@ -144,7 +144,7 @@ impl StereoTracker {
     /// found afresh as rod and bar together, its centroid 35 px off,
     /// `initialised`).
     pub(super) fn refuse_unlike_lost(&mut self, template: &RigidTemplate) -> Option<String> {
-        let state = self.state.as_mut().filter(|s| s.lost)?;
+        let state = self.state.as_mut().filter(|s| s.is_lost())?;
         if state.refused_inits >= REFUSED_INITS {
             return None;
         }
@@ -209,7 +209,7 @@ impl StereoTracker {
             return None;
         }
         state.refused_inits += 1;
-        state.missed_searches = 0;
+        state.phase = Phase::Searching { missed: 0 };
         Some(format!(
             "lost; the object found afresh is {what} (spread {new_long:.1} x {new_short:.1} px against {old_long:.1} x {old_short:.1} px; ratio limit {MIN_SPREAD_RATIO}): {why}; its template is sought again ({} of {REFUSED_INITS} such refusals before one is taken)",
             state.refused_inits
@@ -269,20 +269,30 @@ impl StereoTracker {
         } else {
             let disparity = [right_pose.x - left_pose.x, right_pose.y - left_pose.y];
             let [l, r] = shared_view_limits(&template, left_pose, disparity, [left.width, left.height]);
-            let settle = RigidParams {
-                coarse_step_px: 1.0,
-                rotate: false,
-                ..self.params.rigid.clone()
-            };
+            let rigid = &self.params.rigid;
             let image = PixelRect::full(left).extent();
             let left_fixed = template
                 .limited_to(l)
                 .fixed_at(image, left_pose, Self::NEAR_REACH_PX);
-            let left_fit = fit_rigid(&left_sums, &left_fixed, left_pose, energy, &settle);
+            let left_fit = fit_rigid(
+                &left_sums,
+                &left_fixed,
+                left_pose,
+                energy,
+                rigid,
+                RigidSearch::settle(),
+            );
             let limited = template.limited_to(r);
             let right_fixed = limited.with_fixed(left_fixed.fixed.as_ref().map(|f| f.moved(disparity)));
             let right_sums = self.sums_around(right, &limited, right_pose, Self::NEAR_REACH_PX);
-            let right_fit = fit_rigid(&right_sums, &right_fixed, right_pose, energy, &settle);
+            let right_fit = fit_rigid(
+                &right_sums,
+                &right_fixed,
+                right_pose,
+                energy,
+                rigid,
+                RigidSearch::settle(),
+            );
             if left_fit.terms.energy.is_finite() && right_fit.terms.energy.is_finite() {
                 let right_pose =
                     self.mirrored_right_pose((left, right), &limited, left_fit.pose, right_fit.pose);
@@ -319,7 +329,9 @@ impl StereoTracker {
             first_disparity_px: previous_reference.map_or(Some(disparity), |r| r.1),
             width: left.width,
             height: left.height,
-            lost: false,
+            phase: Phase::Tracking {
+                velocity_measured: false,
+            },
             left_velocity: [0.0; 3],
             left_sector_contrasts: reference(left_look.contrasts),
             right_sector_contrasts: reference(right_look.contrasts),
@@ -327,12 +339,9 @@ impl StereoTracker {
             right_sector_inner: reference(right_look.inner),
             outline,
             prefilter_sigma_px,
-            missed_searches: 0,
             refused_inits: 0,
-            unverified_move_px: 0.0,
-            uncertain_run: false,
+            uncertain_run: None,
             first_disparity_std_px: 0.0,
-            unmeasured_velocity: true,
             disparity_run: DisparityRun::default(),
         };
         let [left_bands, right_bands] = noise_bands(
@@ -450,13 +459,15 @@ impl StereoTracker {
         // right views are measured by the same criterion (identical views
         // then give zero disparity).
         let sums = self.sums_around(frame, &template, fitted_pose, Self::NEAR_REACH_PX);
-        let settle = RigidParams {
-            coarse_step_px: 1.0,
-            rotate: false,
-            ..self.params.rigid.clone()
-        };
         let fixed = template.fixed_at(image, fitted_pose, Self::NEAR_REACH_PX);
-        let settled = fit_rigid(&sums, &fixed, fitted_pose, energy, &settle);
+        let settled = fit_rigid(
+            &sums,
+            &fixed,
+            fitted_pose,
+            energy,
+            &self.params.rigid,
+            RigidSearch::settle(),
+        );
         Some((template, settled.pose, settled.terms, sums))
     }
 
@@ -500,12 +511,14 @@ impl StereoTracker {
                 .limited_to(l)
                 .fixed_at(PixelRect::full(left).extent(), start, Self::NEAR_REACH_PX);
         let sums = self.sums_around(left, &mirror, start, self.params.rigid.search_radius_px);
-        let rigid = RigidParams {
-            coarse_step_px: 1.0,
-            rotate: false,
-            ..self.params.rigid.clone()
-        };
-        let back = fit_rigid(&sums, &mirror, start, &self.params.energy, &rigid);
+        let back = fit_rigid(
+            &sums,
+            &mirror,
+            start,
+            &self.params.energy,
+            &self.params.rigid,
+            RigidSearch::settle(),
+        );
         if !back.terms.energy.is_finite() {
             return right_pose;
         }

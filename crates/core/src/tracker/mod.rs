@@ -39,7 +39,7 @@ pub use reacquire::REACQUIRE_PAIRS;
 pub use result::{
     ImageResult, PairResult, Status, TrackError, DISPARITY_STD_FLOOR_PX, REACQUIRED, UNCERTAIN,
 };
-pub use state::TrackerState;
+pub use state::{Phase, TrackerState};
 
 use result::GOES_ON;
 use state::templates;
@@ -199,12 +199,9 @@ impl StereoTracker {
                 });
             }
         }
-        let searching = self
-            .state
-            .as_ref()
-            .is_some_and(|s| s.lost && s.missed_searches < REACQUIRE_PAIRS)
-            && self.template.is_some();
-        let initialising = self.state.as_ref().is_none_or(|s| s.lost) && !searching;
+        let phase = self.state.as_ref().map(|s| s.phase);
+        let searching = matches!(phase, Some(Phase::Searching { .. })) && self.template.is_some();
+        let initialising = !matches!(phase, Some(Phase::Tracking { .. })) && !searching;
         if initialising {
             let (working_width, working_height) = self.params.init.working_size(left.width, left.height);
             if working_width < MIN_WORKING_SIDE || working_height < MIN_WORKING_SIDE {
@@ -227,12 +224,17 @@ impl StereoTracker {
         let predicted = self
             .state
             .as_ref()
-            .filter(|s| !s.lost && !s.unmeasured_velocity)
+            .filter(|s| {
+                s.phase
+                    == Phase::Tracking {
+                        velocity_measured: true,
+                    }
+            })
             .map(|s| s.predicted()[0]);
         // The templates are lent to the step, not copied: tracking does not
         // change them, and initialising replaces them.
         let mut result = match (&self.state, self.template.take()) {
-            (Some(state), Some(templates)) if !state.lost => {
+            (Some(state), Some(templates)) if !state.is_lost() => {
                 let state = state.clone();
                 let [left_predicted, right_predicted] = state.predicted();
                 let bands = noise_bands(
@@ -271,7 +273,7 @@ impl StereoTracker {
             }
         };
         let first = self.state.as_ref().map_or(0.0, |s| s.first_disparity_std_px);
-        let in_run = self.state.as_ref().is_some_and(|s| s.uncertain_run);
+        let in_run = self.state.as_ref().is_some_and(|s| s.uncertain_run.is_some());
         let full = self.params.std_limit(first);
         let limit = if in_run { RETURN_STD_SHARE * full } else { full };
         if let Some(std) = result
@@ -299,7 +301,7 @@ impl StereoTracker {
     /// [`TrackerParams::max_disparity_std_px`], which judges the pair's own
     /// fits: a run's scatter does not make its pairs `uncertain`.
     pub(super) fn scale_by_scatter(&mut self, result: &mut PairResult) {
-        let Some(state) = self.state.as_mut().filter(|s| !s.lost) else {
+        let Some(state) = self.state.as_mut().filter(|s| !s.is_lost()) else {
             return;
         };
         if !matches!(result.status, Status::Tracked | Status::Initialised) {
@@ -336,32 +338,32 @@ impl StereoTracker {
         predicted: Option<Pose>,
         searched: bool,
     ) {
-        let Some(state) = self.state.as_mut().filter(|s| !s.lost) else {
+        let Some(state) = self.state.as_mut().filter(|s| !s.is_lost()) else {
             return;
         };
         let uncertain = result.status == Status::Lost
             && result.reason.as_deref().is_some_and(|r| r.starts_with(UNCERTAIN));
-        state.uncertain_run = uncertain;
         if !uncertain {
-            state.unverified_move_px = 0.0;
+            state.uncertain_run = None;
             return;
         }
-        match predicted {
-            Some(predicted) => state.unverified_move_px += dist(predicted.center(), state.left.center()),
-            None if !searched => state.unverified_move_px = 0.0,
-            None => {}
-        }
-        if state.unverified_move_px > MAX_UNVERIFIED_MOVE_PX {
+        let so_far = state.uncertain_run.unwrap_or(0.0);
+        let moved = match predicted {
+            Some(predicted) => so_far + dist(predicted.center(), state.left.center()),
+            None if !searched => 0.0,
+            None => so_far,
+        };
+        if moved > MAX_UNVERIFIED_MOVE_PX {
             if let Some(reason) = result.reason.as_mut() {
                 reason.truncate(reason.strip_suffix(GOES_ON).map_or(reason.len(), str::len));
                 reason.push_str(&format!(
-                    "; over this run of uncertain pairs the contour moved {:.1} px from its predictions (limit {MAX_UNVERIFIED_MOVE_PX} px): the object counts as lost and its template is sought from the next pair",
-                    state.unverified_move_px
+                    "; over this run of uncertain pairs the contour moved {moved:.1} px from its predictions (limit {MAX_UNVERIFIED_MOVE_PX} px): the object counts as lost and its template is sought from the next pair"
                 ));
             }
-            state.lost = true;
-            state.unverified_move_px = 0.0;
-            state.uncertain_run = false;
+            state.phase = Phase::Searching { missed: 0 };
+            state.uncertain_run = None;
+        } else {
+            state.uncertain_run = Some(moved);
         }
     }
 

@@ -3,13 +3,13 @@
 //! pair.
 
 use crate::energy::INTENSITY_OFFSET;
-use crate::fit::{fit_rigid_on_line, Pose, RigidTemplate};
+use crate::fit::{fit_rigid, Pose, RigidSearch, RigidTemplate};
 use crate::imageio::GrayFrame;
 use crate::occlusion::{grey_change, judge_look, SectorReference, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
 
 use super::result::{lost_result, PairResult, Status, REACQUIRED};
-use super::state::TrackerState;
+use super::state::{Phase, TrackerState};
 use super::std_error::{fixed_share, noise_bands};
 use super::view_fit::{either, fraction, ImageFit};
 use super::StereoTracker;
@@ -143,7 +143,7 @@ impl StereoTracker {
                 theta,
             })
         };
-        let starts = self.lowest_on_grid(&sums, template, half, pose_at, SEARCH_MINIMA[1]);
+        let starts = template.lowest_on_grid(&sums, &self.params.energy, half, pose_at, SEARCH_MINIMA[1]);
         // The lowest minima first; the next ones only when none of those
         // shows the object (each fit costs about 2 ms at 1024x768).
         let (first, rest) = starts.split_at(starts.len().min(SEARCH_MINIMA[0]));
@@ -167,18 +167,14 @@ impl StereoTracker {
         step: f64,
     ) -> Option<Pose> {
         let rigid = &self.params.rigid;
+        let search = RigidSearch {
+            within_px: 2.0 * step,
+            ..RigidSearch::of(rigid)
+        };
         starts
             .iter()
             .map(|&start| {
-                let out = fit_rigid_on_line(
-                    sums,
-                    template,
-                    start,
-                    &self.params.energy,
-                    rigid,
-                    None,
-                    2.0 * step,
-                );
+                let out = fit_rigid(sums, template, start, &self.params.energy, rigid, search);
                 ImageFit::full(out.pose, out.terms)
             })
             .filter(|fit| {
@@ -214,10 +210,9 @@ impl StereoTracker {
                     .then_some((left_pose, pose))
             });
         let Some((left_pose, right_pose)) = found else {
-            state.missed_searches += 1;
+            let missed = state.miss();
             let reason = format!(
-                "lost; its template was not found in this pair ({} of {REACQUIRE_PAIRS} pairs searched; then the object is initialised afresh)",
-                state.missed_searches
+                "lost; its template was not found in this pair ({missed} of {REACQUIRE_PAIRS} pairs searched; then the object is initialised afresh)"
             );
             self.state = Some(state);
             return lost_result(frame, reason);
@@ -226,9 +221,9 @@ impl StereoTracker {
             left: left_pose,
             right: right_pose,
             left_velocity: [0.0; 3],
-            unmeasured_velocity: true,
-            lost: false,
-            missed_searches: 0,
+            phase: Phase::Tracking {
+                velocity_measured: false,
+            },
             ..state.clone()
         };
         let [left_bands, right_bands] = noise_bands(
@@ -247,8 +242,8 @@ impl StereoTracker {
             candidate,
             templates,
         );
-        if self.state.as_ref().is_none_or(|s| s.lost) {
-            state.missed_searches += 1;
+        if self.state.as_ref().is_none_or(|s| s.is_lost()) {
+            state.miss();
             self.state = Some(state);
         } else if result.status == Status::Tracked && result.reason.is_none() {
             result.reason = Some(REACQUIRED.into());

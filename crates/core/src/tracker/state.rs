@@ -5,12 +5,12 @@ use crate::fit::{Pose, RigidTemplate};
 use crate::geometry::{HalfPlane, Point, Polygon};
 use crate::occlusion::{SectorReference, SectorTemplate};
 use crate::scatter::DisparityRun;
-use serde::{Deserialize, Serialize};
 
 use super::params::TrackerParams;
+use super::reacquire::REACQUIRE_PAIRS;
 
 /// The tracker's durable state: enough to continue a session after a restart.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct TrackerState {
     /// Rigid template: contour vertices relative to their area centroid.
     pub template: Vec<Point>,
@@ -25,38 +25,31 @@ pub struct TrackerState {
     /// The whole disparity on the session's first pair, so that the
     /// reference follows a change of tilt axis (absent in states stored
     /// before it was kept).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub first_disparity_px: Option<Point>,
     /// Frame size the state belongs to.
     pub width: u32,
     /// See `width`.
     pub height: u32,
-    /// True after a lost pair: the next pair searches for the template
-    /// (or, after [`REACQUIRE_PAIRS`] searches in vain, initialises again).
-    pub lost: bool,
+    /// Where the tracker stands with its object: following it, seeking it
+    /// after a loss, or about to initialise afresh.
+    pub phase: Phase,
     /// Left pose change over the last pair (x, y, rotation): the next pair
     /// is predicted to continue it.
-    #[serde(default)]
     pub left_velocity: [f64; 3],
     /// Per-sector contrasts of the left view on the first pair (reference
     /// appearance for occlusion detection).
-    #[serde(default)]
     pub left_sector_contrasts: Vec<f64>,
     /// The same for the right view.
-    #[serde(default)]
     pub right_sector_contrasts: Vec<f64>,
     /// Per-sector inner band means of the left view on the first pair (0:
     /// not seen; empty in states stored before they were kept): a sector
     /// whose contrast changed while its inner band kept the object's grey
     /// has a new backdrop, and is not hidden.
-    #[serde(default)]
     pub left_sector_inner: Vec<f64>,
     /// The same for the right view.
-    #[serde(default)]
     pub right_sector_inner: Vec<f64>,
     /// Where the image border cut the object when the template was made
     /// (template coordinates; empty for an object inside the image).
-    #[serde(default)]
     pub template_cuts: Vec<HalfPlane>,
     /// The object's outline in template coordinates, reported in place of
     /// the template: a dark object's template is the region inside its
@@ -65,52 +58,82 @@ pub struct TrackerState {
     /// the region energy is lowest, up to 1 px outside a blurred edge, the
     /// outline on the edge (see [`crate::init::fitted_to_edge`]). Empty: the
     /// template is the outline.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub outline: Vec<Point>,
     /// Width (Gaussian sigma, pixels) of the smoothing applied to both
     /// images before every fit of this object (see [`crate::prefilter`]);
     /// 0: none.
-    #[serde(default)]
     pub prefilter_sigma_px: f64,
-    /// Pairs since the object was lost whose search for its template found
-    /// nothing (see [`REACQUIRE_PAIRS`]).
-    #[serde(default)]
-    pub missed_searches: u32,
-    /// Fresh initialisations refused since the object was lost, as unlike
-    /// it (see [`REFUSED_INITS`]).
-    #[serde(default)]
+    /// Fresh objects refused as unlike the lost one since the object was
+    /// initialised (see [`REFUSED_INITS`]).
     pub refused_inits: u32,
-    /// How far the left contour moved from its predictions over the
-    /// current run of `uncertain` pairs, pixels (see
-    /// [`MAX_UNVERIFIED_MOVE_PX`]); 0 after a pair with numbers.
-    #[serde(default)]
-    pub unverified_move_px: f64,
-    /// True from an `uncertain` pair until a pair with numbers, or until
-    /// the run's unverified moves lose the object (see
+    /// The run of `uncertain` pairs the object is in, if any: how far the
+    /// left contour moved from its predictions over it, pixels (see
+    /// [`MAX_UNVERIFIED_MOVE_PX`]). It starts at an `uncertain` pair and
+    /// ends at a pair with numbers, or when its moves lose the object (see
     /// [`RETURN_STD_SHARE`]).
-    #[serde(default)]
-    pub uncertain_run: bool,
+    pub uncertain_run: Option<f64>,
     /// The disparity's standard error on the pair that initialised the
     /// object, pixels (0: not known, as in states stored before it was
     /// kept); see [`TrackerParams::max_disparity_std_px`].
-    #[serde(default)]
     pub first_disparity_std_px: f64,
-    /// True from an initialisation or a search that found the object until
-    /// a tracking step measures the left view's velocity: the prediction
-    /// is the last pose, so an `uncertain` pair's move from it is the
-    /// object's own motion as much as a slide, and does not count towards
-    /// [`MAX_UNVERIFIED_MOVE_PX`]; a move the step did not follow on a
-    /// pair whose object a search found still does.
-    #[serde(default)]
-    pub unmeasured_velocity: bool,
     /// The run's last pairs with numbers, whose scatter scales each pair's
     /// standard error (see [`crate::scatter`]); empty in states stored
     /// before it was kept, and after an initialisation.
-    #[serde(default, skip_serializing_if = "DisparityRun::is_empty")]
     pub disparity_run: DisparityRun,
 }
 
+/// Where a tracker stands with its object (before its first pair it has
+/// no [`TrackerState`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Following the object: each pair fits both views from their
+    /// predicted poses.
+    Tracking {
+        /// Whether a tracking step has measured the left view's velocity
+        /// since the object was found (by an initialisation or a search).
+        /// Until then the prediction is the last pose, so an `uncertain`
+        /// pair's move from it is the object's own motion as much as a
+        /// slide, and does not count towards [`MAX_UNVERIFIED_MOVE_PX`]
+        /// (a move the step did not follow on a pair whose object a search
+        /// found still does).
+        velocity_measured: bool,
+    },
+    /// Lost: each pair seeks the object by its own template (over the hint
+    /// box, or the whole image), keeping the last good poses.
+    Searching {
+        /// Pairs searched in vain so far, fewer than [`REACQUIRE_PAIRS`].
+        missed: u32,
+    },
+    /// Lost, and not found by its template in [`REACQUIRE_PAIRS`] pairs:
+    /// the next pair initialises afresh, and a fresh object unlike the
+    /// lost one is refused (see [`REFUSED_INITS`]).
+    Reinitialising,
+}
+
 impl TrackerState {
+    /// Whether the object is lost (sought by its template, or about to be
+    /// initialised afresh).
+    pub fn is_lost(&self) -> bool {
+        !matches!(self.phase, Phase::Tracking { .. })
+    }
+
+    /// A pair's search for the lost template found nothing: one more
+    /// missed search, or, after [`REACQUIRE_PAIRS`] of them, the next pair
+    /// initialises afresh. Returns the searches missed.
+    pub(super) fn miss(&mut self) -> u32 {
+        let missed = match self.phase {
+            Phase::Tracking { .. } => 1,
+            Phase::Searching { missed } => missed + 1,
+            Phase::Reinitialising => REACQUIRE_PAIRS,
+        };
+        self.phase = if missed < REACQUIRE_PAIRS {
+            Phase::Searching { missed }
+        } else {
+            Phase::Reinitialising
+        };
+        missed
+    }
+
     /// The last pair's disparity, right pose minus left pose, pixels.
     pub(super) fn disparity(&self) -> Point {
         [self.right.x - self.left.x, self.right.y - self.left.y]

@@ -13,7 +13,7 @@ use std::borrow::Cow;
 use super::border::shared_view_limits;
 use super::reacquire::REACQUIRE_OCCLUDED_FRACTION;
 use super::result::{PairResult, Status, GOES_ON, UNCERTAIN};
-use super::state::TrackerState;
+use super::state::{Phase, TrackerState};
 use super::view_fit::{fraction, ImageFit, ViewSearch};
 use super::StereoTracker;
 
@@ -433,7 +433,9 @@ impl StereoTracker {
             left: left_fit.pose,
             right: right_fit.pose,
             left_velocity: velocity(left_fit.pose),
-            unmeasured_velocity: false,
+            phase: Phase::Tracking {
+                velocity_measured: true,
+            },
             ..state.clone()
         };
         let mut result = self.pair_result(
@@ -468,7 +470,7 @@ impl StereoTracker {
             // Keep the last good poses; the next pair searches for the
             // template.
             result.mark_lost(reason);
-            state.lost = true;
+            state.phase = Phase::Searching { missed: 0 };
             self.state = Some(state);
         } else {
             // The left contour's centroid is reported: a visible outline
@@ -536,7 +538,7 @@ impl StereoTracker {
                 // The move not followed is not verified either: the run of
                 // uncertain pairs counts it (see MAX_UNVERIFIED_MOVE_PX and
                 // `bound_unverified_moves`, which says when).
-                candidate.unverified_move_px += back.abs();
+                candidate.uncertain_run = Some(candidate.uncertain_run.unwrap_or(0.0) + back.abs());
                 for pose in [&mut candidate.left, &mut candidate.right] {
                     pose.x -= back * w[0];
                     pose.y -= back * w[1];

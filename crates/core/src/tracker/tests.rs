@@ -39,8 +39,7 @@ fn unlike_fresh_objects_are_refused_a_bounded_number_of_times() {
     tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
     let lose = |tracker: &mut StereoTracker, factor: f64| {
         let state = tracker.state.as_mut().unwrap();
-        state.lost = true;
-        state.missed_searches = REACQUIRE_PAIRS;
+        state.phase = Phase::Reinitialising;
         state
             .template
             .iter_mut()
@@ -60,8 +59,11 @@ fn unlike_fresh_objects_are_refused_a_bounded_number_of_times() {
             "{r:?}"
         );
         let state = tracker.state.as_mut().unwrap();
-        assert_eq!((state.refused_inits, state.missed_searches), (refusal, 0));
-        state.missed_searches = REACQUIRE_PAIRS;
+        assert_eq!(
+            (state.refused_inits, state.phase),
+            (refusal, Phase::Searching { missed: 0 })
+        );
+        state.phase = Phase::Reinitialising;
     }
     let r = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
     assert_eq!(r.status, Status::Initialised, "{r:?}");
@@ -83,8 +85,7 @@ fn a_fresh_object_cut_by_the_border_larger_than_the_lost_one_is_refused() {
         state.template_cuts.is_empty(),
         "the rod is whole on the first pair"
     );
-    state.lost = true;
-    state.missed_searches = REACQUIRE_PAIRS;
+    state.phase = Phase::Reinitialising;
     let last = &pairs[19];
     let r = tracker.process(&last.left, &last.right).unwrap();
     if r.status != Status::Lost {
@@ -142,15 +143,14 @@ fn blank_right_image_is_lost_not_a_confident_answer() {
 }
 
 #[test]
-fn state_round_trip_continues_the_session() {
+fn a_tracker_from_a_saved_state_continues_the_session() {
     let pairs = sequence(Preset::Clean, Shape::Tip, 5, 4);
     let mut a = StereoTracker::new(TrackerParams::default());
     for p in &pairs[..2] {
         a.process(&p.left, &p.right).unwrap();
     }
-    let json = serde_json::to_string(a.state().unwrap()).unwrap();
-    let state: TrackerState = serde_json::from_str(&json).unwrap();
-    let mut b = StereoTracker::from_state(TrackerParams::default(), Some(state), a.frames());
+    let state = a.state().cloned();
+    let mut b = StereoTracker::from_state(TrackerParams::default(), state, a.frames());
     for p in &pairs[2..] {
         let (ra, rb) = (
             a.process(&p.left, &p.right).unwrap(),

@@ -2,10 +2,7 @@
 //! fitted in full or over the sectors that keep their contrast.
 
 use crate::energy::{michelson, EnergyTerms};
-use crate::fit::{
-    fit_rigid_on_line, line_polish, newton_polish, place_into, CompassSearch, Pose, RigidParams,
-    RigidTemplate,
-};
+use crate::fit::{fit_rigid, CompassSearch, Pose, RigidSearch, RigidTemplate};
 use crate::geometry::{dist, Point};
 use crate::imageio::GrayFrame;
 use crate::occlusion::{
@@ -120,21 +117,16 @@ pub(super) const SLIDE_PX: f64 = 1.5;
 pub(super) const MIN_ISOTROPY: f64 = 0.05;
 
 /// The band energy over the sectors not in `marks`, minimised by `search`
-/// from `start` and polished (along the search's line, or by Newton steps).
+/// from `start` and polished ([`CompassSearch::minimise`]).
 pub(super) fn masked_fit(
     sums: &PrefixSums,
-    (template, sectors): (&RigidTemplate, &SectorTemplate),
+    sectors: &SectorTemplate,
     start: Pose,
     marks: &[bool],
     search: &CompassSearch,
 ) -> Pose {
     let m_ref = sums.reference_mean();
-    let masked = |p: Pose| sectors.masked_energy(sums, p, marks, m_ref);
-    let (found, e, _) = search.run(start, masked);
-    match search.only {
-        Some(u) => line_polish(found, e, u, masked).0,
-        None => newton_polish(found, e, template.radius, search.rotate, masked).0,
-    }
+    search.minimise(start, |p| sectors.masked_energy(sums, p, marks, m_ref))
 }
 
 /// Per sector of `marks`, whether it or the same sector of `more` is
@@ -177,10 +169,7 @@ impl StereoTracker {
         // left out too.
         let shift_without = |pose: Pose, marks: &[bool]| {
             let near = self.masked_search(&templates.0, 1.0, search.rotate, search.line);
-            self.axis_shift(
-                pose,
-                masked_fit(&sums, (&templates.0, &templates.1), pose, marks, &near),
-            )
+            self.axis_shift(pose, masked_fit(&sums, &templates.1, pose, marks, &near))
         };
         // Not for a template cut by the border: near the border its
         // sectors change as the tool moves in and out, and without them
@@ -291,7 +280,7 @@ impl StereoTracker {
             return false;
         }
         let search = self.masked_search(template, 1.0, rotate, line);
-        let masked = masked_fit(sums, (template, sectors), predicted, mask, &search);
+        let masked = masked_fit(sums, sectors, predicted, mask, &search);
         let m_ref = sums.reference_mean();
         let energy = |pose: Pose| sectors.masked_energy(sums, pose, mask, m_ref);
         dist(masked.center(), full.center()) > SLIDE_PX && energy(masked) < energy(full)
@@ -330,17 +319,18 @@ impl StereoTracker {
         risen: &mut Vec<bool>,
     ) -> (ImageFit, PrefixSums<'f>) {
         let (energy, occlusion) = (&self.params.energy, &self.params.occlusion);
-        let rigid = &RigidParams {
+        let radius = self.params.rigid.search_radius_px;
+        let search = RigidSearch {
             coarse_step_px,
             rotate,
-            ..self.params.rigid.clone()
+            line,
+            within_px: radius,
         };
-        let full_fit = |sums: &PrefixSums, start: Pose, rigid: &RigidParams| {
-            let out = fit_rigid_on_line(sums, template, start, energy, rigid, line, rigid.search_radius_px);
+        let full_fit = |sums: &PrefixSums, start: Pose, search: RigidSearch| {
+            let out = fit_rigid(sums, template, start, energy, &self.params.rigid, search);
             ImageFit::full(out.pose, out.terms)
         };
-        let full_reach =
-            || -> PrefixSums<'f> { self.sums_around(frame, template, predicted, rigid.search_radius_px) };
+        let full_reach = || -> PrefixSums<'f> { self.sums_around(frame, template, predicted, radius) };
         let widen = |sums: &mut PrefixSums<'f>, widened: &mut bool| {
             if !*widened {
                 (*sums, *widened) = (full_reach(), true);
@@ -348,7 +338,7 @@ impl StereoTracker {
         };
         if !occlusion.enabled || reference.contrasts.len() != sectors.len() {
             let sums = full_reach();
-            return (full_fit(&sums, predicted, rigid), sums);
+            return (full_fit(&sums, predicted, search), sums);
         }
         let judge = |sums: &PrefixSums, pose: Pose| {
             judge_look(
@@ -368,15 +358,14 @@ impl StereoTracker {
         let keeps_contrast = |median_ratio: f64| (0.6..=1.0 / 0.6).contains(&median_ratio);
         // A fit that ran to the edge of the search disc wanted to go
         // further: onto something else, such as an occluder.
-        let at_limit =
-            |fit: &ImageFit| dist(fit.pose.center(), predicted.center()) > rigid.search_radius_px - 1.0;
+        let at_limit = |fit: &ImageFit| dist(fit.pose.center(), predicted.center()) > radius - 1.0;
         // The tables first cover only a short reach around the prediction:
         // enough to judge it and, when the sectors confirm it, to fit from
         // it. Every other path, and a fit that reached the edge of the short
         // reach, gets the full search reach.
-        let near_reach = Self::NEAR_REACH_PX.min(rigid.search_radius_px);
+        let near_reach = Self::NEAR_REACH_PX.min(radius);
         let mut sums = self.sums_around(frame, template, predicted, near_reach);
-        let mut widened = near_reach == rigid.search_radius_px;
+        let mut widened = near_reach == radius;
         let at_prediction = judge(&sums, predicted);
         risen.clone_from(&at_prediction.risen);
         let confirmed = at_prediction.confirms_pose();
@@ -397,7 +386,7 @@ impl StereoTracker {
             // ran to the edge of the disc (a blob 46% occluded was pulled
             // 24 px onto a bright occluder).
             widen(&mut sums, &mut widened);
-            let fit = full_fit(&sums, predicted, rigid);
+            let fit = full_fit(&sums, predicted, search);
             if !at_limit(&fit)
                 && !judge(&sums, fit.pose).occluded.contains(&true)
                 && !self.masked_disagrees(
@@ -406,7 +395,7 @@ impl StereoTracker {
                     predicted,
                     &mask,
                     fit.pose,
-                    (rigid.rotate, line),
+                    (rotate, line),
                 )
             {
                 return (fit, sums);
@@ -419,28 +408,23 @@ impl StereoTracker {
             // suites, seeds 100-104 and 200-209, and the occluded seeds
             // 100-119 gave the same figures).
             let fit = if confirmed {
-                let fine_only = RigidParams {
-                    coarse_step_px: 1.0,
-                    ..rigid.clone()
-                };
-                let out = fit_rigid_on_line(
+                let out = fit_rigid(
                     &sums,
                     template,
                     predicted,
                     energy,
-                    &fine_only,
-                    line,
-                    rigid.search_radius_px,
+                    &self.params.rigid,
+                    search.fine_only(),
                 );
                 if out.outside_area && !widened {
                     widen(&mut sums, &mut widened);
-                    full_fit(&sums, predicted, &fine_only)
+                    full_fit(&sums, predicted, search.fine_only())
                 } else {
                     ImageFit::full(out.pose, out.terms)
                 }
             } else {
                 widen(&mut sums, &mut widened);
-                let fit = full_fit(&sums, predicted, rigid);
+                let fit = full_fit(&sums, predicted, search);
                 // Where the fit from the prediction lost the object's
                 // appearance (most of its outline without its contrast) or
                 // ran to the edge of the search disc, the object moved unlike its last motion: fits from the
@@ -458,23 +442,19 @@ impl StereoTracker {
                 if line.is_some() || !(at_limit(&fit) || lost_look(&sums, fit.pose)) {
                     fit
                 } else {
-                    let fine_only = RigidParams {
-                        coarse_step_px: 1.0,
-                        ..rigid.clone()
-                    };
                     let mut best = fit;
                     let mut from_last = false;
                     for start in self.disc_starts(&sums, template, predicted) {
-                        let fit = full_fit(&sums, start, &fine_only);
+                        let fit = full_fit(&sums, start, search.fine_only());
                         if fit.terms.energy < best.terms.energy && !lost_look(&sums, fit.pose) {
                             best = fit;
                         }
                     }
                     if let Some(last) = last.filter(|l| dist(l.center(), predicted.center()) > 1.0) {
-                        let around = self.sums_around(frame, template, last, rigid.search_radius_px);
+                        let around = self.sums_around(frame, template, last, radius);
                         let starts = self.disc_starts(&around, template, last);
                         for start in std::iter::once(last).chain(starts) {
-                            let fit = full_fit(&around, start, &fine_only);
+                            let fit = full_fit(&around, start, search.fine_only());
                             if fit.terms.energy < best.terms.energy && !lost_look(&around, fit.pose) {
                                 best = fit;
                                 from_last = true;
@@ -522,10 +502,9 @@ impl StereoTracker {
         }
         // The masked search starts with 4-px steps.
         widen(&mut sums, &mut widened);
-        let search = self.masked_search(template, 4.0, rigid.rotate, line);
-        let templates = (template, sectors);
+        let search = self.masked_search(template, 4.0, rotate, line);
         for _ in 0..2 {
-            pose = masked_fit(&sums, templates, pose, &mask, &search);
+            pose = masked_fit(&sums, sectors, pose, &mask, &search);
             let judged = judge(&sums, pose);
             if judged.occluded == mask || widespread(&judged.occluded, &judged.hidden) {
                 break;
@@ -544,7 +523,7 @@ impl StereoTracker {
                 first_step: 1.0,
                 ..search
             };
-            self.axis_shift(pose, masked_fit(&sums, templates, pose, &wider, &near))
+            self.axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near))
         } else {
             0.0
         };
@@ -609,65 +588,6 @@ impl StereoTracker {
                 theta: predicted.theta,
             })
         };
-        self.lowest_on_grid(sums, template, [k, k], pose_at, 3)
-    }
-
-    /// The `count` lowest local minima of the decimated template's energy
-    /// over the grid `-half[0]..=half[0]` x `-half[1]..=half[1]`, whose
-    /// points `pose_at` places (`None`: not searched).
-    pub(super) fn lowest_on_grid(
-        &self,
-        sums: &PrefixSums,
-        template: &RigidTemplate,
-        half: [i64; 2],
-        pose_at: impl Fn(i64, i64) -> Option<Pose>,
-        count: usize,
-    ) -> Vec<Pose> {
-        let [k, rows] = half;
-        let energy = &self.params.energy;
-        let mut placed = Vec::with_capacity(template.coarse.len());
-        let side = (2 * k + 1) as usize;
-        let grid: Vec<f64> = (-rows..=rows)
-            .flat_map(|j| (-k..=k).map(move |i| (i, j)))
-            .map(|(i, j)| match pose_at(i, j) {
-                Some(pose) => {
-                    place_into(&template.coarse, pose, &mut placed);
-                    template
-                        .energy_of(sums, &placed, pose, template.coarse_length, energy)
-                        .energy
-                }
-                None => f64::INFINITY,
-            })
-            .collect();
-        let value = |i: i64, j: i64| -> f64 {
-            if i.abs() > k || j.abs() > rows {
-                f64::INFINITY
-            } else {
-                grid[(j + rows) as usize * side + (i + k) as usize]
-            }
-        };
-        let mut minima: Vec<(f64, i64, i64)> = Vec::new();
-        for j in -rows..=rows {
-            for i in -k..=k {
-                let e = value(i, j);
-                // Below every neighbour; of a plateau, its last point.
-                let lowest = e.is_finite()
-                    && (-1..=1).all(|dj| {
-                        (-1..=1).all(|di| {
-                            let n = value(i + di, j + dj);
-                            (dj, di) == (0, 0) || n > e || ((dj, di) < (0, 0) && n == e)
-                        })
-                    });
-                if lowest {
-                    minima.push((e, i, j));
-                }
-            }
-        }
-        minima.sort_by(|a, b| a.0.total_cmp(&b.0));
-        minima
-            .into_iter()
-            .filter_map(|(_, i, j)| pose_at(i, j))
-            .take(count)
-            .collect()
+        template.lowest_on_grid(sums, &self.params.energy, [k, k], pose_at, 3)
     }
 }

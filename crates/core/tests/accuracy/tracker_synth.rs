@@ -649,7 +649,7 @@ fn without_confident_wrong(
 #[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
 fn a_lost_object_is_found_again_by_its_template() {
     use semdepth_core::synth::Scene;
-    use semdepth_core::tracker::{REACQUIRED, REACQUIRE_PAIRS};
+    use semdepth_core::tracker::{Phase, REACQUIRED, REACQUIRE_PAIRS};
     for shape in Shape::ALL {
         for seed in 100..103 {
             let name = format!("fast/{}/{seed}", shape.name());
@@ -661,8 +661,8 @@ fn a_lost_object_is_found_again_by_its_template() {
             let mut tracker = StereoTracker::new(TrackerParams::default());
             let (d0, c0) = lost_after_five_pairs(&scene, &mut tracker, 90, &name);
             assert_eq!(
-                tracker.state().unwrap().missed_searches,
-                1,
+                tracker.state().unwrap().phase,
+                Phase::Searching { missed: 1 },
                 "{name}: one search missed"
             );
             const { assert!(REACQUIRE_PAIRS > 1) };
