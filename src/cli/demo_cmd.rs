@@ -32,10 +32,10 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 12)]
     pub frames: usize,
     /// Synthetic condition.
-    #[arg(long, value_enum, default_value_t = Preset::Noisy)]
+    #[arg(long, value_parser = super::preset_value(), default_value = "noisy")]
     pub preset: Preset,
     /// Object shape.
-    #[arg(long, value_enum, default_value_t = Shape::Blob)]
+    #[arg(long, value_parser = super::shape_value(), default_value = "blob")]
     pub shape: Shape,
     /// Scene seed.
     #[arg(long, default_value_t = 1)]

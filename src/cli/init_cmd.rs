@@ -6,8 +6,9 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::{exactly, CliError};
+use crate::service::api::Polarity;
 use semdepth_core::imageio::{read_file, DecodeLimits};
-use semdepth_core::init::{initialise, InitParams, Polarity};
+use semdepth_core::init::{initialise, InitDiagnostics, InitParams, Score, Source};
 use semdepth_core::tracker::{StereoTracker, TrackerParams};
 
 /// Arguments of `semdepth init`.
@@ -77,7 +78,7 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         max_area_px: args.max_area,
         roi: args.roi.as_deref().map(|r| exactly("roi", r)).transpose()?,
         point: args.point.as_deref().map(|p| exactly("point", p)).transpose()?,
-        polarity: args.polarity,
+        polarity: args.polarity.into(),
         contour_spacing_px: args.contour_spacing,
     };
     let result = initialise(&frame, &params).map_err(|e| match e {
@@ -121,10 +122,10 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         "area_px": result.area_px,
         "bbox": result.bbox,
         "rim_px": result.rim_px,
-        "score": result.score,
-        "source": result.source,
+        "score": result.score.map(score_json),
+        "source": source_json(result.source),
         "border": result.border,
-        "diagnostics": result.diagnostics,
+        "diagnostics": diagnostics_json(&result.diagnostics),
         "fitted": is_fitted,
     });
     if !args.no_contour {
@@ -163,4 +164,55 @@ fn write_overlay(
     canvas
         .save(path)
         .map_err(|e| CliError::with_code(1, format!("could not write overlay {}: {e}", path.display())))
+}
+
+/// A candidate's score as `semdepth init` prints it.
+fn score_json(s: Score) -> serde_json::Value {
+    serde_json::json!({
+        "score": s.score,
+        "contrast": s.contrast,
+        "data": s.data,
+        "outline_px": s.outline_px,
+        "area_px": s.area_px,
+    })
+}
+
+/// Where a candidate came from, as `semdepth init` prints it.
+fn source_json(s: Source) -> serde_json::Value {
+    match s {
+        Source::Edges { dilation_radius } => {
+            serde_json::json!({"kind": "edges", "dilation_radius": dilation_radius})
+        }
+        Source::Threshold { polarity, level } => serde_json::json!({
+            "kind": "threshold",
+            "polarity": Polarity::from(polarity),
+            "level": level,
+        }),
+    }
+}
+
+/// What the initialisation used and saw, as `semdepth init` prints it.
+fn diagnostics_json(d: &InitDiagnostics) -> serde_json::Value {
+    let runners_up: Vec<serde_json::Value> = d
+        .runners_up
+        .iter()
+        .map(|r| {
+            serde_json::json!({
+                "score": score_json(r.score),
+                "source": source_json(r.source),
+                "bbox": r.bbox,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "scale": d.scale,
+        "noise_sigma": d.noise_sigma,
+        "sigma": d.sigma,
+        "low_threshold": d.low_threshold,
+        "high_threshold": d.high_threshold,
+        "dilation_radius": d.dilation_radius,
+        "edge_pixels": d.edge_pixels,
+        "candidates": d.candidates,
+        "runners_up": runners_up,
+    })
 }

@@ -24,12 +24,36 @@ pub struct MetaArgs {
     pub images: Vec<PathBuf>,
 }
 
-/// One printed record: the path, then the metadata fields.
+/// One printed record: the path, then what the image says, in SI units
+/// (null where absent or unreadable), and what could not be read.
 #[derive(Serialize)]
 struct Record<'a> {
     image: String,
-    #[serde(flatten)]
-    meta: &'a ImageMeta,
+    /// `fei`, `zeiss` or `tescan`; null: no microscope metadata.
+    vendor: Option<&'static str>,
+    pixel_width_m: Option<f64>,
+    pixel_height_m: Option<f64>,
+    stage_tilt_rad: Option<f64>,
+    working_distance_m: Option<f64>,
+    high_voltage_v: Option<f64>,
+    magnification: Option<f64>,
+    warnings: &'a [String],
+}
+
+impl<'a> Record<'a> {
+    fn new(image: String, meta: &'a ImageMeta) -> Self {
+        Self {
+            image,
+            vendor: meta.vendor.map(|v| v.name()),
+            pixel_width_m: meta.pixel_width_m,
+            pixel_height_m: meta.pixel_height_m,
+            stage_tilt_rad: meta.stage_tilt_rad,
+            working_distance_m: meta.working_distance_m,
+            high_voltage_v: meta.high_voltage_v,
+            magnification: meta.magnification,
+            warnings: &meta.warnings,
+        }
+    }
 }
 
 /// Runs `semdepth meta`; exit code 2 when a file cannot be read. A readable
@@ -43,10 +67,7 @@ pub fn run(args: MetaArgs) -> Result<(), CliError> {
         .images
         .iter()
         .zip(&metas)
-        .map(|(path, meta)| Record {
-            image: path.display().to_string(),
-            meta,
-        })
+        .map(|(path, meta)| Record::new(path.display().to_string(), meta))
         .collect();
     let json = serde_json::to_string(&records)
         .map_err(|e| CliError::with_code(1, format!("could not write JSON: {e}")))?;

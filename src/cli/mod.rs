@@ -3,11 +3,13 @@
 
 use clap::{Parser, Subcommand};
 
+#[cfg(feature = "synth")]
 pub mod demo_cmd;
 pub mod init_cmd;
 pub mod meta_cmd;
 pub mod process_cmd;
 pub mod serve_cmd;
+#[cfg(feature = "synth")]
 pub mod synth_cmd;
 
 /// Command line of the `semdepth` binary.
@@ -27,6 +29,7 @@ pub struct Cli {
 #[derive(Debug, Subcommand)]
 pub enum Command {
     /// Write a synthetic SEM stereo sequence with ground truth (truth.json).
+    #[cfg(feature = "synth")]
     Synth(synth_cmd::SynthArgs),
     /// Find the object in one image and print its initial contour as JSON.
     Init(init_cmd::InitArgs),
@@ -35,6 +38,7 @@ pub enum Command {
     /// Track a folder of stereo pairs and print one record per pair.
     Process(process_cmd::ProcessArgs),
     /// Stream a synthetic sequence through the service and print true and measured z.
+    #[cfg(feature = "synth")]
     Demo(demo_cmd::DemoArgs),
     /// Run the HTTP/WebSocket depth service.
     Serve(serve_cmd::ServeArgs),
@@ -100,11 +104,13 @@ pub fn hint_error(e: &semdepth_core::init::InitError, source: impl Fn(&str) -> S
 /// Runs a parsed command line.
 pub fn run(cli: Cli) -> Result<(), CliError> {
     match cli.command {
+        #[cfg(feature = "synth")]
         Command::Synth(args) => synth_cmd::run(args),
         Command::Init(args) => init_cmd::run(args),
         Command::Meta(args) => meta_cmd::run(args),
         Command::Process(args) => process_cmd::run(args),
         Command::Serve(args) => serve_cmd::run(args),
+        #[cfg(feature = "synth")]
         Command::Demo(args) => demo_cmd::run(args),
         Command::Openapi(args) => serve_cmd::run_openapi(args),
         Command::Healthcheck(args) => serve_cmd::run_healthcheck(args),
@@ -121,4 +127,22 @@ pub(crate) fn exactly<const N: usize, T: Copy>(name: &str, values: &[T]) -> Resu
             values.len()
         ))
     })
+}
+
+/// The generator's scene conditions as a command-line value.
+#[cfg(feature = "synth")]
+pub(crate) fn preset_value() -> impl clap::builder::TypedValueParser<Value = semdepth_core::synth::Preset> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+    use semdepth_core::synth::Preset;
+    PossibleValuesParser::new(Preset::ALL.map(|p| PossibleValue::new(p.name())))
+        .map(|name| Preset::from_name(&name).expect("one of the possible values"))
+}
+
+/// The generator's object shapes as a command-line value.
+#[cfg(feature = "synth")]
+pub(crate) fn shape_value() -> impl clap::builder::TypedValueParser<Value = semdepth_core::synth::Shape> {
+    use clap::builder::{PossibleValue, PossibleValuesParser, TypedValueParser};
+    use semdepth_core::synth::Shape;
+    PossibleValuesParser::new(Shape::ALL.map(|s| PossibleValue::new(s.name())))
+        .map(|name| Shape::from_name(&name).expect("one of the possible values"))
 }

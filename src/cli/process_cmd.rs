@@ -10,13 +10,14 @@ use std::time::{Duration, Instant};
 use clap::{Args, ValueEnum};
 
 use super::{exactly, hint_error, CliError};
-use semdepth_core::calib::{from_json, Calibration};
+use crate::service::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
+use crate::service::api::{self, read_calibration, ObjectResult, PairResult, Polarity, Relative, Status};
+use semdepth_core::calib::Calibration;
 use semdepth_core::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
-use semdepth_core::init::{InitError, Polarity};
+use semdepth_core::init::InitError;
 use semdepth_core::meta::{read_meta, ImageMeta};
-use semdepth_core::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
-use semdepth_core::session::{check_object_name, Measurement, Session, SessionObject};
-use semdepth_core::tracker::{PairResult, Status, TrackError, TrackerParams};
+use semdepth_core::session::{check_object_name, Session, SessionObject};
+use semdepth_core::tracker::{TrackError, TrackerParams};
 
 /// Image extensions recognised in the folder (compared case-insensitively).
 pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "jpg", "jpeg", "bmp"];
@@ -190,7 +191,7 @@ impl ProcessArgs {
                 let text = std::fs::read_to_string(path)
                     .map_err(|e| CliError::input(format!("error[io_error]: {}: {e}", path.display())))?;
                 // The path names the field of a bad value (e.g. `init.polarity`).
-                let params: TrackerParams =
+                let params: api::TrackerParams =
                     serde_path_to_error::deserialize(&mut serde_json::Deserializer::from_str(&text))
                         .map_err(|e| {
                             CliError::input(format!(
@@ -202,7 +203,7 @@ impl ProcessArgs {
                     .ok()
                     .and_then(|v| v.get("tilt_axis_deg").cloned())
                     .is_some();
-                (params, sets_axis)
+                (TrackerParams::from(params), sets_axis)
             }
             None => (TrackerParams::default(), false),
         };
@@ -228,7 +229,7 @@ impl ProcessArgs {
             params.init.point = Some(exactly("point", p)?);
         }
         if let Some(p) = self.polarity {
-            params.init.polarity = p;
+            params.init.polarity = p.into();
         }
         if let Err(e @ InitError::InvalidHint { .. }) = params.init.validate() {
             return Err(hint_error(&e, |field| self.hint_source(field)));
@@ -276,7 +277,7 @@ pub fn parse_object(spec: &str, base: &TrackerParams) -> Result<SessionObject, C
     let mut params = base.clone();
     params.init.roi = None;
     params.init.point = None;
-    params.init.polarity = Polarity::Any;
+    params.init.polarity = Polarity::Any.into();
     for part in parts {
         let (key, value) = part
             .split_once('=')
@@ -303,8 +304,9 @@ pub fn parse_object(spec: &str, base: &TrackerParams) -> Result<SessionObject, C
                 params.init.point = Some([v[0], v[1]]);
             }
             "polarity" => {
-                params.init.polarity = Polarity::from_str(value, true)
-                    .map_err(|_| bad(format!("polarity={value:?} (expected brighter, darker or any)")))?;
+                params.init.polarity = <Polarity as clap::ValueEnum>::from_str(value, true)
+                    .map_err(|_| bad(format!("polarity={value:?} (expected brighter, darker or any)")))?
+                    .into();
             }
             "min_area" => params.init.min_area_px = Some(numbers(1)?[0]),
             "max_area" => params.init.max_area_px = Some(numbers(1)?[0]),
@@ -332,7 +334,7 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| CliError::input(format!("error[io_error]: {}: {e}", path.display())))?;
             Some(
-                from_json(&text)
+                read_calibration(&text)
                     .map_err(|e| CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())))?,
             )
         }
@@ -403,16 +405,24 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
             decode: ms(decoded - started),
             track: ms(decoded.elapsed()),
         };
+        let frame = measured.frame;
+        let objects: Vec<ObjectResult> = measured.objects.into_iter().map(Into::into).collect();
+        let relative: Vec<Relative> = measured.relative.into_iter().map(Into::into).collect();
         let lines = match (args.format, named) {
             (Format::Jsonl, false) => vec![json_record(
-                &measured.objects[0].result,
+                &objects[0].result,
                 &pair.name,
                 timing,
                 !args.no_contour,
             )?],
-            (Format::Jsonl, true) => vec![json_measurement(&measured, &pair.name, timing, !args.no_contour)?],
-            (Format::Csv, false) => vec![csv_record(&measured.objects[0].result, &pair.name)],
-            (Format::Csv, true) => objects_csv_records(&measured, &pair.name),
+            (Format::Jsonl, true) => vec![json_measurement(
+                (&objects, &relative),
+                &pair.name,
+                timing,
+                !args.no_contour,
+            )?],
+            (Format::Csv, false) => vec![csv_record(&objects[0].result, &pair.name)],
+            (Format::Csv, true) => objects_csv_records(frame, &objects, &relative, &pair.name),
         };
         let header = if named {
             OBJECTS_CSV_HEADER.as_str()
@@ -428,8 +438,7 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
             }
         }
         // A pair counts as tracked when every object is.
-        let status = measured
-            .objects
+        let status = objects
             .iter()
             .map(|o| o.result.status)
             .max_by_key(|s| match s {
@@ -513,11 +522,16 @@ fn json_record(result: &PairResult, name: &str, timing: Timing, contour: bool) -
 /// object's fields at the top level as in [`json_record`] (as the service's
 /// results have them), then `objects` (each object's fields, its `name`
 /// first) and `relative`.
-fn json_measurement(m: &Measurement, name: &str, timing: Timing, contour: bool) -> Result<String, CliError> {
-    let mut line = json_record(&m.objects[0].result, name, timing, contour)?;
+fn json_measurement(
+    (objects, relative): (&[ObjectResult], &[Relative]),
+    name: &str,
+    timing: Timing,
+    contour: bool,
+) -> Result<String, CliError> {
+    let mut line = json_record(&objects[0].result, name, timing, contour)?;
     line.pop(); // the closing brace
     line.push_str(",\"objects\":[");
-    for (i, o) in m.objects.iter().enumerate() {
+    for (i, o) in objects.iter().enumerate() {
         let mut object = record_map(&o.result, &o.name, None, contour)?;
         object.remove("frame");
         if i > 0 {
@@ -526,7 +540,7 @@ fn json_measurement(m: &Measurement, name: &str, timing: Timing, contour: bool) 
         line.push_str(&ordered_json(&object)?);
     }
     line.push_str("],\"relative\":");
-    line.push_str(&serde_json::to_string(&m.relative).map_err(internal_json)?);
+    line.push_str(&serde_json::to_string(relative).map_err(internal_json)?);
     line.push('}');
     Ok(line)
 }

@@ -14,10 +14,10 @@ pub struct SynthArgs {
     /// Output directory (created if missing).
     pub out_dir: PathBuf,
     /// Scene recipe.
-    #[arg(long, value_enum, default_value_t = Preset::Clean)]
+    #[arg(long, value_parser = super::preset_value(), default_value = "clean")]
     pub preset: Preset,
     /// Object shape.
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = super::shape_value())]
     pub shape: Option<Shape>,
     /// Random seed [default: 0].
     #[arg(long)]

@@ -9,10 +9,10 @@ use utoipa_axum::routes;
 
 use semdepth_core::calib::{build, Sample};
 
-use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
-use super::model::{
+use super::api::model::{
     check_label, CalibrationCreate, CalibrationList, CalibrationView, SampleCreate, SamplePatch,
 };
+use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
 use super::state::{new_id, now_rfc3339, AppState};
 use super::storage::CalibrationRecord;
 

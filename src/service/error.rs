@@ -423,7 +423,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::service::model::SessionCreate;
+    use crate::service::api::model::SessionCreate;
 
     async fn extract(content_type: Option<&str>, body: &'static str) -> Result<SessionCreate, ApiError> {
         let mut builder = Request::builder().method("POST").uri("/v1/sessions");

@@ -25,12 +25,12 @@ use serde::Deserialize;
 use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::{router::OpenApiRouter, routes};
 
+use super::api::Status;
 use semdepth_core::display::{render_png, shrink_factor, Overlay, LOST_COLOUR, PALETTE};
 use semdepth_core::imageio::GrayFrame;
-use semdepth_core::tracker::Status;
 
+use super::api::model::FrameResult;
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
-use super::model::FrameResult;
 use super::state::{AppState, Inner, Session};
 
 /// Frame index of the pair an image shows.

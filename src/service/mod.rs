@@ -36,13 +36,14 @@ use utoipa::openapi::OpenApi as OpenApiDoc;
 use utoipa::{Modify, OpenApi};
 use utoipa_axum::router::OpenApiRouter;
 
+pub mod api;
 pub mod budget;
 pub mod calibrations;
 pub mod error;
 pub mod listener;
 pub mod live;
 pub mod metrics;
-pub mod model;
+
 pub mod ops;
 pub mod pipeline;
 pub mod registry;
@@ -170,7 +171,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
                 .results(&record.id, last, 1)
                 .await?
                 .first()
-                .and_then(|(_, json)| serde_json::from_str::<model::FrameResult>(json).ok())
+                .and_then(|(_, json)| serde_json::from_str::<api::model::FrameResult>(json).ok())
                 .and_then(|r| r.result.disparity_px),
             None => None,
         };

@@ -6,8 +6,8 @@ use axum::response::IntoResponse;
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::api::model::Health;
 use super::error::ApiJson;
-use super::model::Health;
 use super::state::AppState;
 
 /// The operations routes (no token needed).

@@ -20,10 +20,10 @@ use semdepth_core::meta::{read_meta, ImageMeta};
 use semdepth_core::session::{Measurement, Session as Objects};
 use semdepth_core::tracker::TrackerParams;
 
+use super::api::model::{FrameResult, Provenance, TimingMs};
 use super::budget::{Reservation, DECODED_BYTES_PER_PIXEL};
 use super::error::ApiError;
 use super::live::{publish, LiveFrame};
-use super::model::{FrameResult, Provenance, TimingMs};
 use super::state::{now_rfc3339, AppState, Session, SessionCore};
 use super::storage::{PairRecord, StorageError};
 
@@ -543,9 +543,9 @@ fn frame_result(
         session_id,
         calibration_id,
         calibration_version,
-        result: measured.objects[0].result.clone(),
-        objects: named_only(measured.objects),
-        relative: measured.relative,
+        result: measured.objects[0].result.clone().into(),
+        objects: named_only(measured.objects).into_iter().map(Into::into).collect(),
+        relative: measured.relative.into_iter().map(Into::into).collect(),
         timing_ms: TimingMs {
             queue,
             decode,

@@ -10,8 +10,8 @@ use std::time::Duration;
 use prometheus_client::metrics::gauge::Gauge;
 use tokio::sync::OwnedMutexGuard;
 
+use super::api::model::SessionView;
 use super::error::ApiError;
-use super::model::SessionView;
 use super::state::{new_id, now_rfc3339, Session, SessionCore};
 use super::storage::Storage;
 

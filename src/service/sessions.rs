@@ -13,18 +13,20 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
+use super::api;
+use super::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
+use super::api::Polarity as ApiPolarity;
 use semdepth_core::calib::{axis_component, Sample};
 use semdepth_core::init::{InitError, InitParams, Polarity};
-use semdepth_core::report::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
 use semdepth_core::session::{Session as Objects, SessionObject};
 use semdepth_core::tracker::TrackerParams;
 
-use super::calibrations::{add_sample, check_name};
-use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
-use super::model::{
+use super::api::model::{
     CalibrationView, ContoursQuery, FrameResult, ObjectCreate, PairUpload, ResultsPage, SessionCreate,
     SessionList, SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted, HINT_FIELDS,
 };
+use super::calibrations::{add_sample, check_name};
+use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
 use super::state::{now_rfc3339, AppState, SessionCore};
 
@@ -73,7 +75,11 @@ pub async fn create_session(
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
     check_name(body.name.as_deref())?;
     check_retention(body.retention)?;
-    let params = merge_params(TrackerParams::default(), body.init, body.tracker)?;
+    let params = merge_params(
+        TrackerParams::default(),
+        body.init.map(Into::into),
+        body.tracker.map(Into::into),
+    )?;
     // Held until the session is in the table: a concurrent deletion of
     // the calibration then sees it (see `Inner::calibration_links`).
     let _links = match &body.calibration_id {
@@ -460,7 +466,7 @@ pub struct ResultsQuery {
     #[param(minimum = 1, maximum = 10000)]
     pub limit: Option<usize>,
     /// Include the contours (default true; false empties their arrays).
-    #[serde(default = "super::model::yes")]
+    #[serde(default = "super::api::model::yes")]
     pub contours: bool,
 }
 
@@ -537,7 +543,9 @@ pub async fn session_results(
             for r in &results {
                 let rows = match named {
                     false => vec![csv_record(&r.result, r.provenance.name())],
-                    true => objects_csv_records(&r.measurement(), r.provenance.name()),
+                    true => {
+                        objects_csv_records(r.result.frame, &r.objects(), &r.relative, r.provenance.name())
+                    }
                 };
                 for row in rows {
                     text.push_str(&row);
@@ -627,7 +635,7 @@ pub struct DepthQuery {
     #[param(example = "210.5,160")]
     pub point: Option<String>,
     /// Hint: `brighter`, `darker` or `any` (default; a session's `init.polarity`).
-    #[param(value_type = Option<Polarity>)]
+    #[param(value_type = Option<ApiPolarity>)]
     pub polarity: Option<String>,
 }
 
@@ -874,7 +882,7 @@ fn patched_params(
     let invalid = |field: &str, e: serde_json::Error| {
         ApiError::bad_request("invalid_parameter", format!("{field}: {e}"))
     };
-    let mut params = serde_json::to_value(current)
+    let mut params = serde_json::to_value(api::TrackerParams::from(current.clone()))
         .map_err(|e| ApiError::internal(format!("serialising parameters: {e}")))?;
     if let Some(patch) = tracker {
         if init.is_some() && patch.get("init").is_some() {
@@ -900,7 +908,8 @@ fn patched_params(
         }
         merge_patch(&mut params["init"], patch);
     }
-    checked(serde_json::from_value(params).map_err(|e| invalid("tracker", e))?)
+    let params: api::TrackerParams = serde_json::from_value(params).map_err(|e| invalid("tracker", e))?;
+    checked(params.into())
 }
 
 /// Applies a JSON merge patch (RFC 7396) to `target`: members of an object

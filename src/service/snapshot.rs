@@ -24,9 +24,12 @@ use serde_json::Value;
 
 use semdepth_core::fit::Pose;
 use semdepth_core::geometry::{HalfPlane, Point};
-use semdepth_core::scatter::DisparityRun;
+use semdepth_core::scatter::{DisparityRun, Measured};
 use semdepth_core::session::DEFAULT_OBJECT_NAME;
 use semdepth_core::tracker::{Phase, TrackerParams, TrackerState, REACQUIRE_PAIRS};
+
+/// Parameters are stored in the API's form ([`super::api::TrackerParams`]).
+use super::api::TrackerParams as StoredParams;
 
 /// Version written by this build.
 pub const SNAPSHOT_VERSION: u64 = 2;
@@ -50,8 +53,8 @@ pub struct ObjectRecord {
 #[derive(Serialize, Deserialize)]
 struct StoredState {
     template: Vec<Point>,
-    left: Pose,
-    right: Pose,
+    left: StoredPose,
+    right: StoredPose,
     reference_contrast: f64,
     first_disparity_axis_px: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -71,7 +74,7 @@ struct StoredState {
     #[serde(default)]
     right_sector_inner: Vec<f64>,
     #[serde(default)]
-    template_cuts: Vec<HalfPlane>,
+    template_cuts: Vec<StoredHalfPlane>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     outline: Vec<Point>,
     #[serde(default)]
@@ -93,8 +96,51 @@ struct StoredState {
     /// Not [`Phase::Tracking`]'s `velocity_measured`.
     #[serde(default)]
     unmeasured_velocity: bool,
-    #[serde(default, skip_serializing_if = "DisparityRun::is_empty")]
-    disparity_run: DisparityRun,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    disparity_run: Vec<StoredMeasured>,
+}
+
+/// A pose as stored.
+#[derive(Clone, Copy, Serialize, Deserialize)]
+struct StoredPose {
+    x: f64,
+    y: f64,
+    theta: f64,
+}
+
+/// A cut of the image border as stored.
+#[derive(Clone, Copy, Serialize, Deserialize)]
+struct StoredHalfPlane {
+    normal: Point,
+    offset: f64,
+}
+
+/// A pair of a run as stored.
+#[derive(Clone, Copy, Serialize, Deserialize)]
+struct StoredMeasured {
+    frame: u64,
+    disparity_px: f64,
+    std_px: f64,
+}
+
+impl From<Pose> for StoredPose {
+    fn from(p: Pose) -> Self {
+        Self {
+            x: p.x,
+            y: p.y,
+            theta: p.theta,
+        }
+    }
+}
+
+impl From<StoredPose> for Pose {
+    fn from(p: StoredPose) -> Self {
+        Self {
+            x: p.x,
+            y: p.y,
+            theta: p.theta,
+        }
+    }
 }
 
 impl From<&TrackerState> for StoredState {
@@ -106,8 +152,8 @@ impl From<&TrackerState> for StoredState {
         };
         Self {
             template: s.template.clone(),
-            left: s.left,
-            right: s.right,
+            left: s.left.into(),
+            right: s.right.into(),
             reference_contrast: s.reference_contrast,
             first_disparity_axis_px: s.first_disparity_axis_px,
             first_disparity_px: s.first_disparity_px,
@@ -119,7 +165,14 @@ impl From<&TrackerState> for StoredState {
             right_sector_contrasts: s.right_sector_contrasts.clone(),
             left_sector_inner: s.left_sector_inner.clone(),
             right_sector_inner: s.right_sector_inner.clone(),
-            template_cuts: s.template_cuts.clone(),
+            template_cuts: s
+                .template_cuts
+                .iter()
+                .map(|h| StoredHalfPlane {
+                    normal: h.normal,
+                    offset: h.offset,
+                })
+                .collect(),
             outline: s.outline.clone(),
             prefilter_sigma_px: s.prefilter_sigma_px,
             missed_searches,
@@ -128,7 +181,15 @@ impl From<&TrackerState> for StoredState {
             uncertain_run: s.uncertain_run.is_some(),
             first_disparity_std_px: s.first_disparity_std_px,
             unmeasured_velocity,
-            disparity_run: s.disparity_run.clone(),
+            disparity_run: s
+                .disparity_run
+                .pairs()
+                .map(|m| StoredMeasured {
+                    frame: m.frame,
+                    disparity_px: m.disparity_px,
+                    std_px: m.std_px,
+                })
+                .collect(),
         }
     }
 }
@@ -144,8 +205,8 @@ impl From<StoredState> for TrackerState {
         };
         Self {
             template: s.template,
-            left: s.left,
-            right: s.right,
+            left: s.left.into(),
+            right: s.right.into(),
             reference_contrast: s.reference_contrast,
             first_disparity_axis_px: s.first_disparity_axis_px,
             first_disparity_px: s.first_disparity_px,
@@ -157,13 +218,24 @@ impl From<StoredState> for TrackerState {
             right_sector_contrasts: s.right_sector_contrasts,
             left_sector_inner: s.left_sector_inner,
             right_sector_inner: s.right_sector_inner,
-            template_cuts: s.template_cuts,
+            template_cuts: s
+                .template_cuts
+                .into_iter()
+                .map(|h| HalfPlane {
+                    normal: h.normal,
+                    offset: h.offset,
+                })
+                .collect(),
             outline: s.outline,
             prefilter_sigma_px: s.prefilter_sigma_px,
             refused_inits: s.refused_inits,
             uncertain_run: s.uncertain_run.then_some(s.unverified_move_px),
             first_disparity_std_px: s.first_disparity_std_px,
-            disparity_run: s.disparity_run,
+            disparity_run: DisparityRun::from_pairs(s.disparity_run.into_iter().map(|m| Measured {
+                frame: m.frame,
+                disparity_px: m.disparity_px,
+                std_px: m.std_px,
+            })),
         }
     }
 }
@@ -200,7 +272,7 @@ pub fn encode_definitions(objects: &[ObjectRecord]) -> Result<String, serde_json
         .map(|o| {
             Ok(Definition {
                 name: o.name.clone(),
-                params: serde_json::to_value(&o.params)?,
+                params: serde_json::to_value(StoredParams::from(o.params.clone()))?,
             })
         })
         .collect::<Result<_, serde_json::Error>>()?;
@@ -326,15 +398,13 @@ fn version_of(v: &Value) -> Option<u64> {
 /// Stored parameters over the current defaults, field by field (see the
 /// module docs); what could not be kept is noted.
 fn lenient_params(stored: Value, object: &str, notes: &mut Vec<String>) -> TrackerParams {
-    if let Ok(p) = serde_json::from_value::<TrackerParams>(stored.clone()) {
-        if p.validate().is_ok() {
-            return p;
-        }
+    if let Some(p) = valid_params(stored.clone()) {
+        return p;
     }
-    let mut current = serde_json::to_value(TrackerParams::default()).unwrap_or(Value::Null);
+    let mut current = serde_json::to_value(StoredParams::default()).unwrap_or(Value::Null);
     overlay(&mut current, &stored, "", object, notes);
-    match serde_json::from_value::<TrackerParams>(current) {
-        Ok(p) if p.validate().is_ok() => p,
+    match valid_params(current) {
+        Some(p) => p,
         _ => {
             notes.push(format!(
                 "object {object:?}: stored parameters unreadable, defaults used"
@@ -344,8 +414,14 @@ fn lenient_params(stored: Value, object: &str, notes: &mut Vec<String>) -> Track
     }
 }
 
+/// Parameters as stored ([`StoredParams`]) that read and are valid.
+fn valid_params(stored: Value) -> Option<TrackerParams> {
+    let params: TrackerParams = serde_json::from_value::<StoredParams>(stored).ok()?.into();
+    params.validate().is_ok().then_some(params)
+}
+
 /// Copies `stored`'s members onto `target` where `target` has them and the
-/// result still reads as [`TrackerParams`]; objects recursively.
+/// result still reads as valid parameters; objects recursively.
 fn overlay(target: &mut Value, stored: &Value, path: &str, object: &str, notes: &mut Vec<String>) {
     let Value::Object(members) = stored else {
         return;
@@ -369,9 +445,7 @@ fn overlay(target: &mut Value, stored: &Value, path: &str, object: &str, notes: 
             continue;
         }
         let before = std::mem::replace(&mut target[key.as_str()], value.clone());
-        let reads = serde_json::from_value::<TrackerParams>(root_of(target, path))
-            .map(|p| p.validate().is_ok())
-            .unwrap_or(false);
+        let reads = valid_params(root_of(target, path)).is_some();
         if !reads {
             target[key.as_str()] = before;
             notes.push(format!(
@@ -384,7 +458,7 @@ fn overlay(target: &mut Value, stored: &Value, path: &str, object: &str, notes: 
 /// While overlaying a nested object only the nested part is at hand: it is
 /// checked inside default parameters at its path.
 fn root_of(part: &Value, path: &str) -> Value {
-    let mut root = serde_json::to_value(TrackerParams::default()).unwrap_or(Value::Null);
+    let mut root = serde_json::to_value(StoredParams::default()).unwrap_or(Value::Null);
     if path.is_empty() {
         return part.clone();
     }
@@ -440,7 +514,7 @@ mod tests {
 
     #[test]
     fn version_1_reads_as_one_object() {
-        let params = serde_json::to_string(&object("x").params).unwrap();
+        let params = serde_json::to_string(&StoredParams::from(object("x").params)).unwrap();
         let decoded = decode(&params, None, 7).unwrap();
         assert_eq!(decoded.objects.len(), 1);
         assert_eq!(decoded.objects[0].name, DEFAULT_OBJECT_NAME);

@@ -14,9 +14,9 @@ use semdepth_core::calib::{Calibration, MetaWatch};
 use semdepth_core::imageio::DecodeLimits;
 use semdepth_core::tracker::{StereoTracker, TrackerParams};
 
+use super::api::model::SessionView;
 use super::error::ApiError;
 use super::metrics::Metrics;
-use super::model::SessionView;
 use super::storage::{CalibrationRecord, ObjectRecord, SessionRecord, Storage};
 
 /// Address `semdepth serve` listens on by default.

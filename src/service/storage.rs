@@ -71,6 +71,8 @@ use tokio::sync::oneshot;
 
 use semdepth_core::calib::Calibration;
 
+use super::api::CalibrationBody;
+
 pub use super::snapshot::ObjectRecord;
 use super::snapshot::{encode_definitions, encode_states_checked};
 
@@ -466,7 +468,8 @@ impl Storage {
             let Some((name, body, created_at, updated_at)) = row else {
                 return Ok(None);
             };
-            let calibration = parse_json(&body, "calibration", &id, "body")?;
+            let calibration = calibration_of(&body)
+                .map_err(|e| StorageError::Corrupt(format!("calibration {id:?}: column body: {e}")))?;
             Ok(Some(CalibrationRecord {
                 id,
                 name,
@@ -1177,7 +1180,8 @@ fn load_calibrations(c: &Connection) -> Result<Vec<CalibrationRecord>, StorageEr
     let mut out = Vec::new();
     for row in rows {
         let (id, name, body, created_at, updated_at, version) = row?;
-        let calibration = parse_json(&body, "calibration", &id, "body")?;
+        let calibration = calibration_of(&body)
+            .map_err(|e| StorageError::Corrupt(format!("calibration {id:?}: column body: {e}")))?;
         let version = from_i64(version, "calibration", &id, "version")?;
         out.push(CalibrationRecord {
             id,
@@ -1302,13 +1306,19 @@ fn migrate(conn: &mut Connection) -> Result<(), StorageError> {
 }
 
 fn calibration_json(rec: &CalibrationRecord) -> Result<String, StorageError> {
-    let body = serde_json::to_string(&rec.calibration)
+    let body = serde_json::to_string(&CalibrationBody::from(&rec.calibration))
         .map_err(|e| StorageError::Unstorable(format!("calibration {:?}: body: {e}", rec.id)))?;
     // The body is validated again when read: refuse now what would not read back.
-    serde_json::from_str::<Calibration>(&body).map_err(|e| {
+    calibration_of(&body).map_err(|e| {
         StorageError::Unstorable(format!("calibration {:?}: body would not read back: {e}", rec.id))
     })?;
     Ok(body)
+}
+
+/// The calibration a stored body holds, rebuilt from its parameters.
+fn calibration_of(body: &str) -> Result<Calibration, String> {
+    let body: CalibrationBody = serde_json::from_str(body).map_err(|e| e.to_string())?;
+    Calibration::try_from(body).map_err(|e| e.to_string())
 }
 
 /// The `params` and `tracker_state` columns of a session's objects,
@@ -1342,16 +1352,6 @@ fn states_checked(objects: &[ObjectRecord], kind: &str, id: &str) -> Result<Stri
             "{kind} {id:?}: tracker_state would not read back (non-finite number?): {e}"
         ))
     })
-}
-
-fn parse_json<T: serde::de::DeserializeOwned>(
-    text: &str,
-    kind: &str,
-    id: &str,
-    column: &str,
-) -> Result<T, StorageError> {
-    serde_json::from_str(text)
-        .map_err(|e| StorageError::Corrupt(format!("{kind} {id:?}: column {column}: {e}")))
 }
 
 fn to_i64(value: u64, kind: &str, id: &str, what: &str) -> Result<i64, StorageError> {

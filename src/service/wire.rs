@@ -10,8 +10,8 @@ use axum::body::Bytes;
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
+use super::api::model::Provenance;
 use super::error::ApiError;
-use super::model::Provenance;
 use super::pipeline::PairInput;
 
 /// Magic bytes opening every pair message.

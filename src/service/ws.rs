@@ -65,7 +65,7 @@ pub struct StreamQuery {
     pub policy: Policy,
     /// Include the contours in each reply (default true; false empties
     /// their arrays).
-    #[serde(default = "super::model::yes")]
+    #[serde(default = "super::api::model::yes")]
     pub contours: bool,
 }
 

@@ -31,8 +31,6 @@
 //!   Under rigid motion L and A are constant, so the internal term only
 //!   shapes the free fit.
 
-use serde::{Deserialize, Serialize};
-
 use crate::geometry::{HalfPlane, Point};
 use crate::region::{PrefixSums, RegionSum};
 
@@ -41,8 +39,9 @@ use crate::region::{PrefixSums, RegionSum};
 pub const INTENSITY_OFFSET: u16 = 1;
 
 /// Parameters of the energy.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(default, deny_unknown_fields)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct EnergyParams {
     /// Weight of the internal (compactness) energy. Default 1.0; range 0..=1000.
     pub lambda: f64,
@@ -93,7 +92,8 @@ impl EnergyParams {
 }
 
 /// Energy of one contour position and the statistics behind it.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct EnergyTerms {
     /// Total energy (lower is better); `+inf` for an invalid contour.
     pub energy: f64,

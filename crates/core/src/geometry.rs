@@ -5,14 +5,13 @@
 //! top-left pixel at (0, 0). Because y points down, a polygon whose vertices
 //! run clockwise on screen has a positive signed area here.
 
-use serde::{Deserialize, Serialize};
-
 /// A point or vector in pixel coordinates.
 pub type Point = [f64; 2];
 
 /// A closed polygon: the last vertex connects back to the first.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(transparent)]
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(transparent))]
 pub struct Polygon {
     /// Vertices in order; no repeated closing vertex.
     pub points: Vec<Point>,
@@ -451,7 +450,8 @@ impl Polygon {
 /// The points `p` with `normal . p >= offset`: one side of a line. A
 /// tracked object cut by the image border carries the border's half-plane
 /// with it (see [`crate::fit::RigidTemplate::cuts`]).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct HalfPlane {
     /// Normal pointing into the half-plane (unit length for [`HalfPlane::depth`]
     /// to be a distance).

@@ -26,8 +26,9 @@ pub struct GrayFrame {
 
 /// Limits applied before and while decoding, so a hostile or broken file is
 /// an error rather than a huge allocation.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct DecodeLimits {
     /// Largest accepted width in pixels.
     pub max_width: u32,

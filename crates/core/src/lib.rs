@@ -13,7 +13,7 @@
 //! - [`prefilter`]: the Gaussian smoothing matched to a blurred edge, before the rigid fits.
 //! - [`occlusion`]: per-sector detection of partial occlusion and a band energy over the visible sectors.
 //! - [`region`]: region sums in O(contour length) (Green's theorem on row prefix sums), window sums.
-//! - [`synth`]: synthetic SEM stereo sequences with ground truth.
+//! - `synth` (feature `synth`): synthetic SEM stereo sequences with ground truth.
 //! - [`energy`]: the region energy E = lambda L^k/A - D (two-region Poisson likelihood ratio).
 //! - [`fit`]: free (vertex-wise) and rigid (x, y, rotation) minimisation of the energy.
 //! - [`init`]: automatic initialisation (Gaussian, Canny, dilation, outer contours, size filter).
@@ -24,7 +24,6 @@
 //! - [`tracker`]: the stereo tracker: initialise and fit on the first pair, rigid tracking after, disparity.
 //! - [`session`]: a session's named objects measured on every pair, their heights through one calibration and the heights between them.
 //! - [`display`]: 8-bit PNG renderings of frames with contours drawn over them (the live view's images).
-//! - [`report`]: CSV rows of pair results (shared by the CLI and the service).
 
 pub mod calib;
 pub mod display;
@@ -37,10 +36,10 @@ pub mod meta;
 pub mod occlusion;
 pub mod prefilter;
 pub mod region;
-pub mod report;
 pub mod scatter;
 pub mod session;
 pub mod strips;
+#[cfg(feature = "synth")]
 pub mod synth;
 pub mod tracker;
 pub mod uncertainty;

@@ -31,7 +31,6 @@
 use std::collections::HashMap;
 use std::io::Cursor;
 
-use serde::{Deserialize, Serialize};
 use tiff::decoder::Decoder;
 use tiff::tags::{Tag, Type};
 
@@ -60,8 +59,9 @@ const MAX_TAG_BYTES: usize = 16 << 20;
 const MAX_QUOTE_CHARS: usize = 40;
 
 /// The microscope maker whose metadata was found.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum Vendor {
     /// FEI / Thermo Fisher (TIFF tag 34682 `FEI_HELIOS` or 34680 `FEI_SFEG`).
     Fei,
@@ -72,6 +72,15 @@ pub enum Vendor {
 }
 
 impl Vendor {
+    /// The snake_case name (`fei`, `zeiss`, `tescan`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Vendor::Fei => "fei",
+            Vendor::Zeiss => "zeiss",
+            Vendor::Tescan => "tescan",
+        }
+    }
+
     /// The name used in warnings.
     fn label(self) -> &'static str {
         match self {
@@ -85,7 +94,8 @@ impl Vendor {
 /// What an image file says about how it was taken, in SI units. Every field
 /// is `None` when absent or unreadable; `warnings` say what could not be
 /// read and why.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct ImageMeta {
     /// Whose metadata was found (`None`: none).
     pub vendor: Option<Vendor>,

@@ -19,8 +19,6 @@
 //! The rigid shape then keeps the centroid right from the visible part of the
 //! outline (the paper's claim, method note section 2, "Robustness").
 
-use serde::{Deserialize, Serialize};
-
 use crate::energy::{data_term, michelson};
 use crate::fit::{place, Pose, RigidTemplate};
 use crate::geometry::{HalfPlane, Point, Polygon};
@@ -28,8 +26,9 @@ use crate::region::{PrefixSums, RegionSum};
 use crate::uncertainty::median_and_spread;
 
 /// Parameters of the occlusion handling.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(default, deny_unknown_fields)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct OcclusionParams {
     /// Look for occlusion at all. Default true.
     pub enabled: bool,

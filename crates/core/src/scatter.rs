@@ -46,8 +46,6 @@
 
 use std::collections::VecDeque;
 
-use serde::{Deserialize, Serialize};
-
 /// Second differences the factor is taken over (the last this many).
 pub const WINDOW: usize = 30;
 
@@ -69,7 +67,8 @@ const Z2_VARIANCE: f64 = 2.0 * (1.0 + 2.0 * (4.0 / 9.0 + 1.0 / 36.0));
 
 /// One pair with numbers: its index, disparity along the axis and the
 /// fits' own standard error of it, pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Measured {
     pub frame: u64,
     pub disparity_px: f64,
@@ -78,13 +77,27 @@ pub struct Measured {
 
 /// The last pairs of a run with their disparities (enough for
 /// [`WINDOW`] second differences), oldest first.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(transparent)]
+#[derive(Clone, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(transparent))]
 pub struct DisparityRun {
     pairs: VecDeque<Measured>,
 }
 
 impl DisparityRun {
+    /// A run of `pairs` as it was kept (oldest first): a run read back from
+    /// storage.
+    pub fn from_pairs(pairs: impl IntoIterator<Item = Measured>) -> Self {
+        Self {
+            pairs: pairs.into_iter().collect(),
+        }
+    }
+
+    /// The pairs kept, oldest first.
+    pub fn pairs(&self) -> impl Iterator<Item = &Measured> {
+        self.pairs.iter()
+    }
+
     /// True before any pair.
     pub fn is_empty(&self) -> bool {
         self.pairs.is_empty()

@@ -21,8 +21,6 @@
 //! fitted calibration's coefficient uncertainty at the two disparities
 //! together.
 
-use serde::{Deserialize, Serialize};
-
 use crate::calib::{Calibration, MetaWatch};
 use crate::imageio::GrayFrame;
 use crate::meta::ImageMeta;
@@ -111,19 +109,21 @@ impl SessionObject {
 }
 
 /// One object's measurement of a pair.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct ObjectResult {
     /// The object's name.
     pub name: String,
     /// Its measurement (status, contours, disparity, z and their errors).
-    #[serde(flatten)]
+    #[cfg_attr(feature = "serde", serde(flatten))]
     pub result: PairResult,
 }
 
 /// The height of one object relative to another on the same pair; null
 /// numbers when either is not measured (lost), or without a calibration
 /// for `dz_um`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Relative {
     /// The object measured.
     pub from: String,

@@ -5,11 +5,11 @@ use crate::energy::{combine, evaluate, window_of, EnergyParams, EnergyTerms, INT
 use crate::geometry::{dist, segment_distance, segments_distance, Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::region::{PixelRect, PrefixSums};
-use serde::{Deserialize, Serialize};
 
 /// Parameters of the free (vertex-wise) fit.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(default, deny_unknown_fields)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct FreeFitParams {
     /// Target spacing of the vertices in pixels (at least 40 vertices are
     /// kept); the fitted outline becomes the rigid template as it is, so

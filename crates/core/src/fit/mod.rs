@@ -19,11 +19,11 @@ pub use search::{line_polish, newton_polish, CompassSearch};
 pub use template::{FixedDomain, RigidTemplate};
 
 use crate::geometry::Point;
-use serde::{Deserialize, Serialize};
 
 /// Position and rotation of a rigid contour: the template (vertices relative
 /// to its area centroid) rotated by `theta` and moved to `(x, y)`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Pose {
     /// Centroid x, pixels.
     pub x: f64,

@@ -4,15 +4,15 @@
 use crate::energy::{EnergyParams, EnergyTerms};
 use crate::geometry::Point;
 use crate::region::PrefixSums;
-use serde::{Deserialize, Serialize};
 
 use super::search::{line_polish, newton_polish, CompassSearch};
 use super::template::RigidTemplate;
 use super::{place_into, Pose};
 
 /// Parameters of the rigid fit.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(default, deny_unknown_fields)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct RigidParams {
     /// Largest motion between two pairs that the search is built to catch,
     /// pixels; the prefix sums cover the contour's reach plus this (the

@@ -29,7 +29,6 @@
 //! through thickness.
 
 use image::{GrayImage, Luma};
-use serde::{Deserialize, Serialize};
 
 use super::morphology::{dilate_disk, erode_disk, fill_region, outer_regions};
 use super::{FloatImage, Polarity};
@@ -51,8 +50,9 @@ const EDGE_REACH: [i32; 2] = [3, 2];
 const LEVELS: usize = 16;
 
 /// How a candidate was found.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(rename_all = "snake_case", tag = "kind")]
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case", tag = "kind"))]
 pub enum Source {
     /// A filled outline of the edge pipeline (dilation radius in working px).
     Edges { dilation_radius: u8 },
@@ -62,7 +62,8 @@ pub enum Source {
 }
 
 /// The energy terms behind a candidate's score, in full-resolution pixels.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Score {
     /// -E / L: the energy gain per pixel of outline (higher is better).
     pub score: f64,

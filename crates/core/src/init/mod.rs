@@ -28,7 +28,6 @@
 use std::cell::OnceCell;
 
 use image::{GrayImage, ImageBuffer, Luma};
-use serde::{Deserialize, Serialize};
 
 use crate::energy::EnergyParams;
 use crate::fit::{fit_free, free_fit_tables, FreeFitParams};
@@ -55,20 +54,9 @@ use prompted::Outcome;
 pub type FloatImage = ImageBuffer<Luma<f32>, Vec<f32>>;
 
 /// Which way the object differs from its surroundings.
-#[derive(
-    Clone,
-    Copy,
-    Debug,
-    Default,
-    PartialEq,
-    Eq,
-    Hash,
-    Serialize,
-    Deserialize,
-    utoipa::ToSchema,
-    clap::ValueEnum,
-)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum Polarity {
     /// Brighter than its surroundings (most particles and tools in SE images).
     Brighter,
@@ -122,77 +110,46 @@ pub const MIN_ROI_SIDE: i64 = 16;
 /// Parameters of the initialisation. Every field has a default that works
 /// without tuning on 640x480 to 4096x4096 SEM frames; `None` means "derive
 /// from the image".
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(default, deny_unknown_fields)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct InitParams {
     /// Longest side of the working copy in pixels (the image is box-averaged
     /// by an integer factor to fit). Default 640; range 64..=8192.
-    #[schema(minimum = 64, maximum = 8192)]
     pub working_max_side: u32,
     /// Gaussian standard deviation in working pixels; `None`: 1.0 for clean
     /// images, rising with the estimated noise level up to 3.0.
-    #[schema(minimum = 0.3, maximum = 20.0)]
     pub sigma: Option<f32>,
     /// Canny thresholds on the gradient magnitude (grey levels per pixel, on
     /// the 0..=1 scale of the working image). `None`: from the image's
     /// gradient statistics (see [`auto_thresholds`]).
-    #[schema(exclusive_minimum = 0.0, maximum = 1.0)]
     pub low_threshold: Option<f32>,
     /// See `low_threshold`; must be >= it.
-    #[schema(exclusive_minimum = 0.0, maximum = 1.0)]
     pub high_threshold: Option<f32>,
     /// Radius of the disk used to dilate edges, in working pixels. `None`:
     /// about 1/150 of the working image's shorter side (2..=6), doubled once
     /// if nothing plausible is found.
-    #[schema(minimum = 1, maximum = 32)]
     pub dilation_radius: Option<u8>,
     /// Smallest accepted object area in full-resolution pixels. `None`:
     /// 0.2% of the searched area.
-    #[schema(minimum = 0.0)]
     pub min_area_px: Option<f64>,
     /// Largest accepted object area in full-resolution pixels. `None`: 90%
     /// of the searched area.
-    #[schema(minimum = 0.0)]
     pub max_area_px: Option<f64>,
     /// Hint: the box `[x, y, width, height]` (pixels) the object lies in.
     /// Clipped to the image, so a box around a tool that enters from the
     /// image border may run past it; width and height >= 16, and the box
     /// must overlap the image.
-    #[schema(schema_with = roi_schema)]
     pub roi: Option<[i64; 4]>,
     /// Hint: a point `[x, y]` (pixels) on the object, as a person clicks it.
     /// Must lie inside the image (and inside `roi` when both are given).
-    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub point: Option<[f64; 2]>,
     /// Hint: is the object brighter or darker than its surroundings?
     /// Default `any`.
     pub polarity: Polarity,
     /// Vertex spacing of the returned contour in full-resolution pixels
     /// (default 2.0; range 0.5..=50).
-    #[schema(minimum = 0.5, maximum = 50.0)]
     pub contour_spacing_px: f64,
-}
-
-/// OpenAPI schema of [`InitParams::roi`]: null or four 64-bit integers
-/// (the derived one would say int32).
-fn roi_schema() -> utoipa::openapi::schema::Array {
-    use utoipa::openapi::schema::{ArrayBuilder, KnownFormat, ObjectBuilder, SchemaFormat, SchemaType, Type};
-    ArrayBuilder::new()
-        .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
-        .items(
-            ObjectBuilder::new()
-                .schema_type(Type::Integer)
-                .format(Some(SchemaFormat::KnownFormat(KnownFormat::Int64)))
-                .minimum(Some(-MAX_HINT_COORDINATE))
-                .maximum(Some(MAX_HINT_COORDINATE)),
-        )
-        .min_items(Some(4))
-        .max_items(Some(4))
-        .description(Some(
-            "Hint: the box `[x, y, width, height]` (pixels) the object lies in, clipped to the image \
-             (it may run past the image border); width and height >= 16; it must overlap the image.",
-        ))
-        .build()
 }
 
 impl Default for InitParams {
@@ -214,7 +171,8 @@ impl Default for InitParams {
 }
 
 /// The found object.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct InitResult {
     /// Outline of the object, full-resolution pixel coordinates.
     pub contour: Polygon,
@@ -226,12 +184,12 @@ pub struct InitResult {
     pub bbox: [f64; 4],
     /// Mean width of the bright edge rim of a dark object that the outline
     /// was grown over, pixels (0 without one; see [`rim`]).
-    #[serde(default)]
+    #[cfg_attr(feature = "serde", serde(default))]
     pub rim_px: f64,
     /// The region inside the rim (`None` without one): darker than the
     /// substrate throughout, it is what a two-region energy fits, and what
     /// the tracker's template follows.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "serde", serde(default, skip_serializing_if = "Option::is_none"))]
     pub core: Option<Polygon>,
     /// Its score (the region energy's gain per pixel of outline, higher is
     /// better) and contrast (see [`candidates`]); `None` only when the
@@ -248,7 +206,8 @@ pub struct InitResult {
 }
 
 /// Values the pipeline chose or measured on the way.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct InitDiagnostics {
     /// Integer downsampling factor of the working copy.
     pub scale: u32,
@@ -271,7 +230,8 @@ pub struct InitDiagnostics {
 }
 
 /// A candidate that lost, for diagnosis.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct RunnerUp {
     /// Its score.
     pub score: Score,
@@ -282,8 +242,9 @@ pub struct RunnerUp {
 }
 
 /// Why no object was found, or why the request was refused.
-#[derive(Clone, Debug, PartialEq, thiserror::Error, Serialize, Deserialize)]
-#[serde(tag = "reason", rename_all = "snake_case")]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(tag = "reason", rename_all = "snake_case"))]
 pub enum InitError {
     /// A parameter is out of range.
     #[error("invalid parameter: {0}")]

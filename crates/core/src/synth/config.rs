@@ -18,7 +18,7 @@ pub const MIN_OBJECT_PX: f64 = 12.0;
 pub const BORDER_MARGIN: f64 = 0.1;
 
 /// The kind of object that is tracked.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Shape {
     /// Irregular rounded particle (radius modulated by low-order harmonics), like a quartz grain.
@@ -35,6 +35,11 @@ pub enum Shape {
 impl Shape {
     /// Every shape, in declaration order.
     pub const ALL: [Shape; 4] = [Shape::Blob, Shape::Sphere, Shape::Tip, Shape::Rod];
+
+    /// The shape of this name ([`Self::name`]; `-` may stand for `_`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|v| v.name() == name.replace('-', "_"))
+    }
 
     /// The snake_case name used in JSON and on the command line.
     pub fn name(self) -> &'static str {
@@ -92,9 +97,8 @@ impl BorderSide {
 }
 
 /// Named scene recipes; the seed varies motion, stereo and noise within each.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-#[value(rename_all = "snake_case")]
 pub enum Preset {
     /// No noise, mild texture, no clutter, no occlusion, no flicker.
     #[default]
@@ -109,7 +113,6 @@ pub enum Preset {
     Flicker,
     /// A long tool entering from an image border (its base outside the
     /// frame), moving in and out along its axis, moderate noise.
-    #[value(alias = "border-tool")]
     BorderTool,
     /// Long scratches and fibres on the substrate, several running under
     /// the object, moderate noise.
@@ -178,6 +181,11 @@ impl Preset {
     /// px between pairs, strong noise with occlusion and flicker): the
     /// object is visible in every pair.
     pub const TRACKING: [Preset; 3] = [Preset::Crossing, Preset::Fast, Preset::Combined];
+
+    /// The preset of this name ([`Self::name`]; `-` may stand for `_`).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|v| v.name() == name.replace('-', "_"))
+    }
 
     /// The snake_case name used in JSON and on the command line.
     pub fn name(self) -> &'static str {

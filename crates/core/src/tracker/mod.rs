@@ -69,12 +69,12 @@ pub const RETURN_STD_SHARE: f64 = 0.9;
 
 /// Shortest side of an image's working copy that initialisation accepts
 /// (see [`InitParams::working_size`]).
-pub(super) const MIN_WORKING_SIDE: u32 = 8;
+const MIN_WORKING_SIDE: u32 = 8;
 
 /// Buffers for a pair smoothed by the object's pre-filter, reused from
 /// pair to pair.
 #[derive(Clone, Debug, Default)]
-pub(super) struct Prefiltered {
+struct Prefiltered {
     smoother: prefilter::Smoother,
     left: Option<GrayFrame>,
     right: Option<GrayFrame>,
@@ -300,7 +300,7 @@ impl StereoTracker {
     /// then adds the pair to the run. After the limit of
     /// [`TrackerParams::max_disparity_std_px`], which judges the pair's own
     /// fits: a run's scatter does not make its pairs `uncertain`.
-    pub(super) fn scale_by_scatter(&mut self, result: &mut PairResult) {
+    fn scale_by_scatter(&mut self, result: &mut PairResult) {
         let Some(state) = self.state.as_mut().filter(|s| !s.is_lost()) else {
             return;
         };
@@ -332,12 +332,7 @@ impl StereoTracker {
     /// counts (a needle found again with its tip over a grain slid 5.9 px
     /// along its axis; not followed, and not counted, the next pair was
     /// `tracked` with the tip 8.4 px off).
-    pub(super) fn bound_unverified_moves(
-        &mut self,
-        result: &mut PairResult,
-        predicted: Option<Pose>,
-        searched: bool,
-    ) {
+    fn bound_unverified_moves(&mut self, result: &mut PairResult, predicted: Option<Pose>, searched: bool) {
         let Some(state) = self.state.as_mut().filter(|s| !s.is_lost()) else {
             return;
         };
@@ -372,7 +367,7 @@ impl StereoTracker {
     /// radius, the right one stretched along the disparity axis by the
     /// largest disparity (the right view's re-search), and the smoothing's
     /// own reach. The pre-filter smooths only these.
-    pub(super) fn prefilter_windows(
+    fn prefilter_windows(
         &self,
         state: &TrackerState,
         template: &RigidTemplate,

@@ -5,7 +5,6 @@ use crate::fit::{FreeFitParams, RigidParams};
 use crate::init::InitParams;
 use crate::occlusion::OcclusionParams;
 use crate::prefilter;
-use serde::{Deserialize, Serialize};
 
 /// How many times its first pair's excess over
 /// [`TrackerParams::max_disparity_std_px`] an object's disparity standard
@@ -20,8 +19,9 @@ use serde::{Deserialize, Serialize};
 pub const STD_GROWTH: f64 = 4.0;
 
 /// All tracking parameters, with documented defaults.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(default, deny_unknown_fields)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(default, deny_unknown_fields))]
 pub struct TrackerParams {
     /// Automatic initialisation on the first pair.
     pub init: InitParams,
@@ -37,11 +37,9 @@ pub struct TrackerParams {
     /// towards +y. Default 90 (the image y axis): disparity is then along x.
     /// A service session with a calibration measures across the
     /// calibration's axis instead, the one its `z_um` uses.
-    #[schema(minimum = -360.0, maximum = 360.0)]
     pub tilt_axis_deg: f64,
     /// On the first pair, how far (pixels, along the disparity axis) the
     /// right view is searched from the left position. Default 64.
-    #[schema(minimum = 0.0, maximum = 4096.0)]
     pub max_disparity_px: f64,
     /// Vertex spacing of the rigid template, pixels; default null: the free
     /// fit's own outline (vertices `free.spacing_px` apart) is the template.
@@ -54,11 +52,9 @@ pub struct TrackerParams {
     /// 0.165 px), quartz 01->02 0.742 -> 0.746 px off the silhouette
     /// reference. Resampling at 4 or 6 px cuts the corners more: quartz
     /// 01->02 moved to 1.12 px.
-    #[schema(minimum = 0.5, maximum = 20.0)]
     pub template_spacing_px: Option<f64>,
     /// The pair is lost when the contrast in either image falls below this
     /// fraction of the contrast at initialisation. Default 0.3.
-    #[schema(minimum = 0.0, maximum = 1.0)]
     pub min_contrast_ratio: f64,
     /// Let the right contour rotate independently of the left one (the paper
     /// does; `angle_diff_rad` is then measured). Default false: a tilt about
@@ -86,7 +82,6 @@ pub struct TrackerParams {
     /// edge width (a defocus blur of 1.5 px or more) or its bright edge
     /// rim (a dark object), and only where the noise around it is white;
     /// otherwise none. 0: never smooth.
-    #[schema(minimum = 0.0, maximum = 4.0)]
     pub prefilter_sigma_px: Option<f64>,
     /// A pair whose fits' own disparity standard error (`disparity_std_px`
     /// before a run's scatter scales it) exceeds this many pixels is
@@ -97,7 +92,6 @@ pub struct TrackerParams {
     /// left to fix the position. An object whose first pair (after a loss,
     /// the lower of the first initialisation's and the fresh one's) already
     /// exceeded the limit may exceed it by [`STD_GROWTH`] times as much.
-    #[schema(minimum = 0.01, maximum = 1000.0)]
     pub max_disparity_std_px: f64,
 }
 

@@ -7,7 +7,6 @@ use crate::geometry::{Point, Polygon};
 use crate::imageio::ImageInputError;
 use crate::meta::ImageMeta;
 use crate::region::PixelRect;
-use serde::{Deserialize, Serialize};
 
 use super::state::TrackerState;
 use super::view_fit::ImageFit;
@@ -32,8 +31,9 @@ pub const UNCERTAIN: &str = "uncertain";
 pub(super) const GOES_ON: &str = "; tracking goes on";
 
 /// Outcome of one pair.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, utoipa::ToSchema)]
-#[serde(rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum Status {
     /// The object was (re)found and fitted on this pair.
     Initialised,
@@ -55,14 +55,12 @@ impl Status {
 }
 
 /// The contour in one image of a pair.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct ImageResult {
-    /// Contour vertices, pixels (written to a thousandth of a pixel).
-    #[schema(schema_with = contour_schema)]
-    #[serde(serialize_with = "thousandths")]
+    /// Contour vertices, pixels.
     pub contour: Vec<Point>,
     /// Area centroid of the contour, pixels.
-    #[schema(value_type = Vec<f64>, min_items = 2, max_items = 2)]
     pub centroid: Point,
     /// Orientation of the contour's principal axis, radians in (-pi/2, pi/2].
     pub angle_rad: f64,
@@ -75,33 +73,9 @@ pub struct ImageResult {
     pub occluded_fraction: f64,
 }
 
-/// Writes vertices to a thousandth of a pixel: far below the tracking
-/// accuracy (0.02-0.15 px), and it halves a stored result (a 1024x768 rod's
-/// JSON record: 6.9 KB at full precision, 3.5 KB rounded).
-pub(super) fn thousandths<S: serde::Serializer>(points: &[Point], s: S) -> Result<S::Ok, S::Error> {
-    let round = |v: f64| (v * 1000.0).round() / 1000.0;
-    s.collect_seq(points.iter().map(|p| [round(p[0]), round(p[1])]))
-}
-
-/// OpenAPI schema of [`ImageResult::contour`]: `[x, y]` pairs.
-pub(super) fn contour_schema() -> utoipa::openapi::schema::Array {
-    use utoipa::openapi::schema::{ArrayBuilder, KnownFormat, ObjectBuilder, SchemaFormat, Type};
-    let number = ObjectBuilder::new()
-        .schema_type(Type::Number)
-        .format(Some(SchemaFormat::KnownFormat(KnownFormat::Double)));
-    ArrayBuilder::new()
-        .items(
-            ArrayBuilder::new()
-                .items(number)
-                .min_items(Some(2))
-                .max_items(Some(2)),
-        )
-        .description(Some("Contour vertices `[x, y]`, pixels."))
-        .build()
-}
-
 /// The measurement of one stereo pair.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct PairResult {
     /// Index of the pair in the sequence, from 0.
     pub frame: u64,
@@ -115,7 +89,6 @@ pub struct PairResult {
     /// The right contour.
     pub right: Option<ImageResult>,
     /// Right minus left centroid, pixels.
-    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub disparity_px: Option<Point>,
     /// Component of the disparity across the tilt axis, pixels.
     pub disparity_axis_px: Option<f64>,
@@ -129,20 +102,20 @@ pub struct PairResult {
     /// [`crate::uncertainty`]), scaled up once a run of pairs shows their
     /// disparities scatter more than that (see [`crate::scatter`]); null
     /// when the pair is not tracked.
-    #[serde(default)]
+    #[cfg_attr(feature = "serde", serde(default))]
     pub disparity_std_px: Option<f64>,
     /// Standard error of `z_um`, micrometres: `disparity_std_px` through the
     /// calibration's slope, and a fitted calibration's own prediction
     /// error; null without `z_um`.
-    #[serde(default)]
+    #[cfg_attr(feature = "serde", serde(default))]
     pub z_std_um: Option<f64>,
     /// What the two images' own metadata say (pixel size, stage tilt and
     /// their difference); absent when neither carries any.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[cfg_attr(feature = "serde", serde(default, skip_serializing_if = "Option::is_none"))]
     pub metadata: Option<PairMeta>,
     /// What in the images' metadata could not be read, contradicts the
     /// calibration, or leaves a tracked pair without z; absent when none.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    #[cfg_attr(feature = "serde", serde(default, skip_serializing_if = "Vec::is_empty"))]
     pub warnings: Vec<String>,
 }
 

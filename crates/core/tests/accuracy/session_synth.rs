@@ -7,7 +7,7 @@
 
 use crate::reference;
 
-use semdepth_core::calib::{from_json, Calibration};
+use semdepth_core::calib::{build, Calibration, CalibrationSpec, GeometricSpec};
 use semdepth_core::imageio::GrayFrame;
 use semdepth_core::session::Session;
 use semdepth_core::synth::{Preset, Scene, Shape, SynthConfig, ZPattern};
@@ -87,8 +87,7 @@ fn median(v: &[f64]) -> f64 {
 #[test]
 fn relative_height_of_a_tool_above_a_particle() {
     // 0.5 um pixels, 6 degrees of vergence: 4.78 um per pixel of disparity.
-    let calibration: Calibration =
-        from_json(r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0}"#).unwrap();
+    let calibration: Calibration = build(CalibrationSpec::Geometric(GeometricSpec::new(0.5, 6.0))).unwrap();
     let um_per_px = um_per_px();
     for preset in [Preset::Clean, Preset::Noisy] {
         let (mut errors, mut reported, mut dz_errors, mut dz_reported) = (vec![], vec![], vec![], vec![]);
@@ -203,8 +202,7 @@ const MAY_LOSE_HIDDEN: f64 = 0.25;
 /// The tool passing in front of the particle on `preset`, over [`SEEDS`]
 /// (see [`a_tool_passing_in_front_of_the_particle`]).
 fn tool_passing_in_front(preset: Preset) -> Passing {
-    let calibration: Calibration =
-        from_json(r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0}"#).unwrap();
+    let calibration: Calibration = build(CalibrationSpec::Geometric(GeometricSpec::new(0.5, 6.0))).unwrap();
     {
         let (mut errors, mut reported, mut dz_errors, mut dz_reported) = (vec![], vec![], vec![], vec![]);
         let mut particle_untracked = 0usize;

@@ -5,15 +5,15 @@ use serde::{Deserialize, Deserializer, Serialize};
 use utoipa::ToSchema;
 
 use semdepth_core::calib::{
-    CalibrationSpec, FitSpec, GeometricSpec, PixelSizeSource, Sample, VergenceSource, DEFAULT_FIT_DEGREE,
-    DEFAULT_TILT_AXIS_DEG,
+    CalibrationSpec, FitSpec, GeometricSpec, DEFAULT_FIT_DEGREE, DEFAULT_TILT_AXIS_DEG,
 };
-use semdepth_core::init::InitParams;
-use semdepth_core::session::{ObjectResult, Relative};
-use semdepth_core::tracker::{PairResult, TrackerParams};
+use semdepth_core::{init, session, tracker};
 
-use super::error::ApiError;
-use super::storage::{CalibrationRecord, ObjectRecord, SessionRecord};
+use super::calibration::{PixelSizeSource, Sample, VergenceSource};
+use super::params::{InitParams, Polarity, TrackerParams};
+use super::results::{ObjectResult, PairResult, Relative};
+use crate::service::error::ApiError;
+use crate::service::storage::{CalibrationRecord, ObjectRecord, SessionRecord};
 
 /// Body of `POST /v1/calibrations`: a geometric model or a least-squares
 /// fit through (disparity, z) samples.
@@ -101,9 +101,9 @@ impl CalibrationCreate {
                 name,
                 CalibrationSpec::Geometric(GeometricSpec {
                     pixel_size_um,
-                    pixel_size,
+                    pixel_size: pixel_size.map(Into::into),
                     vergence_deg,
-                    vergence,
+                    vergence: vergence.map(Into::into),
                     reference_disparity_px,
                     tilt_axis_deg,
                 }),
@@ -117,7 +117,7 @@ impl CalibrationCreate {
                 name,
                 CalibrationSpec::Fit(FitSpec {
                     degree,
-                    samples,
+                    samples: samples.into_iter().map(Into::into).collect(),
                     tilt_axis_deg,
                 }),
             ),
@@ -212,14 +212,14 @@ impl From<&CalibrationRecord> for CalibrationView {
         match c.spec() {
             CalibrationSpec::Geometric(g) => {
                 view.pixel_size_um = g.pixel_size_um;
-                view.pixel_size = g.pixel_size;
+                view.pixel_size = g.pixel_size.map(Into::into);
                 view.vergence_deg = g.vergence_deg;
-                view.vergence = g.vergence;
+                view.vergence = g.vergence.map(Into::into);
                 view.reference_disparity_px = Some(g.reference_disparity_px);
             }
             CalibrationSpec::Fit(f) => {
                 view.degree = Some(f.degree);
-                view.samples = Some(f.samples.clone());
+                view.samples = Some(f.samples.iter().cloned().map(Into::into).collect());
                 // None while pending: there is no fit to differ from.
                 view.residuals_um = c.pending().is_none().then(|| c.residuals_um());
             }
@@ -280,7 +280,7 @@ pub struct ObjectCreate {
     pub point: Option<[f64; 2]>,
     /// The object against its surroundings; default `any`.
     #[serde(default)]
-    pub polarity: Option<semdepth_core::init::Polarity>,
+    pub polarity: Option<Polarity>,
     /// Smallest expected area, pixels.
     #[serde(default)]
     pub min_area_px: Option<f64>,
@@ -291,11 +291,11 @@ pub struct ObjectCreate {
 
 impl ObjectCreate {
     /// `base` with this object's hints in place of its own (as a set).
-    pub fn params(&self, base: &TrackerParams) -> TrackerParams {
+    pub fn params(&self, base: &tracker::TrackerParams) -> tracker::TrackerParams {
         let mut params = base.clone();
         params.init.roi = self.roi;
         params.init.point = self.point;
-        params.init.polarity = self.polarity.unwrap_or_default();
+        params.init.polarity = self.polarity.unwrap_or_default().into();
         params.init.min_area_px = self.min_area_px;
         params.init.max_area_px = self.max_area_px;
         params
@@ -314,7 +314,7 @@ pub struct ObjectView {
     /// See `roi`.
     pub point: Option<[f64; 2]>,
     /// See `roi`.
-    pub polarity: semdepth_core::init::Polarity,
+    pub polarity: Polarity,
     /// See `roi`.
     pub min_area_px: Option<f64>,
     /// See `roi`.
@@ -334,7 +334,7 @@ impl ObjectView {
             state: state.into(),
             roi: init.roi,
             point: init.point,
-            polarity: init.polarity,
+            polarity: init.polarity.into(),
             min_area_px: init.min_area_px,
             max_area_px: init.max_area_px,
         }
@@ -399,9 +399,9 @@ impl SessionReinit {
     /// given from those left out.
     pub fn apply(
         &self,
-        current: &InitParams,
+        current: &init::InitParams,
         fields: &serde_json::Map<String, serde_json::Value>,
-    ) -> Result<InitParams, serde_json::Error> {
+    ) -> Result<init::InitParams, serde_json::Error> {
         let given = fields.get("init").and_then(serde_json::Value::as_object);
         let object = |p: &InitParams| match serde_json::to_value(p) {
             Ok(serde_json::Value::Object(map)) => Ok(map),
@@ -410,13 +410,13 @@ impl SessionReinit {
             ))),
             Err(e) => Err(e),
         };
-        let mut merged = object(current)?;
+        let mut merged = object(&InitParams::from(current.clone()))?;
         for (key, value) in object(&self.init)? {
             if HINT_FIELDS.contains(&key.as_str()) || given.is_some_and(|g| g.contains_key(&key)) {
                 merged.insert(key, value);
             }
         }
-        serde_json::from_value(serde_json::Value::Object(merged))
+        serde_json::from_value::<InitParams>(serde_json::Value::Object(merged)).map(Into::into)
     }
 }
 
@@ -474,8 +474,8 @@ impl SessionView {
             frames: r.frames,
             retention: r.retention.unwrap_or(default_retention),
             keep: r.keep,
-            init: r.objects[0].params.init.clone(),
-            tracker: r.objects[0].params.clone(),
+            init: r.objects[0].params.init.clone().into(),
+            tracker: r.objects[0].params.clone().into(),
             objects: r.objects.iter().map(ObjectView::of).collect(),
             latest_disparity_px,
             created_at: r.created_at.clone(),
@@ -592,7 +592,7 @@ impl Provenance {
             }
         }
         Ok(Self {
-            received_at: Some(super::state::now_rfc3339()),
+            received_at: Some(crate::service::state::now_rfc3339()),
             label,
             timestamp,
             ..Self::default()
@@ -641,21 +641,16 @@ pub struct FrameResult {
 }
 
 impl FrameResult {
-    /// The objects' measurements as the library gives them (a result
-    /// stored before objects existed: its one object, named `object`).
-    pub fn measurement(&self) -> semdepth_core::session::Measurement {
-        let objects = if self.objects.is_empty() {
+    /// Every object's measurement (a result stored before objects existed:
+    /// its one object, named `object`).
+    pub fn objects(&self) -> Vec<ObjectResult> {
+        if self.objects.is_empty() {
             vec![ObjectResult {
-                name: semdepth_core::session::DEFAULT_OBJECT_NAME.into(),
+                name: session::DEFAULT_OBJECT_NAME.into(),
                 result: self.result.clone(),
             }]
         } else {
             self.objects.clone()
-        };
-        semdepth_core::session::Measurement {
-            frame: self.result.frame,
-            objects,
-            relative: self.relative.clone(),
         }
     }
 

@@ -1,8 +1,7 @@
 //! Tabular output of pair results (CSV), shared by `semdepth process` and
 //! the service's `GET /v1/sessions/{id}/results?format=csv`.
 
-use crate::session::Measurement;
-use crate::tracker::PairResult;
+use super::results::{ObjectResult, PairResult, Relative};
 
 /// The CSV header of [`csv_record`].
 pub const CSV_HEADER: &str = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,\
@@ -23,9 +22,14 @@ pub static OBJECTS_CSV_HEADER: std::sync::LazyLock<String> = std::sync::LazyLock
 /// `disparity_axis_px`, its error in `disparity_std_px`, the height
 /// difference in `z_um` and its error in `z_std_um`; status `lost` and
 /// empty numbers when either object is not measured).
-pub fn objects_csv_records(m: &Measurement, name: &str) -> Vec<String> {
-    let mut rows = Vec::with_capacity(m.objects.len() + m.relative.len());
-    for o in &m.objects {
+pub fn objects_csv_records(
+    frame: u64,
+    objects: &[ObjectResult],
+    relative: &[Relative],
+    name: &str,
+) -> Vec<String> {
+    let mut rows = Vec::with_capacity(objects.len() + relative.len());
+    for o in objects {
         let mut cells = csv_cells(&o.result, name);
         cells.insert(2, csv_text(&o.name));
         cells.insert(3, String::new());
@@ -33,9 +37,9 @@ pub fn objects_csv_records(m: &Measurement, name: &str) -> Vec<String> {
     }
     let columns = OBJECTS_CSV_HEADER.split(',').count();
     let column = |c: &str| OBJECTS_CSV_HEADER.split(',').position(|h| h == c);
-    for r in &m.relative {
+    for r in relative {
         let mut cells = vec![String::new(); columns];
-        cells[0] = m.frame.to_string();
+        cells[0] = frame.to_string();
         cells[1] = csv_text(name);
         cells[2] = csv_text(&r.from);
         cells[3] = csv_text(&r.to);
