@@ -48,7 +48,7 @@ pub mod ops;
 pub mod pipeline;
 pub mod registry;
 pub mod sessions;
-pub mod snapshot;
+
 pub mod state;
 pub mod storage;
 pub mod wire;

@@ -14,7 +14,7 @@ const MIN_SUCCESS_RATE: f64 = 0.95;
 const SEEDS: u64 = 20;
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn synthetic_initial_regions_match_truth() {
     let mut total = 0usize;
     let mut failures = Vec::new();
@@ -79,7 +79,7 @@ fn synthetic_initial_regions_match_truth() {
 /// 12% of area for 2.5 times the outline. Before, the sphere of the
 /// scratched scenes' seed 205 was tracked from a contour 25 px off.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_region_run_out_along_a_fibre_gives_way_to_the_object_it_holds() {
     let config = SynthConfig {
         frames: 20,
@@ -145,7 +145,7 @@ fn assert_success_rate(preset: Preset, failures: &[String], total: usize, min_io
 /// the bound allows 0.92, 0.92 and 0.89 on seeds 500-509, 700-709 and
 /// 800-809), dark 0.975, 1.00 and 1.00.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn hinted_objects_are_found_on_every_scene_class() {
     for preset in Preset::ALL {
         let required = match preset {
@@ -225,7 +225,7 @@ fn hinted_objects_are_found_on_every_scene_class() {
 /// IoU >= 0.95 in all 15 with a `roi`, and in at least 95% of the 20 with
 /// a `point` (the share).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn relief_rods_leave_the_substrate_between_grain_boundaries_out() {
     let first_iou = |seed: u64, hint: &dyn Fn(&semdepth_core::synth::SynthPair, u32, u32) -> InitParams| {
         let (pair, w, h, truth) = first_frame(Preset::Relief, Shape::Rod, seed);
@@ -289,7 +289,7 @@ fn relief_rods_leave_the_substrate_between_grain_boundaries_out() {
 /// truth >= 0.9 in at least 95% of 4 shapes x 5 unseen seeds per class
 /// (measured: 20 of 20 in each).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn hard_scenes_are_found_without_hints() {
     for preset in [
         Preset::BorderTool,
@@ -364,7 +364,7 @@ fn dark_objects_are_reported_with_their_rim() {
 /// must not fire there (it once joined a relief rod to the substrate's
 /// grains: IoU 0.50).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn tight_and_loose_boxes_give_the_object() {
     for preset in Preset::ALL {
         let mut failures = Vec::new();

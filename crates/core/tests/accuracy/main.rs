@@ -6,7 +6,7 @@
 //! the full suites are ignored there and run with
 //!
 //! ```sh
-//! cargo test -p semdepth-core --test accuracy -- --ignored
+//! cargo test --test accuracy -- --ignored
 //! ```
 
 mod reference;

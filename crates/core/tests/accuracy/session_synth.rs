@@ -363,7 +363,7 @@ struct Passing {
 /// disparity and height hold to the two-object limit (0.2 px, 0.96 um)
 /// with a calibrated std.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_tool_passing_in_front_of_the_particle() {
     for preset in [Preset::Clean, Preset::Noisy] {
         let p = tool_passing_in_front(preset);

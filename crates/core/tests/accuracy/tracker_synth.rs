@@ -158,13 +158,13 @@ fn clean_sequences() {
 }
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn strong_poisson_and_scan_line_noise() {
     check(Preset::Noisy, 0.15, 0.0);
 }
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn quarter_occlusion_entering_after_the_first_pair() {
     // The object stays visible, so at most 5% of the pairs may be untracked
     // (issue #17): a pair whose disparity's standard error grew past
@@ -174,13 +174,13 @@ fn quarter_occlusion_entering_after_the_first_pair() {
 }
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn grey_level_flicker() {
     check(Preset::Flicker, 0.15, 0.0);
 }
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn cluttered_background() {
     // Not a condition of the issue; held to the noisy limit.
     check(Preset::Cluttered, 0.15, 0.0);
@@ -200,7 +200,7 @@ fn cluttered_background() {
 /// every other pair of a rod), and on crossing seeds 0..10 (20 pairs) a
 /// blob's contour was pulled 41 px onto the bar, 9 pairs confident wrong.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn occluders_moving_on_their_own_and_fast_motion() {
     for (preset, frame_count) in [(Preset::Crossing, FRAMES), (Preset::Fast, 20)] {
         let a = measure(preset, &Shape::ALL, SEEDS, frame_count);
@@ -241,7 +241,7 @@ fn occluders_moving_on_their_own_and_fast_motion() {
 /// Seeds 300..305 no longer show rod 302 sliding along its axis (see
 /// `a_move_the_visible_outline_does_not_fix_is_not_followed`).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn noise_occlusion_and_flicker_together() {
     let a = measure(Preset::Combined, &Shape::ALL, SEEDS, FRAMES);
     let total = a.pairs + a.lost;
@@ -260,7 +260,7 @@ fn noise_occlusion_and_flicker_together() {
 }
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn long_sequences_follow_the_rotating_object() {
     // 45 pairs while the object turns by up to 0.01 rad per pair: a template
     // that does not turn with it drifts (blob seed 1 reached 0.9 px here, and
@@ -289,7 +289,7 @@ fn assert_clean_tracking(a: &Accuracy) {
 }
 
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_edge_chain_touching_the_outline_does_not_become_part_of_it() {
     // Clean tip, seed 201: a chain of background edges met the tip's outline
     // and the initial outline ran 300 px out along it and back. The tail
@@ -314,7 +314,7 @@ fn an_edge_chain_touching_the_outline_does_not_become_part_of_it() {
 /// reported standard error is calibrated within a factor of 1.5 over all
 /// of them (measured 0.90; 0.83 before the cuts' share of the noise).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn tools_entering_from_the_border_are_tracked() {
     use semdepth_core::geometry::Polygon;
     const SEEDS: std::ops::Range<u64> = 800..810;
@@ -392,7 +392,7 @@ fn tools_entering_from_the_border_are_tracked() {
 /// blur at low dose: within the issue's 0.2 px (measured 0.154; 0.252
 /// before both images were smoothed to the blurred edge's width).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn scratched_dark_blurred_and_relief_scenes() {
     for (preset, limit) in [
         (Preset::Scratched, 0.15),
@@ -438,7 +438,7 @@ fn scratched_dark_blurred_and_relief_scenes() {
 /// in the image, 1 tool in 10 (seeds 100..120 and 200..210) slid along its
 /// axis, up to 20 px, with the disparity right.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn border_tools_have_no_confident_wrong_pairs() {
     let mut wrong = Vec::new();
     let mut worst = (0.0f64, 0.0f64);
@@ -646,7 +646,7 @@ fn without_confident_wrong(
 /// within 2 px of the truth, after the offsets of pair 4 (the template's
 /// own reference point and disparity offset).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_lost_object_is_found_again_by_its_template() {
     use semdepth_core::synth::Scene;
     use semdepth_core::tracker::{Phase, REACQUIRED, REACQUIRE_PAIRS};
@@ -700,7 +700,7 @@ fn a_lost_object_is_found_again_by_its_template() {
 /// disparity within 0.5 px and its left centroid within 2 px of the truth
 /// (after the first pair's offsets).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_rod_beside_a_bright_bar_is_found_again() {
     use semdepth_core::tracker::REACQUIRED;
     let config = SynthConfig {
@@ -738,7 +738,7 @@ fn a_rod_beside_a_bright_bar_is_found_again() {
 /// than 1 px or its left centroid more than 3 px off the truth (after
 /// pair 4's offsets).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_bar_beside_a_lost_rod_is_not_taken_for_it() {
     use semdepth_core::synth::Scene;
     let config = SynthConfig {
@@ -780,7 +780,7 @@ fn a_bar_beside_a_lost_rod_is_not_taken_for_it() {
 /// pair, pair 1 `uncertain`, at least 7 of the 10 pairs `tracked`
 /// (measured: 7, pairs 5 and 6 `uncertain` too at 0.46 and 0.53 px).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_object_first_measured_within_the_limit_is_held_to_it() {
     use semdepth_core::tracker::UNCERTAIN;
     let (errors, reasons) = without_confident_wrong(Preset::Combined, Shape::Rod, 902, 10);
@@ -807,7 +807,7 @@ fn an_object_first_measured_within_the_limit_is_held_to_it() {
 /// and at least 3 of the 20 pairs `tracked` (measured: 3; the bar lies
 /// beside the rod or over it in the others).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_dark_bar_beside_a_rod_does_not_move_it_unreported() {
     let (errors, reasons) = without_confident_wrong(Preset::Crossing, Shape::Rod, 1017, 20);
     assert!(
@@ -825,7 +825,7 @@ fn a_dark_bar_beside_a_rod_does_not_move_it_unreported() {
 /// Required: no confident wrong pair, and pair 1 `lost` as occluded, its
 /// move past the search radius named.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_bar_as_bright_as_a_rod_does_not_take_its_contour_unreported() {
     let (_, reasons) = without_confident_wrong(Preset::Combined, Shape::Rod, 2017, 20);
     assert!(
@@ -843,7 +843,7 @@ fn a_bar_as_bright_as_a_rod_does_not_take_its_contour_unreported() {
 /// 4.0 px along the axis. Required: no confident wrong pair, and pair 3
 /// `lost` as occluded, its move named.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_rod_sliding_along_a_bar_is_not_tracked_off() {
     let (_, reasons) = without_confident_wrong(Preset::Occluded, Shape::Rod, 2008, 20);
     assert!(
@@ -861,7 +861,7 @@ fn a_rod_sliding_along_a_bar_is_not_tracked_off() {
 /// disparity RMS <= 0.15 px; no pair lost. Measured: largest centroid
 /// error 0.2 px, disparity RMS 0.02 px.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn two_hundred_turning_pairs_do_not_creep() {
     for shape in Shape::ALL {
         let name = format!("clean/{}/100, 200 pairs", shape.name());
@@ -905,7 +905,7 @@ fn two_hundred_turning_pairs_do_not_creep() {
 /// occluder hides 58% of the left outline and the right view's search along
 /// its line found a pose 32 px away; that pair was reported `tracked`.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_disparity_that_jumps_under_heavy_occlusion_is_not_trusted() {
     // The sequence's length shapes its motion: pairs 0 and 1 of 20.
     let config = SynthConfig {
@@ -986,7 +986,7 @@ fn restarted_within_truth(
 /// and 3 px of left centroid of the truth after the first pair's offsets;
 /// a pair lost as occluded is the right answer.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_occluder_arriving_as_the_object_starts_to_move_does_not_take_it() {
     for (preset, seed) in [
         (Preset::Occluded, 105),
@@ -1017,7 +1017,7 @@ fn an_occluder_arriving_as_the_object_starts_to_move_does_not_take_it() {
 /// the truth after the first pair's offsets; at least one pair is lost for
 /// this reason.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_contour_whose_end_left_the_object_is_not_tracked() {
     let mut overhangs = 0;
     for (preset, seed) in [
@@ -1045,7 +1045,7 @@ fn a_contour_whose_end_left_the_object_is_not_tracked() {
 /// earlier, at [`semdepth_core::tracker::MAX_UNVERIFIED_MOVE_PX`]; a rod half
 /// under a bar, crossing seed 114, pair 4, has such a pair.)
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_fit_without_a_minimum_along_the_axis_is_not_tracked() {
     let config = SynthConfig {
         frames: 20,
@@ -1089,7 +1089,7 @@ fn a_fit_without_a_minimum_along_the_axis_is_not_tracked() {
 /// by the bar behind them: with a quarter, the rod stayed lost from pair 8
 /// to the end).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn the_right_view_is_searched_on_its_epipolar_line() {
     let config = SynthConfig {
         frames: 20,
@@ -1133,7 +1133,7 @@ fn the_right_view_is_searched_on_its_epipolar_line() {
 /// of its risen sectors went unmeasured on the near tables; it is
 /// `uncertain` at 0.84 px now). The tip keeps at least 2 pairs (5).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_bar_along_half_an_object_does_not_place_its_contour() {
     for (shape, seed) in [(Shape::Rod, 114), (Shape::Tip, 203)] {
         let config = SynthConfig {
@@ -1183,7 +1183,7 @@ fn a_bar_along_half_an_object_does_not_place_its_contour() {
 /// its disparity within 1 px, after the first pair's offsets, and at least
 /// 8 of the 10 pairs are tracked.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_move_the_visible_outline_does_not_fix_is_not_followed() {
     let config = SynthConfig {
         frames: 10,
@@ -1202,7 +1202,7 @@ fn a_move_the_visible_outline_does_not_fix_is_not_followed() {
 /// within 2 px of the truth and its disparity within 0.5 px, after the
 /// first pair's offsets, and every pair is tracked.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_full_fit_onto_an_occluders_edge_gives_way_to_the_masked_fit() {
     let config = SynthConfig {
         frames: 20,
@@ -1223,7 +1223,7 @@ fn a_full_fit_onto_an_occluders_edge_gives_way_to_the_masked_fit() {
 /// centroid after the first pair's offsets, and the fresh object is
 /// refused at least once.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_object_initialised_afresh_is_refused_unlike_the_lost_one() {
     use semdepth_core::tracker::MIN_SPREAD_RATIO;
     for preset in [Preset::Occluded, Preset::Combined] {
@@ -1249,7 +1249,7 @@ fn an_object_initialised_afresh_is_refused_unlike_the_lost_one() {
 /// `tracked` with reason `reacquired` at pairs 14-19. No re-acquired pair's
 /// left centroid is more than 3 px from the truth.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_reacquired_object_shows_its_whole_outline() {
     use semdepth_core::tracker::REACQUIRED;
     let config = SynthConfig {
@@ -1284,7 +1284,7 @@ fn a_reacquired_object_shows_its_whole_outline() {
 /// is tracked, not searched for. With the limit raised, the tip's pair is
 /// tracked with that standard error.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_uncertain_pair_is_not_reported() {
     use semdepth_core::tracker::UNCERTAIN;
     let sequence = |shape: Shape, seed: u64, frames_n: usize, params: TrackerParams| -> Vec<PairResult> {
@@ -1352,7 +1352,7 @@ fn an_uncertain_pair_is_not_reported() {
 /// pair 4 and 4 pairs were confident wrong. Required: no confident wrong
 /// pair and at most one pair without numbers.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn noise_at_a_shaded_edge_is_not_cut_from_the_first_outline() {
     let config = SynthConfig {
         frames: 20,
@@ -1374,7 +1374,7 @@ fn noise_at_a_shaded_edge_is_not_cut_from_the_first_outline() {
 /// Required: no confident wrong pair, and the reason of the pair that
 /// ended the run says so.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_run_of_uncertain_pairs_does_not_walk_the_contour_off_unnoticed() {
     let config = SynthConfig {
         frames: 20,
@@ -1408,7 +1408,7 @@ fn assert_caught_and_said(config: &SynthConfig, says: &str) {
 /// px reported in that direction, and 5 pairs were 3-14 px off. Required:
 /// no confident wrong pair, and the pairs without numbers say why.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_position_held_only_by_the_ends_of_what_is_left_out_is_not_tracked() {
     let config = SynthConfig {
         frames: 30,
@@ -1427,7 +1427,7 @@ fn a_position_held_only_by_the_ends_of_what_is_left_out_is_not_tracked() {
 /// fresh initialisation on (pairs 17-19; measured: 17 and 18, at 1.78 and
 /// 2.57 px) `uncertain` against the first pair's 0.14 px.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_object_found_afresh_keeps_the_first_standard_error_as_its_reference() {
     let config = SynthConfig {
         frames: 20,

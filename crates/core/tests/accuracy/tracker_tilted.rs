@@ -145,7 +145,7 @@ fn check_figures(class: Class, f: Figures, max_untracked: f64, max_rms: f64, std
 /// A bright grain drifting above a rough, grooved substrate: measured RMS
 /// 0.040 px, std ratio 1.28 (1.22 from the fits alone), nothing untracked.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_grain_above_a_rough_substrate_is_held() {
     check(Class::Grain, 0.0, 0.08, [1.0 / 1.5, 1.5]);
 }
@@ -157,7 +157,7 @@ fn a_grain_above_a_rough_substrate_is_held() {
 /// lies near the limit, and a run of `uncertain` pairs must end under 0.9
 /// of it: 6 of 60 before, at RMS 0.26 px).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_dark_grain_is_held_with_its_bright_rim() {
     check(Class::DarkGrain, 0.16, 0.35, [1.0 / 1.5, 1.5]);
 }
@@ -170,7 +170,7 @@ fn a_dark_grain_is_held_with_its_bright_rim() {
 /// the ratio was 0.70 (0.67 from the fits alone), so the lower bound,
 /// 0.85, fails without the marginal figure.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_entering_from_the_border_is_held() {
     check(Class::Needle, 0.0, 0.12, [0.85, 1.5]);
 }
@@ -182,7 +182,7 @@ fn a_needle_entering_from_the_border_is_held() {
 /// (`uncertainty::marginal_factor`), 0.82 (0.68 from the fits alone,
 /// which the lower bound, 0.8, failed).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needles_standard_error_grows_with_the_scatter_its_fits_do_not_see() {
     check_figures(
         Class::Needle,
@@ -198,7 +198,7 @@ fn a_needles_standard_error_grows_with_the_scatter_its_fits_do_not_see() {
 /// must show an edge, seed 5 of this class was a patch of shaded substrate
 /// tracked as the object, 0.7-7.5 px off.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_plate_with_walls_is_held() {
     check(Class::Plate, 0.05, 0.2, [1.0 / 1.5, 1.5]);
 }
@@ -209,7 +209,7 @@ fn a_plate_with_walls_is_held() {
 /// object, may be taken). Measured RMS 0.073 px, std ratio 0.96, nothing
 /// untracked.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_grain_under_a_passing_needle_is_held() {
     check_figures(
         Class::Crossed,
@@ -225,7 +225,7 @@ fn a_grain_under_a_passing_needle_is_held() {
 /// the crossed scene as the object is left out: its box, drawn from the
 /// border to its tip, is 0.865 on seed 104 (see BENCHMARKS.md).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_roi_gives_the_object_on_every_tilted_class() {
     for class in Class::ALL.into_iter().filter(|&c| c != Class::CrossedTool) {
         for seed in SEEDS {
@@ -266,7 +266,7 @@ fn pair_iou(pair: &tilted::TiltedPair, params: TrackerParams) -> f64 {
 /// it, so the region was not taken for one that ran out along clutter
 /// (IoU 0.731, 0.895 once the edge fit moved it): 0.966.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_grain_whose_candidate_reaches_past_its_edge_is_not_given_up_for_a_scratch() {
     assert_grain_found(200);
 }
@@ -291,7 +291,7 @@ fn assert_grain_found(seed: u64) {
 /// there (IoU 0.829, without hints and with a click on it). It is now
 /// moved as a whole towards the edge first: 0.97.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_grain_whose_outline_lies_beyond_its_rim_is_moved_onto_its_edge() {
     assert_grain_found(7);
 }
@@ -317,7 +317,7 @@ fn a_patch_of_shaded_substrate_is_not_taken_for_the_object() {
 /// `tracked` 2.1-2.6 px off in disparity 3 times, its standard error
 /// 1-3 px. That sector now takes its neighbours' growth: 0.968.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_dark_grain_over_a_flat_substrate_is_found_with_its_whole_rim() {
     let mut scene = tilted::scene(Class::DarkGrain, 6, 1);
     let (w, h) = (scene.width as f64, scene.height as f64);
@@ -332,7 +332,7 @@ fn a_dark_grain_over_a_flat_substrate_is_found_with_its_whole_rim() {
 /// stayed on the dark core (IoU 0.854). They take their neighbours'
 /// growth: 0.949.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_dark_grain_whose_rim_outruns_the_reach_is_found_with_it() {
     let scene = tilted::scene(Class::DarkGrain, 10, 1);
     let iou = first_iou(&scene);
@@ -428,7 +428,7 @@ fn assert_held(tracked: &[(usize, [f64; 2], f64)], min_tracked: usize, centred: 
 /// the tip within 0.4 px, the disparity within 0.07 px; pairs 4-16
 /// `uncertain`).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
     assert_held(&needle_over_grain(8, 20), 6, false);
 }
@@ -441,7 +441,7 @@ fn a_needle_over_a_grain_as_bright_as_itself_is_not_followed_off_its_tip() {
 /// what keeps its contrast. No tracked pair may put the tip more than 3
 /// px from the truth (measured: 1.4 px at most, 11 of 20 pairs tracked).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_lost_over_a_grain_is_not_found_again_along_its_shank() {
     assert_tip_held(&needle_over_grain(7, 20), 6, false);
 }
@@ -457,7 +457,7 @@ fn a_needle_lost_over_a_grain_is_not_found_again_along_its_shank() {
 /// at most, 6 of 20 pairs tracked). Still off, and listed here: pair 4, its tip touching the
 /// grain, is `tracked` 1.4 px off in disparity at a reported 0.23 px.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_whose_moves_over_a_grain_are_not_followed_is_lost_not_taken_elsewhere() {
     assert_tip_held(&needle_over_grain(4, 20), 4, true);
 }
@@ -473,7 +473,7 @@ fn a_needle_whose_moves_over_a_grain_are_not_followed_is_lost_not_taken_elsewher
 /// disparity more than 1 px off, after the sequence's median offsets
 /// (measured: pairs 0-4 and 19 tracked, within 0.6 px and 0.2 px).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_found_afresh_together_with_the_grain_it_touches_is_refused() {
     assert_held(&needle_over_grain_with(3, 20, Hint::Point), 5, true);
 }
@@ -489,7 +489,7 @@ fn a_needle_found_afresh_together_with_the_grain_it_touches_is_refused() {
 /// the sequence's median offsets (measured: pairs 0-5 tracked, within
 /// 0.2 px and 1.3 px).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_back_at_the_edge_of_its_limit_after_uncertain_pairs_is_not_tracked() {
     assert_held(&needle_over_grain(208, 20), 6, true);
 }
@@ -505,7 +505,7 @@ fn a_needle_back_at_the_edge_of_its_limit_after_uncertain_pairs_is_not_tracked()
 /// sequence's median offsets (measured: 11 pairs tracked, within 0.9 px
 /// and 0.1 px).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_found_again_whose_slide_is_not_followed_counts_it() {
     assert_held(&needle_over_grain_with(201, 20, Hint::Point), 8, true);
 }
@@ -521,7 +521,7 @@ fn a_needle_found_again_whose_slide_is_not_followed_counts_it() {
 /// (measured: seed 3 8 pairs tracked, within 0.2 px and 0.3 px; seed 105
 /// 10 pairs, within 0.5 px and 0.6 px).
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_searched_for_in_the_right_view_is_fitted_where_the_left_view_looks() {
     for (seed, min_tracked) in [(3, 6), (105, 8)] {
         assert_held(&needle_over_grain(seed, 20), min_tracked, true);
@@ -540,7 +540,7 @@ fn a_needle_searched_for_in_the_right_view_is_fitted_where_the_left_view_looks()
 /// needle found again with its tip at the grain's edge, is `tracked` with
 /// the tip 7.6 px along its axis from the truth, the disparity right.
 #[test]
-#[ignore = "accuracy suite: cargo test -p semdepth-core --test accuracy -- --ignored"]
+#[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn a_needle_found_afresh_with_a_patch_of_the_grain_at_its_tip_is_refused() {
     let tracked = needle_over_grain(6001, 20);
     assert!(tracked.len() >= 7, "only {} pairs tracked", tracked.len());

@@ -28,8 +28,8 @@ use semdepth_core::scatter::{DisparityRun, Measured};
 use semdepth_core::session::DEFAULT_OBJECT_NAME;
 use semdepth_core::tracker::{Phase, TrackerParams, TrackerState, REACQUIRE_PAIRS};
 
-/// Parameters are stored in the API's form ([`super::api::TrackerParams`]).
-use super::api::TrackerParams as StoredParams;
+/// Parameters are stored in the API's form ([`crate::service::api::TrackerParams`]).
+use crate::service::api::TrackerParams as StoredParams;
 
 /// Version written by this build.
 pub const SNAPSHOT_VERSION: u64 = 2;
