@@ -10,13 +10,9 @@
 
 use std::sync::Arc;
 
-use axum::http::StatusCode;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore, TryAcquireError};
 
-use super::error::ApiError;
-
-/// Seconds a client told `busy` is asked to wait.
-pub const RETRY_AFTER_S: u32 = 1;
+use super::error::{ApiError, RETRY_AFTER_S};
 
 /// Bytes held for one decoded pixel of a pair's two images: the decoder's
 /// own buffer (up to 16 bits) and the 16-bit frame it becomes, per image.
@@ -66,7 +62,7 @@ impl MemoryBudget {
         }
         match self.kib.clone().try_acquire_many_owned(kib) {
             Ok(permit) => Ok(Reservation { _permit: Some(permit) }),
-            Err(TryAcquireError::NoPermits) => Err(busy(format!(
+            Err(TryAcquireError::NoPermits) => Err(ApiError::Busy(format!(
                 "{what} needs {:.1} MiB and {:.1} of the {:.0} MiB for work in flight are in use (--max-inflight-mib); retry in {RETRY_AFTER_S} s",
                 bytes as f64 / 1048576.0,
                 self.used_bytes() as f64 / 1048576.0,
@@ -93,11 +89,6 @@ impl MemoryBudget {
     }
 }
 
-/// 503 `busy` (answered with `Retry-After`).
-pub fn busy(message: String) -> ApiError {
-    ApiError::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -108,11 +99,11 @@ mod tests {
         let a = budget.try_reserve(6 << 20, "a body").unwrap();
         assert_eq!(budget.used_bytes(), 6 << 20);
         let e = budget.try_reserve(6 << 20, "a body").unwrap_err();
-        assert_eq!((e.status.as_u16(), e.code.as_str()), (503, "busy"));
+        assert_eq!((e.status().as_u16(), e.code()), (503, "busy"));
+        let message = e.parts().1;
         assert!(
-            e.message.contains("6.0 MiB") && e.message.contains("of the 10 MiB"),
-            "{}",
-            e.message
+            message.contains("6.0 MiB") && message.contains("of the 10 MiB"),
+            "{message}"
         );
         drop(a);
         assert_eq!(budget.used_bytes(), 0);

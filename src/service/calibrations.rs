@@ -10,7 +10,7 @@ use utoipa_axum::routes;
 use semdepth_core::calib::{build, Sample};
 
 use super::api::model::{
-    check_label, CalibrationCreate, CalibrationList, CalibrationView, SampleCreate, SamplePatch,
+    check_label, CalibrationCreate, CalibrationList, CalibrationView, Label, SampleCreate, SamplePatch,
 };
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
 use super::state::{new_id, now_rfc3339, AppState};
@@ -57,8 +57,7 @@ pub async fn get_calibration_version(
     };
     match stored {
         Some(record) => Ok(ApiJson(CalibrationView::from(&record))),
-        None => Err(ApiError::new(
-            StatusCode::NOT_FOUND,
+        None => Err(ApiError::NotFound(
             "calibration_version_not_found",
             format!(
                 "calibration {id:?} has no version {version} (expected 1..={})",
@@ -185,7 +184,7 @@ pub async fn delete_calibration(
         ));
     }
     if !state.storage.delete_calibration(&id).await? {
-        return Err(ApiError::not_found("calibration", &id));
+        return Err(ApiError::calibration_not_found(&id));
     }
     write_table(&state)?.remove(&id);
     Ok(StatusCode::NO_CONTENT)
@@ -320,7 +319,7 @@ async fn refit(
     record.updated_at = now_rfc3339();
     record.version += 1;
     if !state.storage.update_calibration(record.clone()).await? {
-        return Err(ApiError::not_found("calibration", id));
+        return Err(ApiError::calibration_not_found(id));
     }
     let view = CalibrationView::from(&record);
     write_table(state)?.insert(record.id.clone(), record);
@@ -354,5 +353,5 @@ async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
 
 /// Names are free text but bounded (see [`check_label`]).
 pub fn check_name(name: Option<&str>) -> Result<(), ApiError> {
-    check_label("name", name)
+    check_label(Label::Name, name)
 }

@@ -18,18 +18,43 @@ use semdepth_core::imageio::ImageInputError;
 use semdepth_core::init::InitError;
 use semdepth_core::tracker::TrackError;
 
-use super::storage::StorageError;
+/// How long a client told `busy` waits before it retries, seconds (the
+/// `Retry-After` header).
+pub const RETRY_AFTER_S: u32 = 1;
 
-/// An API error: HTTP status, machine-readable code and a message saying
-/// what was wrong and what was expected.
+/// An API error: its kind (the HTTP status), a snake_case code stable for
+/// scripts to match on, and a message saying what was wrong and what was
+/// expected.
 #[derive(Debug, Clone)]
-pub struct ApiError {
-    /// HTTP status of the response.
-    pub status: StatusCode,
-    /// snake_case code, stable for scripts to match on.
-    pub code: String,
-    /// Human-readable explanation.
-    pub message: String,
+pub enum ApiError {
+    /// 400: the request is malformed or a value is out of range.
+    BadRequest(&'static str, String),
+    /// 401: no bearer token, or the wrong one.
+    Unauthorized(&'static str, String),
+    /// 404: an unknown id, route, version or sample.
+    NotFound(&'static str, String),
+    /// 405: a known route with another method.
+    MethodNotAllowed(&'static str, String),
+    /// 408: the request took too long.
+    Timeout(&'static str, String),
+    /// 409: the request conflicts with the current state.
+    Conflict(&'static str, String),
+    /// 413: a body, message or image beyond its limit.
+    TooLarge(&'static str, String),
+    /// 415: a body of the wrong type.
+    UnsupportedMediaType(&'static str, String),
+    /// 422: values that parse but cannot be used (a hint outside the
+    /// image, a degenerate calibration).
+    Unprocessable(&'static str, String),
+    /// 426: a WebSocket route without an upgrade.
+    UpgradeRequired(&'static str, String),
+    /// 503 with `Retry-After`: the memory for work in flight is in use.
+    Busy(String),
+    /// 503: storage failed, the disk is nearly full, or the server is
+    /// shutting down.
+    Unavailable(&'static str, String),
+    /// 500: a fault of the server, not of the request.
+    Internal(String),
 }
 
 /// The JSON body of every error response.
@@ -50,46 +75,54 @@ pub struct ErrorDetail {
 }
 
 impl ApiError {
-    /// An error with an explicit status.
-    pub fn new(status: StatusCode, code: impl Into<String>, message: impl Into<String>) -> Self {
-        Self {
-            status,
-            code: code.into(),
-            message: message.into(),
+    /// An error of the kind `status` stands for (an axum rejection's own
+    /// status; any other client error is a 400, any other server error a 500).
+    pub fn with_status(status: StatusCode, code: &'static str, message: impl Into<String>) -> Self {
+        let message = message.into();
+        match status {
+            StatusCode::UNAUTHORIZED => Self::Unauthorized(code, message),
+            StatusCode::NOT_FOUND => Self::NotFound(code, message),
+            StatusCode::METHOD_NOT_ALLOWED => Self::MethodNotAllowed(code, message),
+            StatusCode::REQUEST_TIMEOUT => Self::Timeout(code, message),
+            StatusCode::CONFLICT => Self::Conflict(code, message),
+            StatusCode::PAYLOAD_TOO_LARGE => Self::TooLarge(code, message),
+            StatusCode::UNSUPPORTED_MEDIA_TYPE => Self::UnsupportedMediaType(code, message),
+            StatusCode::UNPROCESSABLE_ENTITY => Self::Unprocessable(code, message),
+            StatusCode::UPGRADE_REQUIRED => Self::UpgradeRequired(code, message),
+            StatusCode::SERVICE_UNAVAILABLE => Self::Unavailable(code, message),
+            s if s.is_server_error() => Self::Internal(message),
+            _ => Self::BadRequest(code, message),
         }
     }
 
     /// 400: the request is malformed or a value is out of range.
-    pub fn bad_request(code: impl Into<String>, message: impl Into<String>) -> Self {
-        Self::new(StatusCode::BAD_REQUEST, code, message)
+    pub fn bad_request(code: &'static str, message: impl Into<String>) -> Self {
+        Self::BadRequest(code, message.into())
     }
 
-    /// 404 for an unknown id of the named kind ("session", "calibration").
-    pub fn not_found(kind: &str, id: &str) -> Self {
-        Self::new(
-            StatusCode::NOT_FOUND,
-            format!("{kind}_not_found"),
-            format!("no {kind} with id {id:?}"),
-        )
+    /// 404 `session_not_found`.
+    pub fn session_not_found(id: &str) -> Self {
+        Self::NotFound("session_not_found", format!("no session with id {id:?}"))
+    }
+
+    /// 404 `calibration_not_found`.
+    pub fn calibration_not_found(id: &str) -> Self {
+        Self::NotFound("calibration_not_found", format!("no calibration with id {id:?}"))
     }
 
     /// 409: the request conflicts with the current state.
-    pub fn conflict(code: impl Into<String>, message: impl Into<String>) -> Self {
-        Self::new(StatusCode::CONFLICT, code, message)
+    pub fn conflict(code: &'static str, message: impl Into<String>) -> Self {
+        Self::Conflict(code, message.into())
     }
 
     /// 503 `shutting_down`: a semaphore the work waits on was closed.
     pub fn shutting_down() -> Self {
-        Self::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "shutting_down",
-            "the server is shutting down",
-        )
+        Self::Unavailable("shutting_down", "the server is shutting down".into())
     }
 
     /// 500: a fault of the server, not of the request.
     pub fn internal(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::INTERNAL_SERVER_ERROR, "internal_error", message)
+        Self::Internal(message.into())
     }
 
     /// 422 `invalid_hint` for a hint (`init.roi`, `init.point`) that is
@@ -97,21 +130,82 @@ impl ApiError {
     /// field; other initialisation errors are 400 `invalid_parameter`.
     pub fn hint(e: InitError) -> Self {
         match &e {
-            InitError::InvalidHint { field, message } => Self::new(
-                StatusCode::UNPROCESSABLE_ENTITY,
-                e.code(),
-                format!("invalid init.{field}: {message}"),
-            ),
+            InitError::InvalidHint { field, message } => {
+                Self::Unprocessable(e.code(), format!("invalid init.{field}: {message}"))
+            }
             other => Self::bad_request("invalid_parameter", format!("init: {other}")),
         }
     }
 
+    /// The HTTP status.
+    pub fn status(&self) -> StatusCode {
+        match self {
+            Self::BadRequest(..) => StatusCode::BAD_REQUEST,
+            Self::Unauthorized(..) => StatusCode::UNAUTHORIZED,
+            Self::NotFound(..) => StatusCode::NOT_FOUND,
+            Self::MethodNotAllowed(..) => StatusCode::METHOD_NOT_ALLOWED,
+            Self::Timeout(..) => StatusCode::REQUEST_TIMEOUT,
+            Self::Conflict(..) => StatusCode::CONFLICT,
+            Self::TooLarge(..) => StatusCode::PAYLOAD_TOO_LARGE,
+            Self::UnsupportedMediaType(..) => StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            Self::Unprocessable(..) => StatusCode::UNPROCESSABLE_ENTITY,
+            Self::UpgradeRequired(..) => StatusCode::UPGRADE_REQUIRED,
+            Self::Busy(_) | Self::Unavailable(..) => StatusCode::SERVICE_UNAVAILABLE,
+            Self::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
+        }
+    }
+
+    /// The code and the message.
+    pub fn parts(&self) -> (&'static str, &str) {
+        match self {
+            Self::BadRequest(code, m)
+            | Self::Unauthorized(code, m)
+            | Self::NotFound(code, m)
+            | Self::MethodNotAllowed(code, m)
+            | Self::Timeout(code, m)
+            | Self::Conflict(code, m)
+            | Self::TooLarge(code, m)
+            | Self::UnsupportedMediaType(code, m)
+            | Self::Unprocessable(code, m)
+            | Self::UpgradeRequired(code, m)
+            | Self::Unavailable(code, m) => (code, m),
+            Self::Busy(m) => ("busy", m),
+            Self::Internal(m) => ("internal_error", m),
+        }
+    }
+
+    /// The snake_case code.
+    pub fn code(&self) -> &'static str {
+        self.parts().0
+    }
+
+    /// This error with `prefix` before its message (`left image: ...`).
+    pub fn prefixed(mut self, prefix: &str) -> Self {
+        match &mut self {
+            Self::BadRequest(_, m)
+            | Self::Unauthorized(_, m)
+            | Self::NotFound(_, m)
+            | Self::MethodNotAllowed(_, m)
+            | Self::Timeout(_, m)
+            | Self::Conflict(_, m)
+            | Self::TooLarge(_, m)
+            | Self::UnsupportedMediaType(_, m)
+            | Self::Unprocessable(_, m)
+            | Self::UpgradeRequired(_, m)
+            | Self::Unavailable(_, m)
+            | Self::Busy(m)
+            | Self::Internal(m) => *m = format!("{prefix}: {m}"),
+        }
+        self
+    }
+
     /// The JSON body.
     pub fn body(&self) -> ErrorBody {
+        let (code, message) = self.parts();
         ErrorBody {
             error: ErrorDetail {
-                code: self.code.clone(),
-                message: self.message.clone(),
+                code: code.into(),
+                message: message.into(),
             },
         }
     }
@@ -119,32 +213,33 @@ impl ApiError {
 
 impl std::fmt::Display for ApiError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} {}: {}", self.status.as_u16(), self.code, self.message)
+        let (code, message) = self.parts();
+        write!(f, "{} {code}: {message}", self.status().as_u16())
     }
 }
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        if self.status.is_server_error() {
-            tracing::error!(code = %self.code, message = %self.message, "server error");
+        let (status, (code, message)) = (self.status(), self.parts());
+        let mut response = (status, axum::Json(self.body())).into_response();
+        let headers = response.headers_mut();
+        if status.is_server_error() {
+            tracing::error!(code, message, "server error");
         }
-        let mut response = (self.status, axum::Json(self.body())).into_response();
-        if self.status.is_client_error() {
+        match &self {
+            Self::Busy(_) => {
+                headers.insert(header::RETRY_AFTER, HeaderValue::from(RETRY_AFTER_S));
+            }
+            Self::Unauthorized(..) => {
+                headers.insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+            }
+            _ => {}
+        }
+        if status.is_client_error() {
             response.extensions_mut().insert(ClientError {
-                code: self.code.clone(),
-                message: self.message.clone(),
+                code,
+                message: message.to_owned(),
             });
-        }
-        if self.status == StatusCode::SERVICE_UNAVAILABLE && self.code == "busy" {
-            response.headers_mut().insert(
-                header::RETRY_AFTER,
-                HeaderValue::from(super::budget::RETRY_AFTER_S),
-            );
-        }
-        if self.status == StatusCode::UNAUTHORIZED {
-            response
-                .headers_mut()
-                .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
         }
         response
     }
@@ -154,7 +249,7 @@ impl IntoResponse for ApiError {
 /// request log (see [`log_client_errors`]).
 #[derive(Clone, Debug)]
 pub struct ClientError {
-    code: String,
+    code: &'static str,
     message: String,
 }
 
@@ -215,7 +310,7 @@ impl From<ImageInputError> for ApiError {
             }
             _ => StatusCode::BAD_REQUEST,
         };
-        Self::new(status, e.code(), e.to_string())
+        Self::with_status(status, e.code(), e.to_string())
     }
 }
 
@@ -238,7 +333,7 @@ impl From<semdepth_core::session::SessionError> for ApiError {
             E::UnknownObject(_) => StatusCode::NOT_FOUND,
             E::DuplicateName(_) | E::ObjectCount(_) => StatusCode::CONFLICT,
         };
-        Self::new(status, e.code(), e.to_string())
+        Self::with_status(status, e.code(), e.to_string())
     }
 }
 
@@ -250,17 +345,7 @@ impl From<CalibError> for ApiError {
             CalibError::NoSuchSample { .. } => StatusCode::NOT_FOUND,
             _ => StatusCode::UNPROCESSABLE_ENTITY,
         };
-        Self::new(status, e.code(), e.to_string())
-    }
-}
-
-impl From<StorageError> for ApiError {
-    fn from(e: StorageError) -> Self {
-        Self::new(
-            StatusCode::SERVICE_UNAVAILABLE,
-            e.code(),
-            format!("storage failed: {e}"),
-        )
+        Self::with_status(status, e.code(), e.to_string())
     }
 }
 
@@ -360,17 +445,16 @@ fn has_json_content_type(headers: &axum::http::HeaderMap) -> bool {
 }
 
 fn unsupported_json_media_type() -> ApiError {
-    ApiError::new(
-        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+    ApiError::UnsupportedMediaType(
         "unsupported_media_type",
-        "expected a JSON body with Content-Type: application/json",
+        "expected a JSON body with Content-Type: application/json".into(),
     )
 }
 
 /// A body that could not be read: 413 past the limit, else 400.
 fn body_rejection(status: StatusCode, text: String) -> ApiError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {
-        ApiError::new(status, "body_too_large", text)
+        ApiError::with_status(status, "body_too_large", text)
     } else {
         ApiError::bad_request("body_unreadable", text)
     }
@@ -449,19 +533,16 @@ mod tests {
         for body in ["[null, null]", "[]", "\"x\"", "1", "null"] {
             let e = extract(Some("application/json"), body).await.unwrap_err();
             assert_eq!(
-                (e.status, e.code.as_str()),
+                (e.status(), e.code()),
                 (StatusCode::BAD_REQUEST, "invalid_json"),
                 "{body}"
             );
         }
         let e = extract(Some("application/json"), "").await.unwrap_err();
-        assert_eq!(
-            (e.status, e.code.as_str()),
-            (StatusCode::BAD_REQUEST, "invalid_json")
-        );
+        assert_eq!((e.status(), e.code()), (StatusCode::BAD_REQUEST, "invalid_json"));
         for ct in [None, Some("text/plain"), Some("application/jsonx"), Some("json")] {
             let e = extract(ct, "{}").await.unwrap_err();
-            assert_eq!(e.status, StatusCode::UNSUPPORTED_MEDIA_TYPE, "{ct:?}");
+            assert_eq!(e.status(), StatusCode::UNSUPPORTED_MEDIA_TYPE, "{ct:?}");
         }
     }
 }

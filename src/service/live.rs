@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use axum::extract::State;
-use axum::http::{header, HeaderName, HeaderValue, StatusCode};
+use axum::http::{header, HeaderName, HeaderValue};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
@@ -185,13 +185,8 @@ pub async fn latest_frame(
     }
     let session = state.sessions.get(&id)?;
     let live = session.live.borrow().clone();
-    let no_frame = |why: &str| {
-        ApiError::new(
-            StatusCode::NOT_FOUND,
-            "no_frame",
-            format!("session {id} has no pair to show: {why}"),
-        )
-    };
+    let no_frame =
+        |why: &str| ApiError::NotFound("no_frame", format!("session {id} has no pair to show: {why}"));
     let live = live.ok_or_else(|| no_frame("none was processed since the server started"))?;
     let images = live.images.clone().ok_or_else(|| {
         no_frame("its latest pair's images were let go to keep the live view within --live-view-mib")
@@ -324,8 +319,7 @@ const UI_FILES: [(&str, &str, &str); 4] = [
 
 fn ui_file(name: &str) -> Response {
     let Some((_, kind, text)) = UI_FILES.iter().find(|(n, _, _)| *n == name) else {
-        return ApiError::new(
-            StatusCode::NOT_FOUND,
+        return ApiError::NotFound(
             "route_not_found",
             format!("no file /ui/{name} (the page's files are index.html, app.js, style.css and icon.svg)"),
         )

@@ -23,7 +23,7 @@ use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
 use axum::extract::{DefaultBodyLimit, Request};
-use axum::http::{header, HeaderName, StatusCode};
+use axum::http::{header, HeaderName};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::Router;
@@ -139,7 +139,7 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
         let ids = match state.sessions.matching(Some(expiry), None, false) {
             Ok(ids) => ids,
             Err(e) => {
-                tracing::warn!(error = %e.message, "session expiry: cannot list sessions");
+                tracing::warn!(error = %e.parts().1, "session expiry: cannot list sessions");
                 continue;
             }
         };
@@ -148,8 +148,10 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
                 Ok(()) => {
                     tracing::info!(session = %id, idle_h = expiry.as_secs_f64() / 3600.0, "session expired")
                 }
-                Err(e) if e.status == axum::http::StatusCode::NOT_FOUND => {}
-                Err(e) => tracing::warn!(session = %id, error = %e.message, "session expiry: delete failed"),
+                Err(e) if e.status() == axum::http::StatusCode::NOT_FOUND => {}
+                Err(e) => {
+                    tracing::warn!(session = %id, error = %e.parts().1, "session expiry: delete failed")
+                }
             }
         }
     }
@@ -341,10 +343,9 @@ async fn require_token(token: Option<Arc<str>>, req: Request, next: Next) -> Res
             .and_then(|v| v.strip_prefix("Bearer "));
         let ok = given.is_some_and(|g| bool::from(g.as_bytes().ct_eq(expected.as_bytes())));
         if !ok {
-            return ApiError::new(
-                StatusCode::UNAUTHORIZED,
+            return ApiError::Unauthorized(
                 "unauthorized",
-                "missing or wrong bearer token (expected Authorization: Bearer <token>)",
+                "missing or wrong bearer token (expected Authorization: Bearer <token>)".into(),
             )
             .into_response();
         }
@@ -369,11 +370,7 @@ async fn body_limits(state: AppState, req: Request, next: Next) -> Response {
     let chunked = req.headers().contains_key(header::TRANSFER_ENCODING);
     let has_body = declared.is_some_and(|n| n > 0) || chunked;
     let mut response = match declared {
-        Some(n) if n > limit as u64 => ApiError::new(
-            StatusCode::PAYLOAD_TOO_LARGE,
-            "body_too_large",
-            format!("request body of {n} bytes exceeds the limit of {limit} bytes (raise --max-body-mib to allow more)"),
-        )
+        Some(n) if n > limit as u64 => ApiError::TooLarge("body_too_large", format!("request body of {n} bytes exceeds the limit of {limit} bytes (raise --max-body-mib to allow more)"))
         .into_response(),
         _ => {
             let bytes = match declared {
@@ -388,7 +385,7 @@ async fn body_limits(state: AppState, req: Request, next: Next) -> Response {
                     response
                 }
                 Err(e) => {
-                    if e.code == "busy" {
+                    if matches!(e, ApiError::Busy(_)) {
                         state.metrics.refused_busy.inc();
                     }
                     e.into_response()
@@ -408,8 +405,7 @@ async fn body_limits(state: AppState, req: Request, next: Next) -> Response {
 async fn request_timeout(limit: Duration, req: Request, next: Next) -> Response {
     match tokio::time::timeout(limit, next.run(req)).await {
         Ok(response) => response,
-        Err(_) => ApiError::new(
-            StatusCode::REQUEST_TIMEOUT,
+        Err(_) => ApiError::Timeout(
             "request_timeout",
             format!(
                 "the request took longer than {} s (upload faster or raise --request-timeout)",
@@ -421,8 +417,7 @@ async fn request_timeout(limit: Duration, req: Request, next: Next) -> Response 
 }
 
 async fn route_not_found(req: Request) -> ApiError {
-    ApiError::new(
-        StatusCode::NOT_FOUND,
+    ApiError::NotFound(
         "route_not_found",
         format!(
             "no route {} {} (see /openapi.json)",
@@ -433,8 +428,7 @@ async fn route_not_found(req: Request) -> ApiError {
 }
 
 async fn method_not_allowed(req: Request) -> ApiError {
-    ApiError::new(
-        StatusCode::METHOD_NOT_ALLOWED,
+    ApiError::MethodNotAllowed(
         "method_not_allowed",
         format!(
             "method {} is not allowed on {} (see /openapi.json)",

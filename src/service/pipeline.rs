@@ -75,9 +75,7 @@ impl PairInput {
     /// samples carry none). CPU-heavy: call on the blocking pool.
     pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
         let side = |which: &str, e: semdepth_core::imageio::ImageInputError| {
-            let mut err = ApiError::from(e);
-            err.message = format!("{which} image: {}", err.message);
-            err
+            ApiError::from(e).prefixed(&format!("{which} image"))
         };
         match self {
             Self::Encoded { left, right } => Ok((
@@ -148,7 +146,7 @@ async fn track_session_pair(
     .await
     .unwrap_or_else(|e| Err(ApiError::internal(format!("pair task failed: {e}"))));
     if let Err(e) = &outcome {
-        state.metrics.failed(&e.code);
+        state.metrics.failed(e.code());
     }
     outcome
 }
@@ -174,7 +172,7 @@ pub async fn acknowledge(
         Err(e) => {
             session.behind.store(true, std::sync::atomic::Ordering::Release);
             let e = ApiError::from(e);
-            state.metrics.failed(&e.code);
+            state.metrics.failed(e.code());
             Err(e)
         }
     }
@@ -261,7 +259,7 @@ where
     let (core, permit) = match claim(state, session).await {
         Ok(claimed) => claimed,
         Err(e) => {
-            state.metrics.failed(&e.code);
+            state.metrics.failed(e.code());
             let go_on = deliver(first.seq, first.received, Err(e));
             return (queue, go_on);
         }
@@ -287,7 +285,7 @@ where
             }))
             .unwrap_or_else(|_| Err(ApiError::internal("tracking task panicked")));
             if let Err(e) = &outcome {
-                task_state.metrics.failed(&e.code);
+                task_state.metrics.failed(e.code());
             }
             if !deliver(pair.seq, pair.received, outcome) {
                 break false;
@@ -450,7 +448,7 @@ pub async fn process_one_shot(
         Ok(r) => state
             .metrics
             .processed(r.result.status.name(), received.elapsed().as_secs_f64()),
-        Err(e) => state.metrics.failed(&e.code),
+        Err(e) => state.metrics.failed(e.code()),
     }
     outcome
 }
@@ -463,7 +461,7 @@ async fn claim(
 ) -> Result<(OwnedMutexGuard<SessionCore>, OwnedSemaphorePermit), ApiError> {
     let core = session.lock_core(&state.storage).await?;
     if core.deleted {
-        return Err(ApiError::not_found("session", &session.id));
+        return Err(ApiError::session_not_found(&session.id));
     }
     Ok((core, worker_permit(state).await?))
 }
@@ -513,11 +511,7 @@ fn decode_and_measure(
         .measure_on(&left, &right, meta, calibration, threads)
         .map_err(|e| match session.objects().len() {
             1 => ApiError::from(e.error),
-            _ => {
-                let mut err = ApiError::from(e.error);
-                err.message = format!("object {:?}: {}", e.object, err.message);
-                err
-            }
+            _ => ApiError::from(e.error).prefixed(&format!("object {:?}", e.object)),
         })?;
     Ok((
         measured,
@@ -578,8 +572,7 @@ fn ms(d: std::time::Duration) -> f64 {
 /// Reads the `left` and `right` parts of a `multipart/form-data` upload.
 pub async fn read_pair_upload(request: Request) -> Result<(PairInput, Provenance), ApiError> {
     let mut multipart = Multipart::from_request(request, &()).await.map_err(|e| {
-        ApiError::new(
-            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+        ApiError::UnsupportedMediaType(
             "unsupported_media_type",
             format!(
                 "{} (expected multipart/form-data with parts \"left\" and \"right\")",
@@ -667,5 +660,5 @@ fn multipart_error(e: MultipartError) -> ApiError {
     } else {
         StatusCode::BAD_REQUEST
     };
-    ApiError::new(status, code, format!("multipart body: {}", e.body_text()))
+    ApiError::with_status(status, code, format!("multipart body: {}", e.body_text()))
 }

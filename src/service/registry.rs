@@ -113,7 +113,7 @@ impl Registry {
             .map_err(|_| ApiError::internal("session table lock poisoned"))?
             .get(id)
             .cloned()
-            .ok_or_else(|| ApiError::not_found("session", id))
+            .ok_or_else(|| ApiError::session_not_found(id))
     }
 
     /// The session with this id with its core locked (caught up with
@@ -122,7 +122,7 @@ impl Registry {
         let session = self.get(id)?;
         let core = session.lock_core(&self.storage).await?;
         if core.deleted {
-            return Err(ApiError::not_found("session", id));
+            return Err(ApiError::session_not_found(id));
         }
         Ok(core)
     }
@@ -169,7 +169,7 @@ impl Registry {
         let session = self.get(id)?;
         let mut core = session.core.lock().await;
         if core.deleted {
-            return Err(ApiError::not_found("session", id));
+            return Err(ApiError::session_not_found(id));
         }
         self.storage.delete_session(id).await?;
         core.deleted = true;

@@ -316,7 +316,7 @@ pub async fn delete_sessions(
         match state.sessions.remove(&id).await {
             Ok(()) => deleted.push(id),
             // Deleted meanwhile by another request.
-            Err(e) if e.status == StatusCode::NOT_FOUND => {}
+            Err(e) if e.status() == StatusCode::NOT_FOUND => {}
             Err(e) => return Err(e),
         }
     }

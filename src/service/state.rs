@@ -442,7 +442,7 @@ impl Inner {
             .map_err(|_| ApiError::internal("calibration table lock poisoned"))?
             .get(id)
             .cloned()
-            .ok_or_else(|| ApiError::not_found("calibration", id))
+            .ok_or_else(|| ApiError::calibration_not_found(id))
     }
 
     /// The calibration for computing z and its version, if the id names one.

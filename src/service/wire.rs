@@ -95,7 +95,7 @@ pub struct PairMessage {
 /// Parses a pair message; on failure returns the seq if the header was
 /// readable, and the error.
 pub fn parse_pair_message(bytes: &Bytes) -> Result<PairMessage, (Option<u64>, ApiError)> {
-    let bad = |seq, code: &str, message: String| (seq, ApiError::bad_request(code, message));
+    let bad = |seq, code: &'static str, message: String| (seq, ApiError::bad_request(code, message));
     if bytes.len() < 8 || &bytes[..4] != MAGIC {
         return Err(bad(
             None,
@@ -136,8 +136,7 @@ pub fn parse_pair_message(bytes: &Bytes) -> Result<PairMessage, (Option<u64>, Ap
             ),
         ));
     }
-    let provenance =
-        Provenance::received(header.label, header.timestamp).map_err(|e| bad(seq, &e.code, e.message))?;
+    let provenance = Provenance::received(header.label, header.timestamp).map_err(|e| (seq, e))?;
     let split = header.left_len as usize;
     let (left, right) = (body.slice(..split), body.slice(split..));
     let input = match header.encoding {
@@ -203,7 +202,7 @@ mod tests {
     #[test]
     fn malformed_messages_name_the_problem_and_keep_the_seq() {
         let e = parse_pair_message(&Bytes::from_static(b"nope")).unwrap_err();
-        assert_eq!((e.0, e.1.code.as_str()), (None, "bad_magic"));
+        assert_eq!((e.0, e.1.code()), (None, "bad_magic"));
 
         let m = message(
             &serde_json::json!({"seq": 3, "encoding": "png", "left_len": 5, "right_len": 5}),
@@ -211,7 +210,7 @@ mod tests {
             &[0; 4],
         );
         let e = parse_pair_message(&m).unwrap_err();
-        assert_eq!((e.0, e.1.code.as_str()), (Some(3), "length_mismatch"));
+        assert_eq!((e.0, e.1.code()), (Some(3), "length_mismatch"));
 
         let m = message(
             &serde_json::json!({"seq": 4, "encoding": "raw", "left_len": 1, "right_len": 1}),
@@ -219,7 +218,7 @@ mod tests {
             &[0],
         );
         let e = parse_pair_message(&m).unwrap_err();
-        assert_eq!((e.0, e.1.code.as_str()), (Some(4), "invalid_header"));
+        assert_eq!((e.0, e.1.code()), (Some(4), "invalid_header"));
 
         let m = message(
             &serde_json::json!({"seq": 5, "encoding": "png", "left_len": 1, "right_len": 1, "colour": true}),
@@ -227,12 +226,12 @@ mod tests {
             &[0],
         );
         let e = parse_pair_message(&m).unwrap_err();
-        assert_eq!((e.0, e.1.code.as_str()), (Some(5), "invalid_header"));
-        assert!(e.1.message.contains("colour"), "{}", e.1.message);
+        assert_eq!((e.0, e.1.code()), (Some(5), "invalid_header"));
+        assert!(e.1.parts().1.contains("colour"), "{}", e.1.parts().1);
 
         let mut bytes = MAGIC.to_vec();
         bytes.extend_from_slice(&u32::MAX.to_le_bytes());
         let e = parse_pair_message(&Bytes::from(bytes)).unwrap_err();
-        assert_eq!(e.1.code, "bad_header_length");
+        assert_eq!(e.1.code(), "bad_header_length");
     }
 }

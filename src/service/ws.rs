@@ -115,7 +115,7 @@ pub async fn stream_session(
         } else {
             axum::http::StatusCode::BAD_REQUEST
         };
-        ApiError::new(
+        ApiError::with_status(
             status,
             "websocket_upgrade_required",
             format!("{} (expected a WebSocket upgrade request)", e.body_text()),
@@ -329,7 +329,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                 let (ack_tx, done) = (ack_tx.clone(), done.clone());
                 // Runs on the blocking pool: sends without awaiting.
                 let deliver = move |seq, received, tracked: Result<TrackedPair, ApiError>| {
-                    if matches!(&tracked, Err(e) if e.code == "session_not_found") {
+                    if matches!(&tracked, Err(e) if e.code() == "session_not_found") {
                         done.cancel();
                     }
                     ack_tx.blocking_send((seq, received, tracked)).is_ok()
@@ -433,7 +433,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                     }
                 }
                 Err((seq, e)) => {
-                    state.metrics.failed(&e.code);
+                    state.metrics.failed(e.code());
                     let reply = StreamErrorReply {
                         seq,
                         error: e.body().error,

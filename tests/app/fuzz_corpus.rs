@@ -117,7 +117,7 @@ fn check_message(name: &str, bytes: &[u8]) -> Result<bool, String> {
         match parse_pair_message(&Bytes::copy_from_slice(bytes)) {
             Ok(message) => message.input.decode(&limits).is_ok(),
             Err((_, e)) => {
-                assert!(e.status.is_client_error(), "{e}");
+                assert!(e.status().is_client_error(), "{e}");
                 false
             }
         }

@@ -538,12 +538,25 @@ pub struct TimingMs {
     pub total: f64,
 }
 
+/// Which free-text field [`check_label`] checks.
+#[derive(Clone, Copy, Debug)]
+pub enum Label {
+    /// A session's or calibration's `name`.
+    Name,
+    /// A pair's `label`.
+    Label,
+}
+
 /// Free-text labels (names, a pair's label) are bounded: at most 200
 /// characters, else 400 `invalid_{field}` naming the field.
-pub fn check_label(field: &str, value: Option<&str>) -> Result<(), ApiError> {
+pub fn check_label(field: Label, value: Option<&str>) -> Result<(), ApiError> {
+    let (field, code) = match field {
+        Label::Name => ("name", "invalid_name"),
+        Label::Label => ("label", "invalid_label"),
+    };
     match value {
         Some(v) if v.chars().count() > 200 => Err(ApiError::bad_request(
-            format!("invalid_{field}"),
+            code,
             format!(
                 "{field} of {} characters (expected at most 200)",
                 v.chars().count()
@@ -582,7 +595,7 @@ impl Provenance {
     /// Received now, with the client's `label` and `timestamp` checked: a
     /// label of at most 200 characters, a timestamp in RFC 3339.
     pub fn received(label: Option<String>, timestamp: Option<String>) -> Result<Self, ApiError> {
-        check_label("label", label.as_deref())?;
+        check_label(Label::Label, label.as_deref())?;
         if let Some(t) = &timestamp {
             if time::OffsetDateTime::parse(t, &time::format_description::well_known::Rfc3339).is_err() {
                 return Err(ApiError::bad_request(

@@ -176,6 +176,12 @@ pub enum StorageError {
     Io(#[from] std::io::Error),
 }
 
+impl From<StorageError> for crate::service::error::ApiError {
+    fn from(e: StorageError) -> Self {
+        Self::Unavailable(e.code(), format!("storage failed: {e}"))
+    }
+}
+
 impl StorageError {
     /// Stable snake_case code of the error kind.
     pub fn code(&self) -> &'static str {
