@@ -13,8 +13,7 @@ use super::api::model::{
     check_label, CalibrationCreate, CalibrationList, CalibrationView, Label, SampleCreate, SamplePatch,
 };
 use super::error::{ApiError, ApiJson, ApiPath, ErrorBody};
-use super::state::{new_id, now_rfc3339, AppState};
-use super::storage::CalibrationRecord;
+use super::state::AppState;
 
 /// The calibration routes.
 pub fn router() -> OpenApiRouter<AppState> {
@@ -49,22 +48,9 @@ pub async fn get_calibration_version(
     State(state): State<AppState>,
     ApiPath((id, version)): ApiPath<(String, u64)>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
-    let current = state.calibration(&id)?;
-    let stored = if (1..=current.version).contains(&version) {
-        state.storage.calibration_version(&id, version).await?
-    } else {
-        None
-    };
-    match stored {
-        Some(record) => Ok(ApiJson(CalibrationView::from(&record))),
-        None => Err(ApiError::NotFound(
-            "calibration_version_not_found",
-            format!(
-                "calibration {id:?} has no version {version} (expected 1..={})",
-                current.version
-            ),
-        )),
-    }
+    Ok(ApiJson(CalibrationView::from(
+        &state.db.calibration_version(&id, version).await?,
+    )))
 }
 
 /// Create a calibration.
@@ -91,20 +77,8 @@ pub async fn create_calibration(
 ) -> Result<(StatusCode, ApiJson<CalibrationView>), ApiError> {
     let (name, spec) = body.into_parts();
     check_name(name.as_deref())?;
-    let calibration = build(spec)?;
-    let now = now_rfc3339();
-    let record = CalibrationRecord {
-        id: new_id("c"),
-        name,
-        calibration,
-        created_at: now.clone(),
-        updated_at: now,
-        version: 1,
-    };
-    state.storage.insert_calibration(record.clone()).await?;
-    let view = CalibrationView::from(&record);
-    write_table(&state)?.insert(record.id.clone(), record);
-    Ok((StatusCode::CREATED, ApiJson(view)))
+    let record = state.db.create_calibration(name, build(spec)?).await?;
+    Ok((StatusCode::CREATED, ApiJson(CalibrationView::from(&record))))
 }
 
 /// List calibrations, oldest first.
@@ -119,13 +93,12 @@ pub async fn create_calibration(
     )
 )]
 pub async fn list_calibrations(State(state): State<AppState>) -> Result<ApiJson<CalibrationList>, ApiError> {
-    let table = state
-        .calibrations
-        .read()
-        .map_err(|_| ApiError::internal("calibration table lock poisoned"))?;
-    let mut calibrations: Vec<CalibrationView> = table.values().map(CalibrationView::from).collect();
-    // UUIDv7 ids sort in creation order.
-    calibrations.sort_by(|a, b| a.id.cmp(&b.id));
+    let calibrations = state
+        .db
+        .calibrations()?
+        .iter()
+        .map(CalibrationView::from)
+        .collect();
     Ok(ApiJson(CalibrationList { calibrations }))
 }
 
@@ -147,7 +120,7 @@ pub async fn get_calibration(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
-    Ok(ApiJson(CalibrationView::from(&state.calibration(&id)?)))
+    Ok(ApiJson(CalibrationView::from(&state.db.calibration(&id)?)))
 }
 
 /// Delete a calibration. Refused (409) while a session uses it.
@@ -170,23 +143,7 @@ pub async fn delete_calibration(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
-    // No session attaches it meanwhile (see `Inner::calibration_links`).
-    let _links = state.calibration_links.lock().await;
-    state.calibration(&id)?;
-    let users = sessions_using(&state, &id).await;
-    if !users.is_empty() {
-        return Err(ApiError::conflict(
-            "calibration_in_use",
-            format!(
-                "calibration {id:?} is used by session(s) {} (detach it with PATCH /v1/sessions/{{id}} first)",
-                users.join(", ")
-            ),
-        ));
-    }
-    if !state.storage.delete_calibration(&id).await? {
-        return Err(ApiError::calibration_not_found(&id));
-    }
-    write_table(&state)?.remove(&id);
+    state.db.delete_calibration(&id).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -301,54 +258,9 @@ async fn refit(
     id: &str,
     change: impl FnOnce(&mut semdepth_core::calib::Calibration) -> Result<(), semdepth_core::calib::CalibError>,
 ) -> Result<CalibrationView, ApiError> {
-    // Serialise refits of one calibration: two concurrent changes must not
-    // both start from the same sample list.
-    let _guard = state.calibration_writes.lock().await;
-    let mut record = state.calibration(id)?;
-    if !record.calibration.is_fit() {
-        return Err(ApiError::conflict(
-            "not_a_fit_calibration",
-            format!(
-                "calibration {id:?} is geometric (expected a \"fit\" calibration, whose samples can change)"
-            ),
-        ));
-    }
-    let mut calibration = record.calibration.clone();
-    change(&mut calibration)?;
-    record.calibration = calibration;
-    record.updated_at = now_rfc3339();
-    record.version += 1;
-    if !state.storage.update_calibration(record.clone()).await? {
-        return Err(ApiError::calibration_not_found(id));
-    }
-    let view = CalibrationView::from(&record);
-    write_table(state)?.insert(record.id.clone(), record);
-    Ok(view)
-}
-
-fn write_table(
-    state: &AppState,
-) -> Result<std::sync::RwLockWriteGuard<'_, std::collections::BTreeMap<String, CalibrationRecord>>, ApiError>
-{
-    state
-        .calibrations
-        .write()
-        .map_err(|_| ApiError::internal("calibration table lock poisoned"))
-}
-
-/// Ids of the sessions whose calibration is `id`.
-async fn sessions_using(state: &AppState, id: &str) -> Vec<String> {
-    let Ok(sessions) = state.sessions.all() else {
-        return Vec::new();
-    };
-    let mut users = Vec::new();
-    for s in sessions {
-        if s.core.lock().await.calibration_id.as_deref() == Some(id) {
-            users.push(s.id.clone());
-        }
-    }
-    users.sort();
-    users
+    Ok(CalibrationView::from(
+        &state.db.refit_calibration(id, change).await?,
+    ))
 }
 
 /// Names are free text but bounded (see [`check_label`]).

@@ -3,7 +3,7 @@
 //! and a server-sent event stream of its results.
 //!
 //! Viewers never slow tracking: a committed pair replaces the session's
-//! [`LiveFrame`] in a watch channel (no queue, no wait), the event stream
+//! [`LiveFrame`](super::db::LiveFrame) in a watch channel (no queue, no wait), the event stream
 //! sends the newest result at most every [`EVENT_INTERVAL`] and skips what a
 //! slow viewer missed, and PNGs are encoded on the blocking pool one at a
 //! time, outside the tracking workers' slots. The images of the sessions
@@ -11,8 +11,7 @@
 //! `--live-view-mib`; their results stay.
 
 use std::convert::Infallible;
-use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use axum::extract::State;
 use axum::http::{header, HeaderName, HeaderValue};
@@ -27,11 +26,9 @@ use utoipa_axum::{router::OpenApiRouter, routes};
 
 use super::api::Status;
 use semdepth_core::display::{render_png, shrink_factor, Overlay, LOST_COLOUR, PALETTE};
-use semdepth_core::imageio::GrayFrame;
 
-use super::api::model::FrameResult;
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
-use super::state::{AppState, Inner, Session};
+use super::state::AppState;
 
 /// Frame index of the pair an image shows.
 const X_FRAME: HeaderName = HeaderName::from_static("x-frame");
@@ -44,67 +41,6 @@ const X_FRAME_SCALE: HeaderName = HeaderName::from_static("x-frame-scale");
 
 /// Shortest time between two events of one viewer's stream.
 pub const EVENT_INTERVAL: Duration = Duration::from_millis(100);
-
-/// A session's latest committed pair: its result and, unless let go to keep
-/// within the budget, its images as decoded.
-pub struct LiveFrame {
-    /// The result as acknowledged (contours included).
-    pub result: FrameResult,
-    /// Left and right images; None once let go.
-    pub images: Option<Arc<[GrayFrame; 2]>>,
-    /// When it was committed.
-    pub at: Instant,
-}
-
-impl LiveFrame {
-    fn image_bytes(&self) -> usize {
-        self.images
-            .as_ref()
-            .map_or(0, |i| i.iter().map(|f| f.data.len() * 2).sum())
-    }
-}
-
-/// Makes `frame` the session's latest pair, then lets go of the oldest
-/// sessions' images while all live frames hold more than the budget (the
-/// newest is always kept).
-pub fn publish(state: &Inner, session: &Session, mut frame: LiveFrame) {
-    if state.config.live_view_bytes == 0 {
-        frame.images = None;
-    }
-    session.live.send_replace(Some(Arc::new(frame)));
-    let Ok(sessions) = state.sessions.all() else {
-        return;
-    };
-    let mut held: Vec<(Instant, usize, Arc<Session>)> = sessions
-        .into_iter()
-        .filter_map(|s| {
-            let (at, bytes) = s.live.borrow().as_ref().map(|f| (f.at, f.image_bytes()))?;
-            (bytes > 0).then_some((at, bytes, s))
-        })
-        .collect();
-    let mut total: usize = held.iter().map(|(_, b, _)| b).sum();
-    if total <= state.config.live_view_bytes {
-        return;
-    }
-    held.sort_by_key(|(at, _, _)| *at);
-    for (_, bytes, s) in held.iter().take(held.len().saturating_sub(1)) {
-        if total <= state.config.live_view_bytes {
-            break;
-        }
-        // Not a new pair: viewers are not told.
-        s.live.send_if_modified(|live| {
-            if let Some(f) = live {
-                *live = Some(Arc::new(LiveFrame {
-                    result: f.result.clone(),
-                    images: None,
-                    at: f.at,
-                }));
-            }
-            false
-        });
-        total -= bytes;
-    }
-}
 
 /// The live view's routes under `/v1` (behind the token).
 pub fn router() -> OpenApiRouter<AppState> {
@@ -183,8 +119,8 @@ pub async fn latest_frame(
             ));
         }
     }
-    let session = state.sessions.get(&id)?;
-    let live = session.live.borrow().clone();
+    let session = state.db.session(&id)?;
+    let live = session.live_frame();
     let no_frame =
         |why: &str| ApiError::NotFound("no_frame", format!("session {id} has no pair to show: {why}"));
     let live = live.ok_or_else(|| no_frame("none was processed since the server started"))?;
@@ -257,8 +193,8 @@ pub async fn session_events(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
-    let session = state.sessions.get(&id)?;
-    let mut rx = session.live.subscribe();
+    let session = state.db.session(&id)?;
+    let mut rx = session.subscribe_live();
     if rx.borrow().is_some() {
         rx.mark_changed();
     }

@@ -6,16 +6,18 @@
 //! - [`serve`]: runs the server on a given listener until a shutdown future
 //!   resolves (tests pass a port-0 listener).
 //! - [`listener`]: the accept loop (header deadline, connection cap).
-//! - [`state`]: configuration, sessions and calibrations in memory.
-//! - [`registry`]: the sessions held, their limit and their write-through to storage.
+//! - [`state`]: configuration, and the handle every route gets.
+//! - [`db`]: the one owner of calibrations and sessions, written through to storage.
+//! - [`storage`]: SQLite on its own threads (group commit), migrations and
+//!   the stored, versioned form of a session's objects.
 //! - [`pipeline`]: decode and track one pair, in session order, bounded.
 //! - [`wire`]: SDP1, the WebSocket pair message, parsed and encoded.
 //! - [`budget`]: the memory budget for bodies, messages and decoded images in flight.
 //! - [`calibrations`], [`sessions`], [`ws`], [`ops`]: the routes.
 //! - [`live`]: the browser page at `/`, latest frames as PNG, result events.
-//! - [`storage`]: the SQLite writer thread (group commit) and migrations.
-//! - [`snapshot`]: the stored, versioned form of a session's objects, read tolerantly.
-//! - [`model`], [`error`]: JSON shapes and the one error type.
+//! - [`api`], [`error`]: the wire types (requests, responses, versioned) and
+//!   the one error type.
+//! - [`stamp`]: time stamps and ids.
 //! - [`metrics`]: Prometheus counters and histograms.
 
 use std::future::Future;
@@ -39,23 +41,22 @@ use utoipa_axum::router::OpenApiRouter;
 pub mod api;
 pub mod budget;
 pub mod calibrations;
+pub mod db;
 pub mod error;
 pub mod listener;
 pub mod live;
 pub mod metrics;
-
 pub mod ops;
 pub mod pipeline;
-pub mod registry;
 pub mod sessions;
-
+pub mod stamp;
 pub mod state;
 pub mod storage;
 pub mod wire;
 pub mod ws;
 
 use error::ApiError;
-use state::{AppState, Inner, ServiceConfig, Session, SessionCore};
+use state::{AppState, Inner, ServiceConfig};
 use storage::{Storage, StorageOptions};
 
 /// Why the server could not start or stop cleanly.
@@ -122,7 +123,7 @@ pub async fn serve(
     // pairs and send close frames.
     state.sockets.close();
     state.sockets.wait().await;
-    state.storage.close().await?;
+    state.db.close().await?;
     tracing::info!("semdepth stopped");
     Ok(())
 }
@@ -136,7 +137,7 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
             _ = state.shutdown.cancelled() => return,
             _ = tokio::time::sleep(period) => {}
         }
-        let ids = match state.sessions.matching(Some(expiry), None, false) {
+        let ids = match state.db.sessions_matching(Some(expiry), None, false) {
             Ok(ids) => ids,
             Err(e) => {
                 tracing::warn!(error = %e.parts().1, "session expiry: cannot list sessions");
@@ -144,7 +145,7 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
             }
         };
         for id in ids {
-            match state.sessions.remove(&id).await {
+            match state.db.delete_session(&id).await {
                 Ok(()) => {
                     tracing::info!(session = %id, idle_h = expiry.as_secs_f64() / 3600.0, "session expired")
                 }
@@ -159,49 +160,18 @@ async fn expire_sessions(state: AppState, expiry: Duration) {
 
 /// Restores calibrations and sessions from storage.
 async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState, ServeError> {
-    let calibrations: std::collections::BTreeMap<_, _> = storage
-        .calibrations()
-        .await?
-        .into_iter()
-        .map(|c| (c.id.clone(), c))
-        .collect();
     let metrics = metrics::Metrics::new();
-    let mut sessions = Vec::new();
-    for record in storage.sessions().await? {
-        let latest = match record.frames.checked_sub(1) {
-            Some(last) => storage
-                .results(&record.id, last, 1)
-                .await?
-                .first()
-                .and_then(|(_, json)| serde_json::from_str::<api::model::FrameResult>(json).ok())
-                .and_then(|r| r.result.disparity_px),
-            None => None,
-        };
-        let id = record.id.clone();
-        let core = SessionCore::restore(record, latest);
-        sessions.push(Arc::new(Session::new(id, core)));
-    }
-    tracing::info!(
-        calibrations = calibrations.len(),
-        sessions = sessions.len(),
-        "restored from storage"
-    );
+    let limits = db::DbLimits {
+        max_sessions: config.max_sessions,
+        default_retention: config.default_retention,
+        live_view_bytes: config.live_view_bytes,
+    };
+    let db = db::Db::open(storage, limits, metrics.active_sessions.clone()).await?;
     let workers = config.workers;
     let config_budget = config.max_inflight_bytes;
-    let sessions = registry::Registry::new(
-        sessions,
-        config.max_sessions,
-        config.default_retention,
-        storage.clone(),
-        metrics.active_sessions.clone(),
-    );
     Ok(AppState(Arc::new(Inner {
         config,
-        storage,
-        calibrations: std::sync::RwLock::new(calibrations),
-        sessions,
-        calibration_writes: tokio::sync::Mutex::new(()),
-        calibration_links: tokio::sync::Mutex::new(()),
+        db,
         workers: Arc::new(tokio::sync::Semaphore::new(workers)),
         metrics,
         shutdown: tokio_util::sync::CancellationToken::new(),

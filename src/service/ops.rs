@@ -51,7 +51,7 @@ pub async fn readyz(State(state): State<AppState>) -> (StatusCode, ApiJson<Healt
     let reason = if state.shutdown.is_cancelled() {
         Some("shutting down".to_string())
     } else {
-        state.storage.ping().await.err().map(|e| e.to_string())
+        state.db.ping().await.err().map(|e| e.to_string())
     };
     let (status, text) = match reason {
         None => (StatusCode::OK, "ok"),
@@ -76,7 +76,7 @@ pub async fn readyz(State(state): State<AppState>) -> (StatusCode, ApiJson<Healt
     responses((status = 200, description = "Metrics in the OpenMetrics text format", body = String, content_type = "application/openmetrics-text"))
 )]
 pub async fn metrics(State(state): State<AppState>) -> impl IntoResponse {
-    let bytes = i64::try_from(state.storage.db_bytes()).unwrap_or(i64::MAX);
+    let bytes = i64::try_from(state.db.bytes()).unwrap_or(i64::MAX);
     state.metrics.storage_bytes.set(bytes);
     let inflight = i64::try_from(state.budget.used_bytes()).unwrap_or(i64::MAX);
     state.metrics.inflight_bytes.set(inflight);

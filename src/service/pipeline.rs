@@ -22,9 +22,10 @@ use semdepth_core::tracker::TrackerParams;
 
 use super::api::model::{FrameResult, Provenance, TimingMs};
 use super::budget::{Reservation, DECODED_BYTES_PER_PIXEL};
+use super::db::{LiveFrame, Session, SessionCore};
 use super::error::ApiError;
-use super::live::{publish, LiveFrame};
-use super::state::{now_rfc3339, AppState, Session, SessionCore};
+use super::stamp::now_rfc3339;
+use super::state::AppState;
 use super::storage::{PairRecord, StorageError};
 
 /// The two images of a pair as received.
@@ -170,7 +171,7 @@ pub async fn acknowledge(
             Ok(tracked.result)
         }
         Err(e) => {
-            session.behind.store(true, std::sync::atomic::Ordering::Release);
+            session.fell_behind();
             let e = ApiError::from(e);
             state.metrics.failed(e.code());
             Err(e)
@@ -321,8 +322,8 @@ fn track_locked(
     seq: Option<u64>,
 ) -> Result<TrackedPair, ApiError> {
     let calibration_id = core.calibration_id.clone();
-    let (calibration, calibration_version) = state.calibration_model(calibration_id.as_deref()).unzip();
-    let session_id = session.id.as_str();
+    let (calibration, calibration_version) = state.db.calibration_model(calibration_id.as_deref()).unzip();
+    let session_id = session.id();
     let queue = ms(received.elapsed());
     // The session measures every object across its calibration's tilt
     // axis (see `semdepth_core::session`).
@@ -374,7 +375,7 @@ fn track_locked(
     );
     let result_json = serde_json::to_string(&frame)
         .map_err(|e| ApiError::internal(format!("serialising a result: {e}")))?;
-    let commit = state.storage.record_pair(PairRecord {
+    let commit = state.db.record_pair(PairRecord {
         session_id: session_id.to_owned(),
         frame: frame.result.frame,
         result_json,
@@ -388,12 +389,10 @@ fn track_locked(
         images: Some(Arc::new([left, right])),
         at: Instant::now(),
     };
-    let (live_state, live_session) = (state.clone(), session.id.clone());
+    let (live_state, live_session) = (state.clone(), session.id().to_owned());
     let commit = async move {
         commit.await?;
-        if let Ok(session) = live_state.sessions.get(&live_session) {
-            publish(&live_state, &session, shown);
-        }
+        live_state.db.publish(&live_session, shown);
         Ok(())
     };
     Ok(TrackedPair {
@@ -413,7 +412,7 @@ pub async fn process_one_shot(
 ) -> Result<FrameResult, ApiError> {
     let (calibration, calibration_version) = match &calibration_id {
         Some(id) => {
-            let record = state.calibration(id)?;
+            let record = state.db.calibration(id)?;
             (Some(record.calibration), Some(record.version))
         }
         None => (None, None),
@@ -459,10 +458,7 @@ async fn claim(
     state: &AppState,
     session: &Session,
 ) -> Result<(OwnedMutexGuard<SessionCore>, OwnedSemaphorePermit), ApiError> {
-    let core = session.lock_core(&state.storage).await?;
-    if core.deleted {
-        return Err(ApiError::session_not_found(&session.id));
-    }
+    let core = state.db.claim(session).await?;
     Ok((core, worker_permit(state).await?))
 }
 

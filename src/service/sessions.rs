@@ -26,9 +26,11 @@ use super::api::model::{
     SessionList, SessionPatch, SessionReinit, SessionSampleCreate, SessionView, SessionsDeleted, HINT_FIELDS,
 };
 use super::calibrations::{add_sample, check_name};
+use super::db::SessionCore;
 use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
-use super::state::{now_rfc3339, AppState, SessionCore};
+use super::stamp::now_rfc3339;
+use super::state::AppState;
 
 /// Most results returned by one `GET .../results` request.
 pub const MAX_RESULTS_PAGE: usize = 10_000;
@@ -80,16 +82,6 @@ pub async fn create_session(
         body.init.map(Into::into),
         body.tracker.map(Into::into),
     )?;
-    // Held until the session is in the table: a concurrent deletion of
-    // the calibration then sees it (see `Inner::calibration_links`).
-    let _links = match &body.calibration_id {
-        Some(id) => {
-            let guard = state.calibration_links.lock().await;
-            state.calibration(id)?;
-            Some(guard)
-        }
-        None => None,
-    };
     let objects = match &body.objects {
         None => Objects::single(params),
         Some(list) => {
@@ -108,7 +100,7 @@ pub async fn create_session(
         objects,
         now_rfc3339(),
     );
-    let view = state.sessions.create(core).await?;
+    let view = state.db.create_session(core).await?;
     Ok((StatusCode::CREATED, ApiJson(view)))
 }
 
@@ -125,7 +117,7 @@ pub async fn create_session(
 )]
 pub async fn list_sessions(State(state): State<AppState>) -> Result<ApiJson<SessionList>, ApiError> {
     Ok(ApiJson(SessionList {
-        sessions: state.sessions.views().await?,
+        sessions: state.db.session_views().await?,
     }))
 }
 
@@ -147,7 +139,7 @@ pub async fn get_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let core = state.sessions.core(&id).await?;
+    let core = state.db.session_core(&id).await?;
     Ok(ApiJson(core.view(&id, state.config.default_retention)))
 }
 
@@ -177,21 +169,11 @@ pub async fn patch_session(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<SessionPatch>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    state.sessions.get(&id)?; // 404 before the body's own errors
+    state.db.session(&id)?; // 404 before the body's own errors
     if let Some(Some(name)) = &body.name {
         check_name(Some(name))?;
     }
     check_retention(body.retention)?;
-    // Attaching a calibration is serialised with deleting one (taken
-    // before the session's core, as the deletion does).
-    let _links = match &body.calibration_id {
-        Some(Some(cal)) => {
-            let guard = state.calibration_links.lock().await;
-            state.calibration(cal)?;
-            Some(guard)
-        }
-        _ => None,
-    };
     let names_hints = |v: &Option<serde_json::Value>| {
         v.as_ref()
             .and_then(|v| v.as_object())
@@ -199,9 +181,10 @@ pub async fn patch_session(
     };
     let tracker_init = body.tracker.as_ref().and_then(|t| t.get("init")).cloned();
     let hints = names_hints(&body.init) || names_hints(&tracker_init);
+    let attach = body.calibration_id.clone().flatten();
     let view = state
-        .sessions
-        .update(&id, |core| {
+        .db
+        .update_session(&id, attach.as_deref(), |core| {
             if core.session.objects().len() > 1 && hints {
                 return Err(ApiError::conflict(
                     "several_objects",
@@ -252,7 +235,7 @@ pub async fn delete_session(
     State(state): State<AppState>,
     ApiPath(id): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
-    state.sessions.remove(&id).await?;
+    state.db.delete_session(&id).await?;
     Ok(StatusCode::NO_CONTENT)
 }
 
@@ -309,11 +292,11 @@ pub async fn delete_sessions(
         None => None,
     };
     let ids = state
-        .sessions
-        .matching(idle_for, query.name_prefix.as_deref(), query.include_kept)?;
+        .db
+        .sessions_matching(idle_for, query.name_prefix.as_deref(), query.include_kept)?;
     let mut deleted = Vec::with_capacity(ids.len());
     for id in ids {
-        match state.sessions.remove(&id).await {
+        match state.db.delete_session(&id).await {
             Ok(()) => deleted.push(id),
             // Deleted meanwhile by another request.
             Err(e) if e.status() == StatusCode::NOT_FOUND => {}
@@ -350,7 +333,7 @@ pub async fn upload_pair(
     request: Request,
 ) -> Result<ApiJson<FrameResult>, ApiError> {
     let received = Instant::now();
-    let session = state.sessions.get(&id)?;
+    let session = state.db.session(&id)?;
     let (input, provenance) = read_pair_upload(request).await?;
     let result = process_session_pair(&state, &session, input, provenance, received, None).await?;
     Ok(ApiJson(if query.contours {
@@ -380,8 +363,8 @@ pub async fn reset_session(
     ApiPath(id): ApiPath<String>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let view = state
-        .sessions
-        .update(&id, |core| {
+        .db
+        .update_session(&id, None, |core| {
             core.restart(None);
             Ok(())
         })
@@ -420,8 +403,8 @@ pub async fn reinit_session(
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let view = state
-        .sessions
-        .update(&id, |core| {
+        .db
+        .update_session(&id, None, |core| {
             if core.session.objects().len() > 1 {
                 return Err(ApiError::conflict(
                     "several_objects",
@@ -493,7 +476,7 @@ pub async fn session_results(
     ApiPath(id): ApiPath<String>,
     ApiQuery(query): ApiQuery<ResultsQuery>,
 ) -> Result<Response, ApiError> {
-    state.sessions.get(&id)?;
+    state.db.session(&id)?;
     if query.since > MAX_INDEX {
         return Err(ApiError::bad_request(
             "invalid_query",
@@ -507,7 +490,7 @@ pub async fn session_results(
             format!("invalid limit {limit} (expected 1..={MAX_RESULTS_PAGE})"),
         ));
     }
-    let rows = state.storage.results(&id, query.since, limit + 1).await?;
+    let rows = state.db.results(&id, query.since, limit + 1).await?;
     let more = rows.len() > limit;
     let mut results = Vec::with_capacity(rows.len().min(limit));
     for (frame, json) in rows.into_iter().take(limit) {
@@ -584,10 +567,10 @@ pub async fn add_session_calibration_sample(
     ApiPath(id): ApiPath<String>,
     ApiJson(body): ApiJson<SessionSampleCreate>,
 ) -> Result<ApiJson<CalibrationView>, ApiError> {
-    state.sessions.get(&id)?; // 404 for the session before the calibration
-    let calibration = state.calibration(&body.calibration_id)?;
+    state.db.session(&id)?; // 404 for the session before the calibration
+    let calibration = state.db.calibration(&body.calibration_id)?;
     let (disparity, frame) = {
-        let core = state.sessions.core(&id).await?;
+        let core = state.db.session_core(&id).await?;
         // Only the latest pair's own disparity: after a lost pair (or a
         // reset) the height would be paired with an older pair's.
         let frames = core.session.frames();
@@ -710,7 +693,7 @@ pub async fn one_shot_depth(
     let received = Instant::now();
     let mut params = TrackerParams::default();
     if let Some(id) = &query.calibration_id {
-        params.tilt_axis_deg = state.calibration(id)?.calibration.tilt_axis_deg();
+        params.tilt_axis_deg = state.db.calibration(id)?.calibration.tilt_axis_deg();
     }
     if let Some(axis) = query.tilt_axis_deg {
         params.tilt_axis_deg = axis;
@@ -750,8 +733,8 @@ pub async fn add_object(
     ApiJson(body): ApiJson<ObjectCreate>,
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
     let view = state
-        .sessions
-        .update(&id, |core| {
+        .db
+        .update_session(&id, None, |core| {
             let params = checked(body.params(core.primary().params()))?;
             Ok(core.session.add(SessionObject::new(body.name, params))?)
         })
@@ -784,8 +767,8 @@ pub async fn delete_object(
     ApiPath((id, name)): ApiPath<(String, String)>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let view = state
-        .sessions
-        .update(&id, |core| Ok(core.session.remove(&name).map(drop)?))
+        .db
+        .update_session(&id, None, |core| Ok(core.session.remove(&name).map(drop)?))
         .await?;
     Ok(ApiJson(view))
 }
@@ -821,8 +804,8 @@ pub async fn reinit_object(
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
     let view = state
-        .sessions
-        .update(&id, |core| {
+        .db
+        .update_session(&id, None, |core| {
             let object = core.session.object_mut(&name)?;
             let params = reinited(object.tracker.params(), &body, &fields)?;
             object.tracker.set_params(params);

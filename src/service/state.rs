@@ -1,23 +1,18 @@
-//! Shared state of a running service: configuration, storage, the
-//! calibrations and sessions held in memory (write-through to storage), the
-//! bounded worker pool and the shutdown signal.
+//! Shared state of a running service: configuration, the [`Db`] of
+//! calibrations and sessions, the bounded worker pool, the memory budget
+//! and the shutdown signal.
 
-use std::collections::BTreeMap;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::sync::{Mutex, OwnedMutexGuard, Semaphore};
+use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
-use semdepth_core::calib::{Calibration, MetaWatch};
 use semdepth_core::imageio::DecodeLimits;
-use semdepth_core::tracker::{StereoTracker, TrackerParams};
 
-use super::api::model::SessionView;
-use super::error::ApiError;
+use super::db::Db;
 use super::metrics::Metrics;
-use super::storage::{CalibrationRecord, ObjectRecord, SessionRecord, Storage};
 
 /// Address `semdepth serve` listens on by default.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:8080";
@@ -226,18 +221,8 @@ impl std::ops::Deref for AppState {
 pub struct Inner {
     /// Configuration at start-up.
     pub config: ServiceConfig,
-    /// Durable storage (its own threads).
-    pub storage: Storage,
-    /// All calibrations, by id (write-through to storage).
-    pub calibrations: RwLock<BTreeMap<String, CalibrationRecord>>,
-    /// All sessions, the session limit and their write-through to storage.
-    pub sessions: super::registry::Registry,
-    /// Serialises read-modify-write of calibrations (appending samples).
-    pub calibration_writes: Mutex<()>,
-    /// Serialises attaching a calibration to a session (creation, PATCH)
-    /// with deleting a calibration, so that no session is left pointing
-    /// at a deleted one. Taken before any session's core.
-    pub calibration_links: Mutex<()>,
+    /// Calibrations and sessions, written through to storage.
+    pub db: Db,
     /// Bounds the pairs processed at once (`config.workers` permits).
     pub workers: Arc<Semaphore>,
     /// Prometheus metrics.
@@ -250,245 +235,4 @@ pub struct Inner {
     pub display: Semaphore,
     /// Bytes of request bodies, stream messages and decoded images in flight.
     pub budget: super::budget::MemoryBudget,
-}
-
-/// One tracked object: its metadata and tracker behind one async lock, so
-/// that its pairs are processed strictly in order.
-pub struct Session {
-    /// Opaque id.
-    pub id: String,
-    /// Everything mutable; held for the whole processing of a pair. Taken
-    /// through [`Session::lock_core`], which first catches it up with
-    /// storage when a pair failed to store.
-    pub core: Arc<Mutex<SessionCore>>,
-    /// Set when a pair of this session failed to store: the core has moved
-    /// on without it and is reloaded from storage before its next use.
-    pub behind: std::sync::atomic::AtomicBool,
-    /// The latest committed pair and its result, for the live view: outside
-    /// the core's lock, so viewers never wait for (or delay) a pair.
-    pub live: tokio::sync::watch::Sender<Option<Arc<super::live::LiveFrame>>>,
-}
-
-impl Session {
-    /// A session around `core`.
-    pub fn new(id: String, core: SessionCore) -> Self {
-        Session {
-            id,
-            core: Arc::new(Mutex::new(core)),
-            behind: Default::default(),
-            live: tokio::sync::watch::Sender::new(None),
-        }
-    }
-
-    /// The core, reloaded from storage first when a pair failed to store
-    /// (tracker state and frame count as stored: nothing runs ahead of
-    /// storage, and the next frame number follows the last stored one).
-    pub async fn lock_core(&self, storage: &Storage) -> Result<OwnedMutexGuard<SessionCore>, ApiError> {
-        use std::sync::atomic::Ordering;
-        let mut core = self.core.clone().lock_owned().await;
-        if self.behind.swap(false, Ordering::AcqRel) && !core.deleted {
-            match storage.reload_session(&self.id).await {
-                Ok(Some(record)) => {
-                    core.reload(record);
-                    tracing::warn!(session = %self.id, frames = core.session.frames(), "session reloaded from storage after a failed write");
-                }
-                Ok(None) => {}
-                Err(e) => {
-                    self.behind.store(true, Ordering::Release);
-                    return Err(e.into());
-                }
-            }
-        }
-        Ok(core)
-    }
-}
-
-/// The mutable part of a session.
-pub struct SessionCore {
-    /// Label.
-    pub name: Option<String>,
-    /// Calibration in use.
-    pub calibration_id: Option<String>,
-    /// Most results kept (None: server default).
-    pub retention: Option<u64>,
-    /// Exempt from the idle-session expiry.
-    pub keep: bool,
-    /// `awaiting_first_pair`, `tracking` or `lost`.
-    pub state: String,
-    /// RFC 3339 UTC.
-    pub created_at: String,
-    /// RFC 3339 UTC.
-    pub updated_at: String,
-    /// The objects and their trackers (parameters, contour and pose,
-    /// frame counts).
-    pub session: semdepth_core::session::Session,
-    /// Disparity of the latest pair that was not lost.
-    pub latest_disparity_px: Option<[f64; 2]>,
-    /// Set when the session is deleted, so that streams still holding it stop.
-    pub deleted: bool,
-    /// The last pixel size the pairs' metadata gave, to warn once per
-    /// magnification change (in memory: a restart warns again).
-    pub meta_watch: MetaWatch,
-}
-
-impl SessionCore {
-    /// A new session of `objects`.
-    pub fn new(
-        name: Option<String>,
-        calibration_id: Option<String>,
-        retention: Option<u64>,
-        keep: bool,
-        objects: semdepth_core::session::Session,
-        now: String,
-    ) -> Self {
-        Self {
-            name,
-            calibration_id,
-            retention,
-            keep,
-            state: "awaiting_first_pair".into(),
-            created_at: now.clone(),
-            updated_at: now,
-            session: objects,
-            latest_disparity_px: None,
-            deleted: false,
-            meta_watch: MetaWatch::default(),
-        }
-    }
-
-    /// A session restored from storage.
-    pub fn restore(r: SessionRecord, latest_disparity_px: Option<[f64; 2]>) -> Self {
-        Self {
-            name: r.name,
-            calibration_id: r.calibration_id,
-            retention: r.retention,
-            keep: r.keep,
-            state: r.state,
-            created_at: r.created_at,
-            updated_at: r.updated_at,
-            session: session_of(r.objects, r.frames),
-            latest_disparity_px,
-            deleted: false,
-            meta_watch: MetaWatch::default(),
-        }
-    }
-
-    /// This core as `record` stores it, keeping what is not stored (the
-    /// latest disparity and the metadata watch).
-    pub fn reload(&mut self, record: SessionRecord) {
-        let meta_watch = std::mem::take(&mut self.meta_watch);
-        *self = SessionCore::restore(record, self.latest_disparity_px);
-        self.meta_watch = meta_watch;
-    }
-
-    /// Forgets the object so that the next pair initialises again, with
-    /// `params` when given (new hints); the frame count and the results stay.
-    pub fn restart(&mut self, params: Option<TrackerParams>) {
-        for object in self.session.objects_mut() {
-            if let Some(params) = &params {
-                object.tracker.set_params(params.clone());
-            }
-            object.tracker.reset();
-        }
-        self.state = "awaiting_first_pair".into();
-    }
-
-    /// The first object's tracker (a one-object session's only one).
-    pub fn primary(&self) -> &StereoTracker {
-        &self.session.objects()[0].tracker
-    }
-
-    /// The objects as stored.
-    pub fn object_records(&self) -> Vec<ObjectRecord> {
-        self.session
-            .objects()
-            .iter()
-            .map(|o| ObjectRecord {
-                name: o.name.clone(),
-                params: o.tracker.params().clone(),
-                frames: o.tracker.frames(),
-                tracker_state: o.tracker.state().cloned(),
-            })
-            .collect()
-    }
-
-    /// The durable form.
-    pub fn record(&self, id: &str) -> SessionRecord {
-        SessionRecord {
-            id: id.to_string(),
-            name: self.name.clone(),
-            calibration_id: self.calibration_id.clone(),
-            objects: self.object_records(),
-            retention: self.retention,
-            frames: self.session.frames(),
-            state: self.state.clone(),
-            created_at: self.created_at.clone(),
-            updated_at: self.updated_at.clone(),
-            keep: self.keep,
-        }
-    }
-
-    /// The API form.
-    pub fn view(&self, id: &str, default_retention: u64) -> SessionView {
-        SessionView::new(&self.record(id), self.latest_disparity_px, default_retention)
-    }
-}
-
-impl Inner {
-    /// The calibration with this id, or 404.
-    pub fn calibration(&self, id: &str) -> Result<CalibrationRecord, ApiError> {
-        self.calibrations
-            .read()
-            .map_err(|_| ApiError::internal("calibration table lock poisoned"))?
-            .get(id)
-            .cloned()
-            .ok_or_else(|| ApiError::calibration_not_found(id))
-    }
-
-    /// The calibration for computing z and its version, if the id names one.
-    pub fn calibration_model(&self, id: Option<&str>) -> Option<(Calibration, u64)> {
-        let id = id?;
-        let table = self.calibrations.read().ok()?;
-        table.get(id).map(|r| (r.calibration.clone(), r.version))
-    }
-}
-
-/// The library session of stored objects (names checked when they were
-/// stored; a set that no longer forms a session, which storage refuses to
-/// read, would fall back to its first object).
-fn session_of(objects: Vec<ObjectRecord>, frames: u64) -> semdepth_core::session::Session {
-    let build = |objects: Vec<ObjectRecord>| {
-        objects
-            .into_iter()
-            .map(|o| semdepth_core::session::SessionObject {
-                name: o.name,
-                tracker: StereoTracker::from_state(o.params, o.tracker_state, o.frames),
-            })
-            .collect::<Vec<_>>()
-    };
-    let first = objects.first().cloned();
-    semdepth_core::session::Session::new(build(objects), frames).unwrap_or_else(|e| {
-        tracing::error!("stored objects do not form a session ({e}); keeping the first");
-        let params = first.map(|o| o.params).unwrap_or_default();
-        let mut session = semdepth_core::session::Session::single(params);
-        session.set_frames(frames);
-        session
-    })
-}
-
-/// Current time, RFC 3339 UTC with microsecond precision.
-pub fn now_rfc3339() -> String {
-    let now = time::OffsetDateTime::now_utc();
-    let now = now
-        .replace_nanosecond(now.nanosecond() / 1_000 * 1_000)
-        .unwrap_or(now);
-    now.format(&time::format_description::well_known::Rfc3339)
-        .unwrap_or_else(|_| "1970-01-01T00:00:00Z".into())
-}
-
-/// A new opaque id with a one-letter kind prefix (`s_…`, `c_…`). UUIDv7:
-/// ids sort in creation order, which lists use to break ties of equal
-/// timestamps.
-pub fn new_id(prefix: &str) -> String {
-    format!("{prefix}_{}", uuid::Uuid::now_v7().simple())
 }

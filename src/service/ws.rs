@@ -34,9 +34,10 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
 use super::budget::Reservation;
+use super::db::Session;
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
 use super::pipeline::{acknowledge, track_stream_batch, PairQueue, StreamPair, TrackedPair};
-use super::state::{AppState, Session};
+use super::state::AppState;
 use super::wire::{parse_pair_message, PairMessage};
 
 /// The stream route.
@@ -108,7 +109,7 @@ pub async fn stream_session(
     slot: Option<axum::Extension<super::listener::ConnectionSlot>>,
     upgrade: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
-    let session = state.sessions.get(&id)?;
+    let session = state.db.session(&id)?;
     let upgrade = upgrade.map_err(|e| {
         let status = if e.status().is_client_error() {
             e.status()
@@ -360,7 +361,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                 // Nothing whole arrived (a half-sent frame, a client gone
                 // silent): the stream ends and says why.
                 Err(_) => {
-                    tracing::info!(session = %session.id, idle_s = idle.as_secs_f64(), "stream idle; closing");
+                    tracing::info!(session = %session.id(), idle_s = idle.as_secs_f64(), "stream idle; closing");
                     say_why(CloseFrame {
                         code: close_code::POLICY,
                         reason: format!("no message for {} s (idle timeout)", idle.as_secs_f64()).into(),
@@ -373,7 +374,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
             Some(Ok(m)) => m,
             // Closed by the peer or a protocol error (e.g. a message over the size limit).
             Some(Err(e)) => {
-                tracing::info!(session = %session.id, error = %e, "stream ended with an error");
+                tracing::info!(session = %session.id(), error = %e, "stream ended with an error");
                 if let Some(frame) = close_frame_for(e, state.config.max_ws_message_bytes) {
                     say_why(frame);
                 }

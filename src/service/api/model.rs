@@ -605,7 +605,7 @@ impl Provenance {
             }
         }
         Ok(Self {
-            received_at: Some(crate::service::state::now_rfc3339()),
+            received_at: Some(crate::service::stamp::now_rfc3339()),
             label,
             timestamp,
             ..Self::default()

@@ -35,10 +35,10 @@ use crate::scatter::Measured;
 
 pub use first_pair::{ELONGATED, FREE_FIT_MIN_IOU, MIN_SPREAD_RATIO, REFUSED_INITS};
 pub use params::{TrackerParams, STD_GROWTH};
-pub use reacquire::REACQUIRE_PAIRS;
 pub use result::{
     ImageResult, PairResult, Status, TrackError, DISPARITY_STD_FLOOR_PX, REACQUIRED, UNCERTAIN,
 };
+pub use state::REACQUIRE_PAIRS;
 pub use state::{Phase, TrackerState};
 
 use result::GOES_ON;

@@ -9,15 +9,10 @@ use crate::occlusion::{grey_change, judge_look, SectorReference, SectorTemplate}
 use crate::region::{PixelRect, PrefixSums};
 
 use super::result::{lost_result, PairResult, Status, REACQUIRED};
-use super::state::{Phase, TrackerState};
+use super::state::{Phase, TrackerState, REACQUIRE_PAIRS};
 use super::std_error::{fixed_share, noise_bands};
 use super::view_fit::{either, fraction, ImageFit};
 use super::StereoTracker;
-
-/// After a loss, pairs on which the object is sought by its own template
-/// (over the hint box, or the whole image) before the tracker initialises
-/// afresh: a lost object is not replaced by whatever is largest.
-pub const REACQUIRE_PAIRS: u32 = 10;
 
 /// Least change of the object's grey against its surroundings
 /// ([`crate::occlusion::grey_change`]) at which a template found after a

@@ -7,7 +7,11 @@ use crate::occlusion::{SectorReference, SectorTemplate};
 use crate::scatter::DisparityRun;
 
 use super::params::TrackerParams;
-use super::reacquire::REACQUIRE_PAIRS;
+
+/// After a loss, pairs on which the object is sought by its own template
+/// (over the hint box, or the whole image) before the tracker initialises
+/// afresh: a lost object is not replaced by whatever is largest.
+pub const REACQUIRE_PAIRS: u32 = 10;
 
 /// The tracker's durable state: enough to continue a session after a restart.
 #[derive(Clone, Debug, PartialEq)]
