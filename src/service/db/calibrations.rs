@@ -45,11 +45,6 @@ impl Calibrations {
             .map_err(|_| ApiError::internal("calibration table lock poisoned"))
     }
 
-    /// How many are held.
-    pub fn len(&self) -> usize {
-        self.read().map_or(0, |t| t.len())
-    }
-
     /// The calibration with this id, or 404.
     pub fn get(&self, id: &str) -> Result<CalibrationRecord, ApiError> {
         self.read()?
