@@ -99,7 +99,7 @@ function svg(tag, attrs = {}) {
 const fmt = (v, digits = 3) => (v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits));
 const pm = (v, s, digits) => (v === null || v === undefined ? "–" : `${fmt(v, digits)} ± ${fmt(s, digits)}`);
 const badge = (status) => el("span", { class: `badge ${status}`, "data-status": status }, status.replaceAll("_", " "));
-const showError = (where, e) => { where.replaceChildren(el("span", { class: "error" }, e.parts().1)); };
+const showError = (where, e) => { where.replaceChildren(el("span", { class: "error" }, e.message)); };
 
 // ---- routing --------------------------------------------------------------
 
@@ -326,7 +326,7 @@ async function sessionPage(id, signal) {
       renderHeader();
     } catch (e) {
       if (e instanceof AuthError) return tokenPrompt();
-      message.textContent = `Not re-initialised: ${e.parts().1}`;
+      message.textContent = `Not re-initialised: ${e.message}`;
       message.className = "error";
       left.showHint(null);
       pendingHint = null;
@@ -366,7 +366,7 @@ async function sessionPage(id, signal) {
       await followEvents(`${path}/events`, onEvent, signal);
     } catch (e) {
       if (e instanceof AuthError || e.name === "AbortError") throw e;
-      if (e instanceof ApiError && e.status() === 404) {
+      if (e instanceof ApiError && e.status === 404) {
         message.textContent = "The session was deleted.";
         return;
       }
@@ -379,7 +379,7 @@ async function sessionPage(id, signal) {
       message.textContent = "Reconnected.";
     } catch (e) {
       if (e instanceof AuthError || e.name === "AbortError") throw e;
-      if (e instanceof ApiError && e.status() === 404) {
+      if (e instanceof ApiError && e.status === 404) {
         message.textContent = "The session was deleted.";
         return;
       }
@@ -433,7 +433,7 @@ function imageView(side, pointable) {
       } while (again);
     } catch (e) {
       if (e instanceof AuthError) tokenPrompt();
-      else if (e.name !== "AbortError") { empty.hidden = false; empty.textContent = e.parts().1; }
+      else if (e.name !== "AbortError") { empty.hidden = false; empty.textContent = e.message; }
     } finally {
       busy = false;
     }
@@ -597,7 +597,7 @@ async function calibrationPage(id, signal) {
         route();
       } catch (e) {
         if (e instanceof AuthError) return tokenPrompt();
-        message.textContent = e.parts().1;
+        message.textContent = e.message;
         message.className = "error";
       }
     } }, "Add a sample: the latest disparity of", pick, "at", zInput, "µm", el("button", { type: "submit", disabled: withSession.length ? null : "" }, "Add"))
