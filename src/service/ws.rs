@@ -5,13 +5,13 @@
 //! `{"seq": n|null, "error": {...}}` for a malformed message (the socket stays
 //! open).
 //!
-//! Four tasks per socket: the reader (never waits on processing, so
+//! Three tasks per socket: the reader (never waits on processing, so
 //! ping/pong stays prompt; tungstenite answers pings while reading), the
 //! processor (one pair at a time, in order; pairs already waiting are
 //! tracked in the same blocking task, see
-//! [`track_stream_batch`](super::pipeline::track_stream_batch)), the
-//! acknowledger (replies once a pair is committed, while the processor
-//! tracks the next) and the writer. Between reader
+//! [`track_stream_batch`](super::pipeline::track_stream_batch)) and the
+//! writer (replies in order, a tracked pair's once it is committed, while
+//! the processor tracks the next). Between reader
 //! and processor sits a bounded queue: with `policy=latest` at most one pair
 //! waits and a newer one replaces it (the replaced one is answered
 //! `{"seq": n, "status": "skipped"}`); with `policy=all` up to
@@ -33,12 +33,11 @@ use utoipa::{IntoParams, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 
-use super::budget::Reservation;
 use super::db::Session;
 use super::error::{ApiError, ApiPath, ApiQuery, ErrorBody};
 use super::pipeline::{acknowledge, track_stream_batch, PairQueue, StreamPair, TrackedPair};
 use super::state::AppState;
-use super::wire::{parse_pair_message, PairMessage};
+use super::wire::parse_pair_message;
 
 /// The stream route.
 pub fn router() -> OpenApiRouter<AppState> {
@@ -136,23 +135,15 @@ pub async fn stream_session(
         }))
 }
 
-/// A pair waiting for the processor.
-struct Job {
-    message: PairMessage,
-    received: Instant,
-    /// The message's bytes and its decoded images' of the memory budget.
-    held: Reservation,
-}
-
 /// The `latest` queue: at most one waiting pair; a newer one replaces it.
 struct LatestSlot {
-    slot: Mutex<VecDeque<Job>>,
+    slot: Mutex<VecDeque<StreamPair>>,
     ready: Notify,
 }
 
 impl LatestSlot {
     /// Takes the waiting pair, if any.
-    fn take(&self) -> Option<Job> {
+    fn take(&self) -> Option<StreamPair> {
         self.slot.lock().ok().and_then(|mut s| s.pop_front())
     }
 }
@@ -162,7 +153,7 @@ enum QueueIn {
     /// See [`LatestSlot`].
     Latest(Arc<LatestSlot>),
     /// Bounded channel: the reader waits when it is full.
-    All(mpsc::Sender<Job>),
+    All(mpsc::Sender<StreamPair>),
 }
 
 /// The processor's end of the queue.
@@ -170,13 +161,13 @@ enum QueueOut {
     /// See [`LatestSlot`].
     Latest(Arc<LatestSlot>),
     /// Ends when the reader drops its sender.
-    All(mpsc::Receiver<Job>),
+    All(mpsc::Receiver<StreamPair>),
 }
 
 impl QueueOut {
     /// Waits for the next pair; `None` once the reader is gone (`all`) or
     /// `done` is cancelled and nothing waits (`latest`).
-    async fn next(&mut self, done: &tokio_util::sync::CancellationToken) -> Option<Job> {
+    async fn next(&mut self, done: &tokio_util::sync::CancellationToken) -> Option<StreamPair> {
         match self {
             QueueOut::All(rx) => rx.recv().await,
             QueueOut::Latest(latest) => loop {
@@ -197,24 +188,23 @@ impl QueueOut {
 
 impl PairQueue for QueueOut {
     fn try_next(&mut self) -> Option<StreamPair> {
-        let job = match self {
+        match self {
             QueueOut::All(rx) => rx.try_recv().ok(),
             QueueOut::Latest(latest) => latest.take(),
-        };
-        job.map(Job::into_pair)
+        }
     }
 }
 
-impl Job {
-    fn into_pair(self) -> StreamPair {
-        StreamPair {
-            input: self.message.input,
-            provenance: self.message.provenance,
-            received: self.received,
-            seq: self.message.seq,
-            held: self.held,
-        }
-    }
+/// What the writer sends next, in order.
+enum Reply {
+    /// A reply ready now (an error, a skipped pair).
+    Now(Message),
+    /// A tracked pair's: its result once committed, else its error.
+    Tracked {
+        seq: u64,
+        received: Instant,
+        tracked: Box<Result<TrackedPair, ApiError>>,
+    },
 }
 
 /// The close frame that tells the peer why its stream ends: 1009 for a
@@ -247,36 +237,67 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
     let (policy, contours) = (query.policy, query.contours);
     state.metrics.active_websockets.inc();
     let (mut sink, mut stream) = socket.split();
-    let (reply_tx, mut reply_rx) = mpsc::channel::<Message>(64);
+    let (reply_tx, mut reply_rx) = mpsc::channel::<Reply>(64);
     let done = tokio_util::sync::CancellationToken::new();
     // Why the reader stopped, when the peer broke the protocol: the close
     // frame says so.
     let broken: Arc<Mutex<Option<CloseFrame>>> = Arc::default();
 
-    // Writer: sends replies, then a close frame once every sender is gone.
-    let writer_state = state.clone();
-    let writer_broken = broken.clone();
-    let writer = tokio::spawn(async move {
-        while let Some(message) = reply_rx.recv().await {
-            if sink.send(message).await.is_err() {
-                return;
+    // Writer: sends replies in order, a tracked pair's once it is committed
+    // (meanwhile the processor already tracks the next), then a close frame
+    // once every sender is gone.
+    let writer = {
+        let (state, session, broken) = (state.clone(), session.clone(), broken.clone());
+        tokio::spawn(async move {
+            while let Some(reply) = reply_rx.recv().await {
+                let message = match reply {
+                    Reply::Now(message) => message,
+                    Reply::Tracked {
+                        seq,
+                        received,
+                        tracked,
+                    } => {
+                        let outcome = match *tracked {
+                            Ok(tracked) => acknowledge(&state, &session, tracked, received).await,
+                            Err(e) => Err(e),
+                        };
+                        let text = match outcome {
+                            Ok(result) if contours => serde_json::to_string(&result),
+                            Ok(result) => serde_json::to_string(&result.without_contours()),
+                            Err(e) => serde_json::to_string(&StreamErrorReply {
+                                seq: Some(seq),
+                                error: e.body().error,
+                            }),
+                        };
+                        match text {
+                            Ok(text) => Message::Text(text.into()),
+                            Err(e) => {
+                                tracing::error!(error = %e, "serialising a stream reply");
+                                continue;
+                            }
+                        }
+                    }
+                };
+                if sink.send(message).await.is_err() {
+                    return;
+                }
             }
-        }
-        let frame = writer_broken.lock().ok().and_then(|mut b| b.take());
-        let frame = frame.unwrap_or_else(|| {
-            let (code, reason) = if writer_state.shutdown.is_cancelled() {
-                (close_code::AWAY, "server shutting down")
-            } else {
-                (close_code::NORMAL, "")
-            };
-            CloseFrame {
-                code,
-                reason: reason.into(),
-            }
-        });
-        let _ = sink.send(Message::Close(Some(frame))).await;
-        let _ = sink.close().await;
-    });
+            let frame = broken.lock().ok().and_then(|mut b| b.take());
+            let frame = frame.unwrap_or_else(|| {
+                let (code, reason) = if state.shutdown.is_cancelled() {
+                    (close_code::AWAY, "server shutting down")
+                } else {
+                    (close_code::NORMAL, "")
+                };
+                CloseFrame {
+                    code,
+                    reason: reason.into(),
+                }
+            });
+            let _ = sink.send(Message::Close(Some(frame))).await;
+            let _ = sink.close().await;
+        })
+    };
 
     // Processor: one pair at a time, in order (in batches of waiting pairs).
     let (queue_in, queue_out) = match policy {
@@ -292,51 +313,27 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
             (QueueIn::All(tx), QueueOut::All(rx))
         }
     };
-    // Acknowledger: waits for each pair's commit, in order, then replies;
-    // meanwhile the processor already tracks the next pair.
-    let (ack_tx, mut ack_rx) = mpsc::channel::<(u64, Instant, Result<TrackedPair, ApiError>)>(8);
-    let acknowledger = {
-        let (state, reply_tx, session) = (state.clone(), reply_tx.clone(), session.clone());
-        tokio::spawn(async move {
-            while let Some((seq, received, tracked)) = ack_rx.recv().await {
-                let outcome = match tracked {
-                    Ok(tracked) => acknowledge(&state, &session, tracked, received).await,
-                    Err(e) => Err(e),
-                };
-                let reply = match outcome {
-                    Ok(result) if contours => serde_json::to_string(&result),
-                    Ok(result) => serde_json::to_string(&result.without_contours()),
-                    Err(e) => serde_json::to_string(&StreamErrorReply {
-                        seq: Some(seq),
-                        error: e.body().error,
-                    }),
-                };
-                match reply {
-                    Ok(text) => {
-                        if reply_tx.send(Message::Text(text.into())).await.is_err() {
-                            break;
-                        }
-                    }
-                    Err(e) => tracing::error!(error = %e, "serialising a stream reply"),
-                }
-            }
-        })
-    };
     let processor = {
-        let (state, session, done) = (state.clone(), session.clone(), done.clone());
+        let (state, session, done, reply_tx) =
+            (state.clone(), session.clone(), done.clone(), reply_tx.clone());
         tokio::spawn(async move {
             let mut queue = queue_out;
             while let Some(job) = queue.next(&done).await {
-                let (ack_tx, done) = (ack_tx.clone(), done.clone());
+                let (reply_tx, done) = (reply_tx.clone(), done.clone());
                 // Runs on the blocking pool: sends without awaiting.
                 let deliver = move |seq, received, tracked: Result<TrackedPair, ApiError>| {
                     if matches!(&tracked, Err(e) if e.code() == "session_not_found") {
                         done.cancel();
                     }
-                    ack_tx.blocking_send((seq, received, tracked)).is_ok()
+                    reply_tx
+                        .blocking_send(Reply::Tracked {
+                            seq,
+                            received,
+                            tracked: Box::new(tracked),
+                        })
+                        .is_ok()
                 };
-                let (returned, go_on) =
-                    track_stream_batch(&state, &session, job.into_pair(), queue, deliver).await;
+                let (returned, go_on) = track_stream_batch(&state, &session, job, queue, deliver).await;
                 queue = returned;
                 if !go_on {
                     break;
@@ -397,26 +394,33 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                         _ = state.shutdown.cancelled() => break,
                         _ = done.cancelled() => break,
                     };
+                    let pair = StreamPair {
+                        input: message.input,
+                        provenance: message.provenance,
+                        received,
+                        seq: message.seq,
+                        held,
+                    };
                     match &queue_in {
                         QueueIn::Latest(latest) => {
                             let replaced = latest.slot.lock().ok().and_then(|mut s| {
                                 let old = s.pop_front();
-                                s.push_back(Job {
-                                    message,
-                                    received,
-                                    held,
-                                });
+                                s.push_back(pair);
                                 old
                             });
                             latest.ready.notify_one();
                             if let Some(old) = replaced {
                                 state.metrics.pairs_skipped.inc();
                                 let reply = SkippedReply {
-                                    seq: old.message.seq,
+                                    seq: old.seq,
                                     status: "skipped".into(),
                                 };
                                 if let Ok(text) = serde_json::to_string(&reply) {
-                                    if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                                    if reply_tx
+                                        .send(Reply::Now(Message::Text(text.into())))
+                                        .await
+                                        .is_err()
+                                    {
                                         break;
                                     }
                                 }
@@ -424,7 +428,7 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                         }
                         QueueIn::All(tx) => {
                             let sent = tokio::select! {
-                                r = tx.send(Job { message, received, held }) => r.is_ok(),
+                                r = tx.send(pair) => r.is_ok(),
                                 _ = state.shutdown.cancelled() => false,
                             };
                             if !sent {
@@ -440,7 +444,11 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                         error: e.body().error,
                     };
                     if let Ok(text) = serde_json::to_string(&reply) {
-                        if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                        if reply_tx
+                            .send(Reply::Now(Message::Text(text.into())))
+                            .await
+                            .is_err()
+                        {
                             break;
                         }
                     }
@@ -456,7 +464,11 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                     error: e.body().error,
                 };
                 if let Ok(text) = serde_json::to_string(&reply) {
-                    if reply_tx.send(Message::Text(text.into())).await.is_err() {
+                    if reply_tx
+                        .send(Reply::Now(Message::Text(text.into())))
+                        .await
+                        .is_err()
+                    {
                         break;
                     }
                 }
@@ -471,7 +483,6 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
     drop(queue_in);
     done.cancel();
     let _ = processor.await;
-    let _ = acknowledger.await;
     drop(reply_tx);
     let _ = writer.await;
     state.metrics.active_websockets.dec();
