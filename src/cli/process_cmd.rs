@@ -12,7 +12,7 @@ use clap::{Args, ValueEnum};
 use super::{exactly, hint_error, CliError};
 use crate::service::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
 use crate::service::api::{self, read_calibration, ObjectResult, PairResult, Polarity, Relative, Status};
-use semdepth_core::calib::Calibration;
+use semdepth_core::calib::{same_tilt_axis, Calibration};
 use semdepth_core::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
 use semdepth_core::init::InitError;
 use semdepth_core::meta::{read_meta, ImageMeta};
@@ -199,10 +199,7 @@ impl ProcessArgs {
                                 path.display()
                             ))
                         })?;
-                let sets_axis = serde_json::from_str::<serde_json::Value>(&text)
-                    .ok()
-                    .and_then(|v| v.get("tilt_axis_deg").cloned())
-                    .is_some();
+                let sets_axis = params.tilt_axis_deg.is_some();
                 (TrackerParams::from(params), sets_axis)
             }
             None => (TrackerParams::default(), false),
@@ -239,11 +236,9 @@ impl ProcessArgs {
             let (a, b) = (params.tilt_axis_deg, cal.tilt_axis_deg());
             if !explicit {
                 params.tilt_axis_deg = b;
-            } else if (a - b).rem_euclid(360.0) != 0.0 {
-                return Err(CliError::input(format!(
-                    "error[invalid_params]: tilt axis {a} deg disagrees with the calibration's {b} deg \
-                     (expected the same axis for disparity_axis_px and z_um; leave --tilt-axis-deg out to use the calibration's)"
-                )));
+            } else {
+                same_tilt_axis(a, b)
+                    .map_err(|e| CliError::input(format!("error[tilt_axis_conflict]: {e}")))?;
             }
         }
         params

@@ -16,7 +16,7 @@ use utoipa_axum::routes;
 use super::api;
 use super::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
 use super::api::Polarity as ApiPolarity;
-use semdepth_core::calib::{axis_component, Sample};
+use semdepth_core::calib::{axis_component, same_tilt_axis, Sample};
 use semdepth_core::init::{InitError, InitParams, Polarity};
 use semdepth_core::session::{Session as Objects, SessionObject};
 use semdepth_core::tracker::TrackerParams;
@@ -60,7 +60,7 @@ pub fn router() -> OpenApiRouter<AppState> {
     request_body = SessionCreate,
     responses(
         (status = 201, description = "Created; awaiting its first pair", body = SessionView),
-        (status = 400, description = "Malformed JSON, unknown field or invalid parameter", body = ErrorBody),
+        (status = 400, description = "Malformed JSON, unknown field or invalid parameter, or `tilt_axis_conflict`: tracker.tilt_axis_deg is not the calibration's axis", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "Unknown calibration", body = ErrorBody),
         (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
@@ -77,6 +77,8 @@ pub async fn create_session(
 ) -> Result<(StatusCode, ApiJson<SessionView>), ApiError> {
     check_name(body.name.as_deref())?;
     check_retention(body.retention)?;
+    let axis = body.tracker.as_ref().and_then(|t| t.tilt_axis_deg);
+    check_axis(&state, axis, body.calibration_id.as_deref())?;
     let params = merge_params(
         TrackerParams::default(),
         body.init.map(Into::into),
@@ -153,7 +155,7 @@ pub async fn get_session(
     request_body = SessionPatch,
     responses(
         (status = 200, description = "The changed session", body = SessionView),
-        (status = 400, description = "Malformed JSON, unknown field, invalid parameter, or an id that is not UTF-8", body = ErrorBody),
+        (status = 400, description = "Malformed JSON, unknown field, invalid parameter, an id that is not UTF-8, or `tilt_axis_conflict`: tracker.tilt_axis_deg is not the axis of the session's (new) calibration", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session or calibration", body = ErrorBody),
         (status = 408, description = "The request took too long (slow upload)", body = ErrorBody),
@@ -182,9 +184,21 @@ pub async fn patch_session(
     let tracker_init = body.tracker.as_ref().and_then(|t| t.get("init")).cloned();
     let hints = names_hints(&body.init) || names_hints(&tracker_init);
     let attach = body.calibration_id.clone().flatten();
+    // A tilt axis the patch sets (a number; null gives the axis back to the
+    // calibration).
+    let axis = body
+        .tracker
+        .as_ref()
+        .and_then(|t| t.get("tilt_axis_deg"))
+        .and_then(|v| v.as_f64());
     let view = state
         .db
         .update_session(&id, attach.as_deref(), |core| {
+            let calibration = match &body.calibration_id {
+                Some(change) => change.as_deref(),
+                None => core.calibration_id.as_deref(),
+            };
+            check_axis(&state, axis, calibration)?;
             if core.session.objects().len() > 1 && hints {
                 return Err(ApiError::conflict(
                     "several_objects",
@@ -607,7 +621,8 @@ pub struct DepthQuery {
     /// Calibration for z_um (omitted: z_um is null).
     pub calibration_id: Option<String>,
     /// Direction of the tilt axis, degrees from +x towards +y (default: the
-    /// calibration's, else 90).
+    /// calibration's, else 90); with a calibration, it must be the
+    /// calibration's axis (else 400 `tilt_axis_conflict`).
     #[param(minimum = -360.0, maximum = 360.0)]
     pub tilt_axis_deg: Option<f64>,
     /// Hint: the box `x,y,width,height` (pixels) the object lies in, clipped
@@ -675,7 +690,7 @@ impl DepthQuery {
     request_body(content = PairUpload, content_type = "multipart/form-data", description = "Parts `left` and `right`"),
     responses(
         (status = 200, description = "The pair's result (status initialised or lost)", body = FrameResult),
-        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes, invalid query (e.g. a roi that is not four integers, an unknown polarity)", body = ErrorBody),
+        (status = 400, description = "Bad multipart, missing part, undecodable image, mismatched sizes, invalid query (e.g. a roi that is not four integers, an unknown polarity), or `tilt_axis_conflict`: tilt_axis_deg is not the calibration's axis", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "Unknown calibration", body = ErrorBody),
         (status = 408, description = "The upload took too long", body = ErrorBody),
@@ -692,6 +707,7 @@ pub async fn one_shot_depth(
 ) -> Result<ApiJson<FrameResult>, ApiError> {
     let received = Instant::now();
     let mut params = TrackerParams::default();
+    check_axis(&state, query.tilt_axis_deg, query.calibration_id.as_deref())?;
     if let Some(id) = &query.calibration_id {
         params.tilt_axis_deg = state.db.calibration(id)?.calibration.tilt_axis_deg();
     }
@@ -703,6 +719,17 @@ pub async fn one_shot_depth(
     let (input, provenance) = read_pair_upload(request).await?;
     let result = process_one_shot(&state, params, query.calibration_id, input, provenance, received).await?;
     Ok(ApiJson(result))
+}
+
+/// 400 `tilt_axis_conflict` when a tilt axis given explicitly is not the
+/// axis of the calibration in use (404 for an unknown calibration): the
+/// calibration's z is a function of the disparity across its own axis.
+fn check_axis(state: &AppState, explicit: Option<f64>, calibration: Option<&str>) -> Result<(), ApiError> {
+    let (Some(axis), Some(id)) = (explicit, calibration) else {
+        return Ok(());
+    };
+    let own = state.db.calibration(id)?.calibration.tilt_axis_deg();
+    same_tilt_axis(axis, own).map_err(|e| ApiError::bad_request("tilt_axis_conflict", e))
 }
 
 /// Parameters from a base, a top-level `init` and a `tracker` object.

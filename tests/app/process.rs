@@ -804,3 +804,41 @@ fn process_measures_named_objects_and_their_relative_height() {
     ]);
     assert_input_error(&out, &["conflicting_hints"]);
 }
+
+/// A tilt axis given by flag or params file that is not the calibration's
+/// is refused (exit 2, naming both values); the same axis written another
+/// way, or none, runs.
+#[test]
+fn process_refuses_a_tilt_axis_that_is_not_the_calibrations() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+    let cal = dir.path().join("cal.json");
+    std::fs::write(
+        &cal,
+        r#"{"model": "geometric", "pixel_size_um": 0.5, "vergence_deg": 6.0, "tilt_axis_deg": 90.0}"#,
+    )
+    .unwrap();
+    let params = dir.path().join("params.json");
+    std::fs::write(&params, r#"{"tilt_axis_deg": 0.0}"#).unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "process",
+            path_str(&seq),
+            "--calibration",
+            path_str(&cal),
+            "--no-contour",
+        ];
+        args.extend_from_slice(extra);
+        semdepth(&args)
+    };
+    assert_input_error(
+        &run(&["--tilt-axis-deg", "45"]),
+        &["tilt_axis_conflict", "tilt_axis_deg 45", "axis 90 deg"],
+    );
+    assert_input_error(
+        &run(&["--params", path_str(&params)]),
+        &["tilt_axis_conflict", "tilt_axis_deg 0", "axis 90 deg"],
+    );
+    assert_success(&run(&["--tilt-axis-deg", "-270"]));
+    assert_success(&run(&[]));
+}

@@ -311,3 +311,114 @@ async fn a_session_measures_across_its_calibrations_axis() {
     }
     server.stop().await.unwrap();
 }
+
+/// A tilt axis given with a calibration of another axis is refused with 400
+/// `tilt_axis_conflict` naming both values, never dropped: at session
+/// creation, in a PATCH (against the session's calibration, or the one the
+/// same PATCH attaches) and in `/v1/depth`. The same axis written another
+/// way (-270 for 90) is accepted, and a refused PATCH changes nothing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_tilt_axis_that_is_not_the_calibrations_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let (http, base) = (reqwest::Client::new(), server.base.clone());
+    let calibration = |axis: f64| {
+        let (http, base) = (http.clone(), base.clone());
+        async move {
+            let (status, cal) = json_of(
+                http.post(format!("{base}/v1/calibrations"))
+                    .json(&json!({"model": "fit", "degree": 1, "tilt_axis_deg": axis,
+                        "samples": [{"disparity_px": 0.0, "z_um": 1.0}, {"disparity_px": 10.0, "z_um": 21.0}]}))
+                    .send()
+                    .await
+                    .unwrap(),
+            )
+            .await;
+            assert_eq!(status, 201, "{cal}");
+            cal["id"].as_str().unwrap().to_string()
+        }
+    };
+    let (c90, c0) = (calibration(90.0).await, calibration(0.0).await);
+    let conflict = |status: u16, err: &serde_json::Value, a: &str, b: &str| {
+        assert_eq!(status, 400, "{err}");
+        assert_eq!(err["error"]["code"], "tilt_axis_conflict", "{err}");
+        let message = err["error"]["message"].as_str().unwrap();
+        assert!(
+            message.contains(a) && message.contains(b),
+            "names {a} and {b}: {message}"
+        );
+    };
+
+    // Creation.
+    let (status, err) = json_of(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"calibration_id": c90, "tracker": {"tilt_axis_deg": 0.0}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    conflict(status, &err, "tilt_axis_deg 0", "axis 90 deg");
+    let (status, session) = json_of(
+        http.post(format!("{base}/v1/sessions"))
+            .json(&json!({"calibration_id": c90, "tracker": {"tilt_axis_deg": -270.0}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 201, "-270 is the axis 90: {session}");
+    let sid = session["id"].as_str().unwrap();
+
+    // PATCH: against the session's calibration, then with another attached.
+    let patch = |body: serde_json::Value| {
+        let (http, url) = (http.clone(), format!("{base}/v1/sessions/{sid}"));
+        async move { json_of(http.patch(url).json(&body).send().await.unwrap()).await }
+    };
+    let (status, err) = patch(json!({"tracker": {"tilt_axis_deg": 45.0}})).await;
+    conflict(status, &err, "tilt_axis_deg 45", "axis 90 deg");
+    let (status, err) = patch(json!({"calibration_id": c0, "tracker": {"tilt_axis_deg": 90.0}})).await;
+    conflict(status, &err, "tilt_axis_deg 90", "axis 0 deg");
+    let (_, unchanged) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(
+        unchanged["calibration_id"],
+        c90.as_str(),
+        "a refused PATCH changes nothing: {unchanged}"
+    );
+    let (status, changed) = patch(json!({"calibration_id": c0, "tracker": {"tilt_axis_deg": 360.0}})).await;
+    assert_eq!(status, 200, "360 is the axis 0: {changed}");
+    let (status, detached) = patch(json!({"calibration_id": null, "tracker": {"tilt_axis_deg": 30.0}})).await;
+    assert_eq!(status, 200, "without a calibration any axis goes: {detached}");
+    assert_eq!(detached["tracker"]["tilt_axis_deg"], 30.0, "{detached}");
+
+    // One-shot depth: refused before the upload is read.
+    let (left, right) = discs::scene_pair([0.0, 0.0]);
+    let (status, err) = json_of(
+        http.post(format!("{base}/v1/depth?calibration_id={c0}&tilt_axis_deg=90"))
+            .multipart(frames_form(&left, &right))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    conflict(status, &err, "tilt_axis_deg 90", "axis 0 deg");
+    let (status, r) = json_of(
+        http.post(format!(
+            "{base}/v1/depth?calibration_id={c90}&tilt_axis_deg=90&roi={}",
+            discs::ROI_A.map(|v| v.to_string()).join(",")
+        ))
+        .multipart(frames_form(&left, &right))
+        .send()
+        .await
+        .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 200, "the calibration's own axis: {r}");
+    server.stop().await.unwrap();
+}

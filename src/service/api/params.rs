@@ -27,11 +27,13 @@ pub struct TrackerParams {
     /// Detection of partial occlusion and the fit that leaves it out.
     pub occlusion: OcclusionParams,
     /// Direction of the beam's tilt axis in the image, degrees from +x
-    /// towards +y; disparity is measured across it. Default 90 (the image
-    /// y axis: disparity along x); -360..=360. A session with a calibration
-    /// measures across the calibration's axis.
+    /// towards +y; disparity is measured across it. -360..=360. Null or
+    /// left out: the calibration's axis when there is one, else 90 (the
+    /// image y axis: disparity along x). Given with a calibration, it must
+    /// be the calibration's axis (else 400 `tilt_axis_conflict`).
     #[schema(minimum = -360.0, maximum = 360.0)]
-    pub tilt_axis_deg: f64,
+    #[serde(default)]
+    pub tilt_axis_deg: Option<f64>,
     /// How far the right view is searched from the left position on the
     /// first pair, pixels along the disparity axis. Default 64; 0..=4096.
     #[schema(minimum = 0.0, maximum = 4096.0)]
@@ -68,8 +70,12 @@ pub struct TrackerParams {
 }
 
 impl Default for TrackerParams {
+    /// The algorithms' defaults, the tilt axis left to the calibration.
     fn default() -> Self {
-        tracker::TrackerParams::default().into()
+        Self {
+            tilt_axis_deg: None,
+            ..tracker::TrackerParams::default().into()
+        }
     }
 }
 
@@ -294,7 +300,7 @@ impl From<tracker::TrackerParams> for TrackerParams {
             free: p.free.into(),
             rigid: p.rigid.into(),
             occlusion: p.occlusion.into(),
-            tilt_axis_deg: p.tilt_axis_deg,
+            tilt_axis_deg: Some(p.tilt_axis_deg),
             max_disparity_px: p.max_disparity_px,
             template_spacing_px: p.template_spacing_px,
             min_contrast_ratio: p.min_contrast_ratio,
@@ -314,7 +320,9 @@ impl From<TrackerParams> for tracker::TrackerParams {
             free: p.free.into(),
             rigid: p.rigid.into(),
             occlusion: p.occlusion.into(),
-            tilt_axis_deg: p.tilt_axis_deg,
+            tilt_axis_deg: p
+                .tilt_axis_deg
+                .unwrap_or(tracker::TrackerParams::default().tilt_axis_deg),
             max_disparity_px: p.max_disparity_px,
             template_spacing_px: p.template_spacing_px,
             min_contrast_ratio: p.min_contrast_ratio,

@@ -297,6 +297,21 @@ pub fn axis_component(tilt_axis_deg: f64, d: [f64; 2]) -> f64 {
     d[0] * sin_t - d[1] * cos_t
 }
 
+/// Checks a tilt axis given explicitly (a parameter, a flag) against the
+/// calibration's: z is a function of the disparity across the calibration's
+/// axis, so a different one would give numbers that look valid and are not.
+/// Angles that differ by a multiple of 360 degrees are one axis. The error
+/// names both values.
+pub fn same_tilt_axis(explicit_deg: f64, calibration_deg: f64) -> Result<(), String> {
+    if (explicit_deg - calibration_deg).rem_euclid(360.0) == 0.0 {
+        return Ok(());
+    }
+    Err(format!(
+        "tilt_axis_deg {explicit_deg} disagrees with the calibration's tilt axis {calibration_deg} deg \
+         (expected the same axis, or tilt_axis_deg left out to use the calibration's)"
+    ))
+}
+
 /// Sine and cosine of an angle in degrees, exact at multiples of 90.
 fn sin_cos_deg(deg: f64) -> (f64, f64) {
     let r = deg.rem_euclid(360.0);

@@ -492,3 +492,15 @@ fn height_errors_carry_the_slope_and_a_fit_s_own_error() {
         .unwrap();
     assert!((std.unwrap() - 0.1 * slope * 2f64.sqrt()).abs() < 1e-12);
 }
+
+#[test]
+fn an_explicit_tilt_axis_must_be_the_calibrations() {
+    assert!(same_tilt_axis(90.0, 90.0).is_ok());
+    assert!(same_tilt_axis(-270.0, 90.0).is_ok(), "one axis, written two ways");
+    let e = same_tilt_axis(0.0, 90.0).unwrap_err();
+    assert!(e.contains("tilt_axis_deg 0") && e.contains("90 deg"), "{e}");
+    assert!(
+        same_tilt_axis(270.0, 90.0).is_err(),
+        "the opposite direction flips z"
+    );
+}
