@@ -21,6 +21,7 @@ use semdepth_core::session::{Measurement, Session as Objects};
 use semdepth_core::tracker::TrackerParams;
 
 use super::api::model::{FrameResult, Provenance, TimingMs};
+use super::api::SessionState;
 use super::budget::{Reservation, DECODED_BYTES_PER_PIXEL};
 use super::db::{LiveFrame, Session, SessionCore};
 use super::error::ApiError;
@@ -354,12 +355,12 @@ fn track_locked(
             reason = result.reason.as_deref().unwrap_or("-"),
             "pair lost"
         );
-        "lost".into()
+        SessionState::Lost
     } else {
         if let Some(d) = result.disparity_px {
             core.latest_disparity_px = Some(d);
         }
-        "tracking".into()
+        SessionState::Tracking
     };
     core.updated_at = now.clone();
     let frame = frame_result(
@@ -380,7 +381,7 @@ fn track_locked(
         frame: frame.result.frame,
         result_json,
         frames: core.session.frames(),
-        state: core.state.clone(),
+        state: core.state,
         objects: core.object_records(),
         updated_at: now,
     });

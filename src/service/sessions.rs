@@ -16,6 +16,7 @@ use utoipa_axum::routes;
 use super::api;
 use super::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
 use super::api::Polarity as ApiPolarity;
+use super::api::SessionState;
 use semdepth_core::calib::{axis_component, same_tilt_axis, Sample};
 use semdepth_core::init::{InitError, InitParams, Polarity};
 use semdepth_core::session::{Session as Objects, SessionObject};
@@ -588,9 +589,9 @@ pub async fn add_session_calibration_sample(
         // Only the latest pair's own disparity: after a lost pair (or a
         // reset) the height would be paired with an older pair's.
         let frames = core.session.frames();
-        match (core.state.as_str(), core.latest_disparity_px, frames.checked_sub(1)) {
-            ("tracking", Some(d), Some(last)) => (d, last),
-            ("lost", _, _) => {
+        match (core.state, core.latest_disparity_px, frames.checked_sub(1)) {
+            (SessionState::Tracking, Some(d), Some(last)) => (d, last),
+            (SessionState::Lost, _, _) => {
                 return Err(ApiError::conflict(
                     "latest_pair_lost",
                     format!(

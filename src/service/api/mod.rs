@@ -26,4 +26,6 @@ pub use calibration::{
 pub use params::{
     EnergyParams, FreeFitParams, InitParams, OcclusionParams, Polarity, RigidParams, TrackerParams,
 };
-pub use results::{ImageResult, ObjectResult, PairMeta, PairResult, Relative, Status, ViewMeta};
+pub use results::{
+    ImageResult, ObjectResult, PairMeta, PairResult, Relative, SessionState, Status, ViewMeta,
+};

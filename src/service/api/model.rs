@@ -11,7 +11,7 @@ use semdepth_core::{init, session, tracker};
 
 use super::calibration::{PixelSizeSource, Sample, VergenceSource};
 use super::params::{InitParams, Polarity, TrackerParams};
-use super::results::{ObjectResult, PairResult, Relative};
+use super::results::{ObjectResult, PairResult, Relative, SessionState};
 use crate::service::error::ApiError;
 use crate::service::storage::{CalibrationRecord, ObjectRecord, SessionRecord};
 
@@ -307,8 +307,8 @@ impl ObjectCreate {
 pub struct ObjectView {
     /// Its name.
     pub name: String,
-    /// `awaiting_first_pair` (its next pair initialises it), `tracking` or `lost`.
-    pub state: String,
+    /// Where it stands (`awaiting_first_pair`: its next pair initialises it).
+    pub state: SessionState,
     /// Its hints.
     pub roi: Option<[i64; 4]>,
     /// See `roi`.
@@ -325,13 +325,13 @@ impl ObjectView {
     fn of(o: &ObjectRecord) -> Self {
         let init = &o.params.init;
         let state = match &o.tracker_state {
-            None => "awaiting_first_pair",
-            Some(s) if s.is_lost() => "lost",
-            Some(_) => "tracking",
+            None => SessionState::AwaitingFirstPair,
+            Some(s) if s.is_lost() => SessionState::Lost,
+            Some(_) => SessionState::Tracking,
         };
         Self {
             name: o.name.clone(),
-            state: state.into(),
+            state,
             roi: init.roi,
             point: init.point,
             polarity: init.polarity.into(),
@@ -436,9 +436,8 @@ pub struct SessionView {
     pub id: String,
     /// Free-text label.
     pub name: Option<String>,
-    /// `awaiting_first_pair`, `tracking` or `lost`.
-    #[schema(example = "awaiting_first_pair")]
-    pub state: String,
+    /// Where it stands.
+    pub state: SessionState,
     /// Calibration in use (null: z_um is null).
     pub calibration_id: Option<String>,
     /// Pairs processed so far (the next pair's frame index).
@@ -469,7 +468,7 @@ impl SessionView {
         Self {
             id: r.id.clone(),
             name: r.name.clone(),
-            state: r.state.clone(),
+            state: r.state,
             calibration_id: r.calibration_id.clone(),
             frames: r.frames,
             retention: r.retention.unwrap_or(default_retention),

@@ -30,6 +30,37 @@ impl Status {
     }
 }
 
+/// Where a session (or one of its objects) stands.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SessionState {
+    /// Its next pair initialises it (new, reset or re-initialised).
+    #[default]
+    AwaitingFirstPair,
+    /// Its last pair was measured.
+    Tracking,
+    /// Its last pair was lost (of a session: any of its objects').
+    Lost,
+}
+
+impl SessionState {
+    /// The snake_case name used in JSON and in storage.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::AwaitingFirstPair => "awaiting_first_pair",
+            Self::Tracking => "tracking",
+            Self::Lost => "lost",
+        }
+    }
+
+    /// The state of this name, if any.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [Self::AwaitingFirstPair, Self::Tracking, Self::Lost]
+            .into_iter()
+            .find(|s| s.name() == name)
+    }
+}
+
 /// The contour in one image of a pair.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct ImageResult {

@@ -15,6 +15,7 @@ use semdepth_core::imageio::GrayFrame;
 use semdepth_core::tracker::{StereoTracker, TrackerParams};
 
 use crate::service::api::model::{FrameResult, SessionView};
+use crate::service::api::SessionState;
 use crate::service::error::ApiError;
 use crate::service::stamp::{new_id, now_rfc3339};
 use crate::service::storage::{ObjectRecord, SessionRecord, Storage};
@@ -408,8 +409,8 @@ pub struct SessionCore {
     pub retention: Option<u64>,
     /// Exempt from the idle-session expiry.
     pub keep: bool,
-    /// `awaiting_first_pair`, `tracking` or `lost`.
-    pub state: String,
+    /// Where it stands.
+    pub state: SessionState,
     /// RFC 3339 UTC.
     pub created_at: String,
     /// RFC 3339 UTC.
@@ -441,7 +442,7 @@ impl SessionCore {
             calibration_id,
             retention,
             keep,
-            state: "awaiting_first_pair".into(),
+            state: SessionState::AwaitingFirstPair,
             created_at: now.clone(),
             updated_at: now,
             session: objects,
@@ -485,7 +486,7 @@ impl SessionCore {
             }
             object.tracker.reset();
         }
-        self.state = "awaiting_first_pair".into();
+        self.state = SessionState::AwaitingFirstPair;
     }
 
     /// The first object's tracker (a one-object session's only one).
@@ -516,7 +517,7 @@ impl SessionCore {
             objects: self.object_records(),
             retention: self.retention,
             frames: self.session.frames(),
-            state: self.state.clone(),
+            state: self.state,
             created_at: self.created_at.clone(),
             updated_at: self.updated_at.clone(),
             keep: self.keep,

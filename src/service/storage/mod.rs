@@ -66,6 +66,7 @@ mod snapshot;
 mod tests;
 mod threads;
 
+use crate::service::api::SessionState;
 use rusqlite::config::DbConfig;
 use rusqlite::{params, Connection, OpenFlags, OptionalExtension};
 use semdepth_core::calib::Calibration;
@@ -235,7 +236,7 @@ pub struct SessionRecord {
     /// Pairs processed so far.
     pub frames: u64,
     /// `"awaiting_first_pair"`, `"tracking"` or `"lost"`.
-    pub state: String,
+    pub state: SessionState,
     /// Creation time (RFC 3339 text, chosen by the caller); kept by upserts of
     /// an existing session.
     pub created_at: String,
@@ -257,7 +258,7 @@ pub struct PairRecord {
     /// The session's pair count after this pair.
     pub frames: u64,
     /// The session's state after this pair.
-    pub state: String,
+    pub state: SessionState,
     /// The objects' trackers after this pair (their states are stored).
     pub objects: Vec<ObjectRecord>,
     /// Time of this pair (RFC 3339 text), stored as the session's `updated_at`.
@@ -518,7 +519,7 @@ impl Storage {
                     params_json,
                     retention,
                     frames,
-                    rec.state,
+                    rec.state.name(),
                     tracker_json,
                     rec.created_at,
                     rec.updated_at,

@@ -1,4 +1,5 @@
 use super::*;
+use crate::service::api::SessionState;
 use semdepth_core::calib::{build, CalibrationSpec, GeometricSpec};
 use semdepth_core::fit::Pose;
 use semdepth_core::geometry::HalfPlane;
@@ -98,7 +99,7 @@ fn session(id: &str, created_at: &str, retention: Option<u64>) -> SessionRecord 
         }],
         retention,
         frames: 0,
-        state: "awaiting_first_pair".into(),
+        state: SessionState::AwaitingFirstPair,
         created_at: created_at.into(),
         updated_at: created_at.into(),
         keep: false,
@@ -118,7 +119,11 @@ fn pair(session_id: &str, frame: u64) -> PairRecord {
         frame,
         result_json: result_json(session_id, frame),
         frames: frame + 1,
-        state: if frame % 7 == 6 { "lost" } else { "tracking" }.into(),
+        state: if frame % 7 == 6 {
+            SessionState::Lost
+        } else {
+            SessionState::Tracking
+        },
         objects: vec![ObjectRecord {
             name: "object".into(),
             params: TrackerParams {
@@ -728,6 +733,20 @@ async fn corrupt_json_columns_are_reported_not_panicked() {
     let err = s.sessions().await.unwrap_err();
     assert!(
         matches!(&err, StorageError::Corrupt(m) if m.contains("fine") && m.contains("params")),
+        "{err:?}"
+    );
+    s.close().await.unwrap();
+
+    // A state that is none of the three.
+    let c = raw(&path);
+    c.execute("DELETE FROM sessions WHERE id = 'fine'", []).unwrap();
+    c.execute("UPDATE sessions SET state = 'dancing' WHERE id = 'broken'", [])
+        .unwrap();
+    drop(c);
+    let s = open(&path);
+    let err = s.sessions().await.unwrap_err();
+    assert!(
+        matches!(&err, StorageError::Corrupt(m) if m.contains("broken") && m.contains("dancing")),
         "{err:?}"
     );
     s.close().await.unwrap();

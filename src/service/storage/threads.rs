@@ -1,6 +1,7 @@
 //! The storage's threads: the one writer (group commit of pair records,
 //! the free-disk guard) and the reader, and the queries they run.
 
+use crate::service::api::SessionState;
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use std::collections::HashSet;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -99,7 +100,7 @@ pub(super) struct PreparedPair {
     pub(super) frame: i64,
     pub(super) result_json: String,
     pub(super) frames: i64,
-    pub(super) state: String,
+    pub(super) state: &'static str,
     pub(super) tracker_json: Option<String>,
     pub(super) updated_at: String,
 }
@@ -112,7 +113,7 @@ pub(super) fn prepare_pair(rec: PairRecord) -> Result<PreparedPair, StorageError
         tracker_json: Some(states_checked(&rec.objects, "pair of session", id)?),
         session_id: rec.session_id,
         result_json: rec.result_json,
-        state: rec.state,
+        state: rec.state.name(),
         updated_at: rec.updated_at,
     })
 }
@@ -489,6 +490,11 @@ pub(super) fn load_sessions(c: &Connection, only: Option<&str>) -> Result<Vec<Se
             None => None,
         };
         let frames = from_i64(frames, "session", &id, "frames")?;
+        let state = SessionState::from_name(&state).ok_or_else(|| {
+            StorageError::Corrupt(format!(
+                "session {id:?}: column state: {state:?} (expected awaiting_first_pair, tracking or lost)"
+            ))
+        })?;
         let decoded = super::snapshot::decode(&params, tracker_state.as_deref(), frames)
             .map_err(|e| StorageError::Corrupt(format!("session {id:?}: {e}")))?;
         for note in &decoded.notes {
