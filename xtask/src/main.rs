@@ -1,7 +1,7 @@
 //! semdepth's developer tools, one subcommand each: `cargo xtask --help`.
 //!
 //! The evaluations track scenes with a known truth and print the figures
-//! that README.md and BENCHMARKS.md quote; every number they print comes
+//! that docs/ and BENCHMARKS.md quote; every number they print comes
 //! from the library as a user would call it.
 //! - `track-eval`: the generator's scene classes (`semdepth_core::synth`),
 //!   disparity and centroid errors against its truth.

@@ -48,7 +48,7 @@
 //! tracker adds, in quadrature, how far the pose moves along the axis when
 //! each left-out run grows by one sector, less the part of that shift the
 //! noise alone explains ([`difference_variance`]). The calibration against the
-//! synthetic suites is in README.md.
+//! synthetic suites is in docs/uncertainty.md.
 
 use crate::geometry::{symmetric_eigenvalues, Point};
 use crate::imageio::GrayFrame;

@@ -202,7 +202,7 @@ impl StereoTracker {
         // marginal one is larger for a slender outline at an angle to the
         // axis. Not for a fit with hidden sectors, whose figure already
         // carries the masked runs' shift, an estimate of their bias that
-        // still over-reports (README, "How sure a number is"); nor where the
+        // still over-reports (docs/uncertainty.md); nor where the
         // arcs fix no position in some direction, which the weakest
         // direction's checks judge instead.
         let occluded = fit.occluded.contains(&true);
