@@ -13,9 +13,9 @@ use super::{exactly, hint_error, CliError};
 use crate::service::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
 use crate::service::api::{self, read_calibration, ObjectResult, PairResult, Polarity, Relative, Status};
 use semdepth_core::calib::{same_tilt_axis, Calibration};
-use semdepth_core::imageio::{decode, read_bytes, DecodeLimits, GrayFrame};
+use semdepth_core::imageio::{read_bytes, DecodeLimits};
 use semdepth_core::init::InitError;
-use semdepth_core::meta::{read_meta, ImageMeta};
+use semdepth_core::pair::{DecodedPair, Side};
 use semdepth_core::session::{check_object_name, Session, SessionObject};
 use semdepth_core::tracker::{TrackError, TrackerParams};
 
@@ -367,17 +367,10 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     for pair in &pairs {
         let threads = session.useful_threads().min(cores);
         let started = Instant::now();
-        let (left, left_meta) = read_image(&pair.left, &limits)?;
-        let (right, right_meta) = read_image(&pair.right, &limits)?;
+        let decoded_pair = read_pair(pair, &limits)?;
         let decoded = Instant::now();
         let measured = session
-            .measure_on(
-                &left,
-                &right,
-                Some((&left_meta, &right_meta)),
-                calibration.as_ref(),
-                threads,
-            )
+            .measure_pair(&decoded_pair, calibration.as_ref(), threads)
             .map_err(|e| match &e.error {
                 // The hints do not fit the images: name the flag or field.
                 TrackError::Hint(hint) => {
@@ -448,13 +441,25 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-/// The image and what its microscope metadata say (see [`semdepth_core::meta`]).
-fn read_image(path: &Path, limits: &DecodeLimits) -> Result<(GrayFrame, ImageMeta), CliError> {
+/// The pair's two files decoded, with what their microscope metadata say
+/// (see [`semdepth_core::pair`]); an error names the file.
+fn read_pair(pair: &PairFiles, limits: &DecodeLimits) -> Result<DecodedPair, CliError> {
     // The I/O error names the path already.
-    let bytes = read_bytes(path).map_err(|e| CliError::input(format!("error[{}]: {e}", e.code())))?;
-    let frame = decode(&bytes, limits)
-        .map_err(|e| CliError::input(format!("error[{}]: {}: {e}", e.code(), path.display())))?;
-    Ok((frame, read_meta(&bytes)))
+    let read =
+        |path: &Path| read_bytes(path).map_err(|e| CliError::input(format!("error[{}]: {e}", e.code())));
+    let (left, right) = (read(&pair.left)?, read(&pair.right)?);
+    DecodedPair::from_files(&left, &right, limits).map_err(|e| {
+        let path = match e.side {
+            Side::Left => &pair.left,
+            Side::Right => &pair.right,
+        };
+        CliError::input(format!(
+            "error[{}]: {}: {}",
+            e.error.code(),
+            path.display(),
+            e.error
+        ))
+    })
 }
 
 fn track_error_code(e: &TrackError) -> &'static str {

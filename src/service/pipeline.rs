@@ -15,8 +15,8 @@ use axum::http::StatusCode;
 use tokio::sync::{OwnedMutexGuard, OwnedSemaphorePermit};
 
 use semdepth_core::calib::Calibration;
-use semdepth_core::imageio::{decode, decode_raw, DecodeLimits, GrayFrame};
-use semdepth_core::meta::{read_meta, ImageMeta};
+use semdepth_core::imageio::{DecodeLimits, GrayFrame};
+use semdepth_core::pair::DecodedPair;
 use semdepth_core::session::{Measurement, Session as Objects};
 use semdepth_core::tracker::TrackerParams;
 
@@ -75,33 +75,20 @@ impl PairInput {
 
     /// Decodes both images and reads their microscope metadata (raw
     /// samples carry none). CPU-heavy: call on the blocking pool.
-    pub fn decode(&self, limits: &DecodeLimits) -> Result<(GrayFrame, GrayFrame, PairFiles), ApiError> {
-        let side = |which: &str, e: semdepth_core::imageio::ImageInputError| {
-            ApiError::from(e).prefixed(&format!("{which} image"))
-        };
+    pub fn decode(&self, limits: &DecodeLimits) -> Result<DecodedPair, ApiError> {
         match self {
-            Self::Encoded { left, right } => Ok((
-                decode(left, limits).map_err(|e| side("left", e))?,
-                decode(right, limits).map_err(|e| side("right", e))?,
-                Some((read_meta(left), read_meta(right))),
-            )),
+            Self::Encoded { left, right } => DecodedPair::from_files(left, right, limits),
             Self::Raw {
                 left,
                 right,
                 width,
                 height,
                 bit_depth,
-            } => Ok((
-                decode_raw(left, *width, *height, *bit_depth, limits).map_err(|e| side("left", e))?,
-                decode_raw(right, *width, *height, *bit_depth, limits).map_err(|e| side("right", e))?,
-                None,
-            )),
+            } => DecodedPair::from_raw([left, right], *width, *height, *bit_depth, limits),
         }
+        .map_err(|e| ApiError::from(e.error).prefixed(&format!("{} image", e.side.name())))
     }
 }
-
-/// The two images' metadata, when they came as files.
-pub type PairFiles = Option<(ImageMeta, ImageMeta)>;
 
 /// A pair tracked and queued for storage, not yet acknowledged.
 pub struct TrackedPair {
@@ -501,20 +488,20 @@ fn decode_and_measure(
     threads: usize,
 ) -> Result<(Measurement, f64, f64, [GrayFrame; 2]), ApiError> {
     let started = Instant::now();
-    let (left, right, meta) = input.decode(limits)?;
+    let pair = input.decode(limits)?;
     let decoded = Instant::now();
-    let meta = meta.as_ref().map(|(l, r)| (l, r));
-    let measured = session
-        .measure_on(&left, &right, meta, calibration, threads)
-        .map_err(|e| match session.objects().len() {
-            1 => ApiError::from(e.error),
-            _ => ApiError::from(e.error).prefixed(&format!("object {:?}", e.object)),
-        })?;
+    let measured =
+        session
+            .measure_pair(&pair, calibration, threads)
+            .map_err(|e| match session.objects().len() {
+                1 => ApiError::from(e.error),
+                _ => ApiError::from(e.error).prefixed(&format!("object {:?}", e.object)),
+            })?;
     Ok((
         measured,
         ms(decoded - started),
         ms(decoded.elapsed()),
-        [left, right],
+        [pair.left, pair.right],
     ))
 }
 

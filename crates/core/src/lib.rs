@@ -8,6 +8,7 @@
 //!
 //! Module map:
 //! - [`imageio`]: decode PNG/TIFF/JPEG/BMP and raw buffers into [`imageio::GrayFrame`]s, with limits.
+//! - [`pair`]: a stereo pair decoded from its files' bytes, with their metadata (the one path of the CLI and the service).
 //! - [`meta`]: pixel size, stage tilt and working distance from the microscope's TIFF tags (FEI, ZEISS, TESCAN).
 //! - [`geometry`]: closed polygons (length, area, centroid, orientation, resampling, rasterisation).
 //! - [`prefilter`]: the Gaussian smoothing matched to a blurred edge, before the rigid fits.
@@ -34,6 +35,7 @@ pub mod imageio;
 pub mod init;
 pub mod meta;
 pub mod occlusion;
+pub mod pair;
 pub mod prefilter;
 pub mod region;
 pub mod scatter;

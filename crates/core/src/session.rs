@@ -271,6 +271,17 @@ impl Session {
         }
     }
 
+    /// [`Session::measure_on`] on a decoded pair, with its files' metadata.
+    pub fn measure_pair(
+        &mut self,
+        pair: &crate::pair::DecodedPair,
+        calibration: Option<&Calibration>,
+        threads: usize,
+    ) -> Result<Measurement, MeasureError> {
+        let meta = pair.meta.as_ref().map(|(l, r)| (l, r));
+        self.measure_on(&pair.left, &pair.right, meta, calibration, threads)
+    }
+
     /// [`Session::measure`] with the objects tracked on up to `threads`
     /// threads at once (each object's tracker is independent of the
     /// others', so the results are the same for any count; 0 and 1 track
