@@ -28,10 +28,10 @@
 # requests (which is all schemathesis sends) can only get its error answers
 # (400 "websocket_upgrade_required", 404), never the documented 101, and the
 # pair messages are binary WebSocket frames that an OpenAPI document cannot
-# describe; tests/service_ws.rs covers this route. GET
+# describe; tests/app/ws.rs covers this route. GET
 # /v1/sessions/{id}/events is an endless server-sent event stream: a client
 # that reads the whole body (as schemathesis does) waits until its timeout;
-# tests/service_live.rs covers it.
+# tests/app/live.rs covers it.
 set -euo pipefail
 if [ -n "${SEMDEPTH_BIN:-}" ] && [[ $SEMDEPTH_BIN != /* ]]; then
     SEMDEPTH_BIN=$PWD/$SEMDEPTH_BIN

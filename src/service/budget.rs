@@ -3,10 +3,8 @@
 //! them (`--max-inflight-mib`). A request that does not fit is answered 503
 //! `busy` with `Retry-After` before its body is read; a stream that does not
 //! fit waits, and stops reading its socket meanwhile (TCP back-pressure).
-//!
-//! Without it, 16 concurrent 120 MiB uploads from one client peaked at 1,359
-//! MiB and 32 at 3,207 MiB; the compose file's 2 GB limit would have had
-//! the container killed at about 20.
+//! Without it, concurrent large uploads grow the process past any memory
+//! limit (BENCHMARKS.md).
 
 use std::sync::Arc;
 

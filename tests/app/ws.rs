@@ -17,7 +17,7 @@ use semdepth_core::synth::{Preset, Shape};
 use serde_json::{json, Value};
 use tokio_tungstenite::tungstenite::Message;
 
-/// Disparity RMS limit (px, offset removed); see tests/service_api.rs.
+/// Disparity RMS limit (px, offset removed); see tests/app/api.rs.
 const MAX_DISPARITY_RMS_PX: f64 = 0.15;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -1,6 +1,6 @@
 //! `semdepth serve` as a child process on a temporary database and a port
 //! the OS picks, for measurements whose memory and CPU must be the
-//! server's own (`tests/service_memory.rs`, `benches/service_load.rs`).
+//! server's own (`tests/app/memory.rs`, `benches/service_load.rs`).
 
 #![allow(dead_code)] // each user takes what it needs
 

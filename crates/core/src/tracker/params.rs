@@ -10,12 +10,9 @@ use crate::prefilter;
 /// [`TrackerParams::max_disparity_std_px`] an object's disparity standard
 /// error may exceed that limit before the pair is `uncertain`: an object
 /// whose own outline gives no better (a real grain whose outline changes
-/// with the tilt: 1.31 px on the quartz pair 01-02, 1.55 px on 01-03) keeps
-/// its numbers, while one that lost most of what fixed its position says
-/// so. An object first measured within the limit gets no more than the
-/// limit: growing its own standard error 4 times (rod 902 of the combined
-/// suite, first 0.14 px, a limit of 0.55 px) let a pair be `tracked` 1.0
-/// px off at 0.40 px.
+/// with the tilt) keeps its numbers, while one that lost most of what fixed
+/// its position says so. An object first measured within the limit is held
+/// to the limit.
 pub const STD_GROWTH: f64 = 4.0;
 
 /// All tracking parameters, with documented defaults.
@@ -43,15 +40,8 @@ pub struct TrackerParams {
     pub max_disparity_px: f64,
     /// Vertex spacing of the rigid template, pixels; default null: the free
     /// fit's own outline (vertices `free.spacing_px` apart) is the template.
-    /// Resampling a polygon more densely only adds vertices on its edges
-    /// (and cuts its corners a little), so the old default of 2 px made
-    /// every step dearer for nothing measurable: 1024x768 step 2.42 -> 1.90
-    /// ms (minimum of 400), synthetic suites within 0.004 px except the
-    /// occluded rods, which are chaotic either way (seeds 100-104: 0.087 ->
-    /// 0.120 px; 100-119: 0.21 -> 0.49 px, two rods; 200-219: 0.167 ->
-    /// 0.165 px), quartz 01->02 0.742 -> 0.746 px off the silhouette
-    /// reference. Resampling at 4 or 6 px cuts the corners more: quartz
-    /// 01->02 moved to 1.12 px.
+    /// Resampling more densely only adds vertices on its edges, which makes
+    /// every step dearer for no accuracy; more coarsely cuts its corners.
     pub template_spacing_px: Option<f64>,
     /// The pair is lost when the contrast in either image falls below this
     /// fraction of the contrast at initialisation. Default 0.3.
@@ -59,22 +49,18 @@ pub struct TrackerParams {
     /// Let the right contour rotate independently of the left one (the paper
     /// does; `angle_diff_rad` is then measured). Default false: a tilt about
     /// an in-plane axis does not rotate the object in the image, and the
-    /// extra freedom absorbs the outline's change of shape with tilt. On the
-    /// real quartz pairs it moved the disparity from (26.25, 4.56) to
-    /// (24.84, 6.09) px against a silhouette-centroid shift of (26.97, 4.73).
-    /// When false the right contour keeps the left one's rotation and
+    /// extra freedom absorbs the outline's change of shape with tilt (on the
+    /// real quartz pairs it moved the disparity 1.4 px away from the
+    /// silhouettes' shift). When false the right contour keeps the left one's rotation and
     /// `angle_diff_rad` is 0.
     pub right_rotation: bool,
     /// After the first pair, let the right contour move only across the
     /// tilt axis from its prediction (the left pose plus the last
     /// disparity): a tilt shifts the object along its epipolar line, so the
     /// along-axis offset found on the first pair (a few pixels on the real
-    /// quartz pairs) is kept. Default true. The freedom it removes only let
-    /// weak edges and slender objects slide: disparity RMS on the synthetic
-    /// suites (seeds 100-104) clean 0.026 -> 0.023, noisy 0.106 -> 0.093,
-    /// occluded 0.120 -> 0.050, flicker 0.048 -> 0.037, tools entering from
-    /// the border (seeds 800-809) 0.160 -> 0.062 px. Set false when the
-    /// stage drifts along the tilt axis between the two images of a pair.
+    /// quartz pairs) is kept. Default true: the freedom it removes only lets
+    /// weak edges and slender objects slide. Set false when the stage
+    /// drifts along the tilt axis between the two images of a pair.
     pub epipolar: bool,
     /// Gaussian smoothing (sigma, pixels) of both images before the fits,
     /// which restores their precision on blurred edges under white noise.

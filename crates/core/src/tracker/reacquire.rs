@@ -22,7 +22,7 @@ use super::StereoTracker;
 /// included) against the same background (crossing rod 2005, taken 36 px
 /// off and `tracked`). Objects under flicker (gain 0.8-1.2) and in the
 /// other classes are found again after a loss as often with the bound as
-/// without it (`examples/reacquire_probe`, seeds 100-104).
+/// without it (BENCHMARKS.md).
 pub(super) const MIN_GREY_CHANGE: f64 = 0.8;
 
 /// Largest share of occluded sectors at which a template found after a loss
