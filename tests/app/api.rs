@@ -1217,3 +1217,59 @@ async fn results_carry_their_provenance() {
     assert_eq!(v["error"]["code"], json!("invalid_timestamp"), "{v}");
     server.stop().await.unwrap();
 }
+
+/// Issue #66: a CSV of results never hands a spreadsheet a formula. Labels
+/// that begin with `=`, `+`, `-`, `@`, a tab or a carriage return come back
+/// with a single quote in front (quoted as RFC 4180 wants where needed),
+/// and the numbers, negative ones included, stay numbers.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn csv_cells_that_a_spreadsheet_would_run_are_neutralised() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("csv.sqlite3"))).await;
+    let base = server.base.clone();
+    let http = reqwest::Client::new();
+    let sid = server::new_session(&base).await;
+    let pairs = synth_pairs(Preset::Clean, Shape::Blob, 4, 6);
+    let labels = ["=cmd|' /C calc'!A0", "+1+1", "-2+3", "@SUM(A1:A9)", "\tx", "\rx"];
+    for (pair, label) in pairs.iter().zip(labels) {
+        let (code, r) = json_of(
+            http.post(format!("{base}/v1/sessions/{sid}/frames"))
+                .multipart(pair_form(pair).text("label", label))
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(code, 200, "{r}");
+        assert_eq!(r["label"], json!(label), "the JSON keeps the label as given");
+    }
+    let response = http
+        .get(format!("{base}/v1/sessions/{sid}/results?format=csv"))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(response.status(), 200);
+    let csv = response.text().await.unwrap();
+    let expected = [
+        "'=cmd|' /C calc'!A0",
+        "'+1+1",
+        "'-2+3",
+        "'@SUM(A1:A9)",
+        "'\tx",
+        "\"'\rx\"",
+    ];
+    // Rows start with the frame number; the carriage-return label is quoted
+    // and so keeps its row whole.
+    let rows: Vec<&str> = csv.split('\n').skip(1).filter(|l| !l.is_empty()).collect();
+    assert_eq!(rows.len(), labels.len(), "{csv:?}");
+    for (k, (row, cell)) in rows.iter().zip(expected).enumerate() {
+        let prefix = format!("{k},{cell},");
+        assert!(row.starts_with(&prefix), "row {k} should start {prefix:?}: {row:?}");
+    }
+    // A tracked pair's numbers are numbers: the disparity cell parses.
+    let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
+    let column = header.iter().position(|h| *h == "disparity_axis_px").unwrap();
+    let last = rows[3].split(',').nth(column).unwrap();
+    assert!(last.parse::<f64>().is_ok(), "disparity cell {last:?} in {:?}", rows[3]);
+    server.stop().await.unwrap();
+}

@@ -78,7 +78,7 @@ fn csv_cells(r: &PairResult, name: &str) -> Vec<String> {
         r.frame.to_string(),
         csv_text(name),
         r.status.name().to_string(),
-        r.reason.as_deref().map(quote).unwrap_or_default(),
+        r.reason.as_deref().map(csv_text).unwrap_or_default(),
     ];
     for image in [&r.left, &r.right] {
         cells.push(num(image.as_ref().map(|i| i.centroid[0])));
@@ -101,20 +101,25 @@ fn csv_cells(r: &PairResult, name: &str) -> Vec<String> {
         cells.push(num(view.and_then(|v| v.stage_tilt_rad)));
     }
     cells.push(num(meta.and_then(|m| m.stage_tilt_difference_rad)));
-    cells.push(if r.warnings.is_empty() {
-        String::new()
-    } else {
-        quote(&r.warnings.join("; "))
-    });
+    cells.push(csv_text(&r.warnings.join("; ")));
     cells
 }
 
-/// A text cell, quoted when it needs to be.
+/// A text cell: neutralised when a spreadsheet would read it as a formula
+/// (it begins with `=`, `+`, `-`, `@`, a tab or a carriage return: a single
+/// quote goes in front, as OWASP advises), and quoted (RFC 4180) when it
+/// holds a comma, a quote or a line break. Numbers are written by [`num`],
+/// never through this, so a negative number stays a number.
 pub fn csv_text(s: &str) -> String {
-    if s.contains([',', '"', '\n', '\r']) {
-        quote(s)
+    let s = if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+        format!("'{s}")
     } else {
         s.to_string()
+    };
+    if s.contains([',', '"', '\n', '\r']) {
+        quote(&s)
+    } else {
+        s
     }
 }
 
@@ -144,5 +149,28 @@ mod tests {
         assert_eq!(line, expected);
         // Two of the commas are inside quoted cells.
         assert_eq!(line.matches(',').count() - 2, CSV_HEADER.matches(',').count());
+    }
+
+    #[test]
+    fn cells_a_spreadsheet_would_run_are_neutralised() {
+        for (text, cell) in [
+            ("=cmd|' /C calc'!A0", "'=cmd|' /C calc'!A0"),
+            ("+1", "'+1"),
+            ("-2", "'-2"),
+            ("@SUM(A1)", "'@SUM(A1)"),
+            ("\tx", "'\tx"),
+            ("\rx", "\"'\rx\""),
+            ("=a,b", "\"'=a,b\""),
+            ("plain-name", "plain-name"),
+        ] {
+            assert_eq!(csv_text(text), cell, "{text:?}");
+        }
+        // A negative number is a number, not a label.
+        let r: PairResult = serde_json::from_value(serde_json::json!({
+            "frame": 0, "status": "tracked", "disparity_axis_px": -1.5,
+        }))
+        .unwrap();
+        assert!(csv_record(&r, "-x").starts_with("0,'-x,tracked,"));
+        assert!(csv_record(&r, "p").contains(",-1.5,"));
     }
 }
