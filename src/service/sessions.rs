@@ -254,15 +254,21 @@ pub async fn delete_session(
     Ok(StatusCode::NO_CONTENT)
 }
 
+/// Least `idle_for_s` of a bulk delete without a `name_prefix`, seconds:
+/// less would take nearly every session not busy at that instant.
+pub const MIN_IDLE_FOR_S: f64 = 60.0;
+
 /// Query of `DELETE /v1/sessions`: which sessions to delete (at least one
 /// of `name_prefix` and `idle_for_s`).
 #[derive(Clone, Debug, Deserialize, IntoParams)]
 #[serde(deny_unknown_fields)]
 #[into_params(parameter_in = Query)]
 pub struct BulkDeleteQuery {
-    /// Sessions whose name starts with this.
+    /// Sessions whose name starts with this (at least one character).
+    #[param(min_length = 1)]
     pub name_prefix: Option<String>,
-    /// Sessions without a pair or a change for at least this many seconds.
+    /// Sessions without a pair or a change for at least this many seconds;
+    /// at least 60 unless a `name_prefix` narrows the delete too.
     #[param(minimum = 0)]
     pub idle_for_s: Option<f64>,
     /// Include sessions marked `keep`. Default false.
@@ -281,7 +287,7 @@ pub struct BulkDeleteQuery {
     params(BulkDeleteQuery),
     responses(
         (status = 200, description = "The sessions deleted", body = SessionsDeleted),
-        (status = 400, description = "Neither name_prefix nor idle_for_s given, or an invalid value", body = ErrorBody),
+        (status = 400, description = "Neither name_prefix nor idle_for_s given, an empty name_prefix, idle_for_s under 60 without a name_prefix, or an invalid value", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
@@ -296,13 +302,33 @@ pub async fn delete_sessions(
             "give name_prefix, idle_for_s or both (a bulk delete of every session is not offered)",
         ));
     }
+    // A filter must narrow: an empty prefix matches every name, and an idle
+    // time of a few seconds every session not busy this instant.
+    if query.name_prefix.as_deref() == Some("") {
+        return Err(ApiError::bad_request(
+            "invalid_query",
+            "empty name_prefix (expected at least one character: an empty prefix matches every session)",
+        ));
+    }
+    let least_idle = if query.name_prefix.is_some() {
+        0.0
+    } else {
+        MIN_IDLE_FOR_S
+    };
     let idle_for = match query.idle_for_s {
-        Some(s) if s.is_finite() && (0.0..=1e9).contains(&s) => Some(std::time::Duration::from_secs_f64(s)),
+        Some(s) if s.is_finite() && (least_idle..=1e9).contains(&s) => {
+            Some(std::time::Duration::from_secs_f64(s))
+        }
         Some(s) => {
+            let why = if query.name_prefix.is_some() {
+                String::new()
+            } else {
+                format!("; below {MIN_IDLE_FOR_S} s only with a name_prefix")
+            };
             return Err(ApiError::bad_request(
                 "invalid_query",
-                format!("invalid idle_for_s {s} (expected 0..=1e9)"),
-            ))
+                format!("invalid idle_for_s {s} (expected {least_idle}..=1e9{why})"),
+            ));
         }
         None => None,
     };

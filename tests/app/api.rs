@@ -846,18 +846,47 @@ async fn idle_sessions_expire_and_kept_ones_stay() {
     )
     .await;
     assert_eq!(v["deleted"], json!([]), "{v}");
-    let (_, v) = json_of(
-        http.delete(format!("{base}/v1/sessions?idle_for_s=0"))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
-    assert_eq!(
-        v["deleted"].as_array().unwrap().len(),
-        2,
-        "active and experiment: {v}"
-    );
+    // Filters that do not narrow (issue #66): an empty prefix, an idle time
+    // under a minute without a prefix. Refused, and nothing deleted.
+    for query in [
+        "name_prefix=",
+        "idle_for_s=0",
+        "idle_for_s=59",
+        "name_prefix=&idle_for_s=0",
+    ] {
+        let (code, v) = json_of(
+            http.delete(format!("{base}/v1/sessions?{query}"))
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(code, 400, "{query}: {v}");
+        assert_eq!(v["error"]["code"], "invalid_query", "{query}: {v}");
+        let message = v["error"]["message"].as_str().unwrap();
+        let names = if query.contains("name_prefix") {
+            "name_prefix"
+        } else {
+            "idle_for_s"
+        };
+        assert!(message.contains(names), "{query}: {message}");
+        let list = get_json(&format!("{base}/v1/sessions")).await;
+        assert_eq!(ids(&list).len(), 3, "{query} deleted nothing: {list}");
+    }
+    // With a prefix, any idle time: all but the kept one.
+    let mut deleted = 0;
+    for prefix in ["a", "e"] {
+        let (code, v) = json_of(
+            http.delete(format!("{base}/v1/sessions?name_prefix={prefix}&idle_for_s=0"))
+                .send()
+                .await
+                .unwrap(),
+        )
+        .await;
+        assert_eq!(code, 200, "{v}");
+        deleted += v["deleted"].as_array().unwrap().len();
+    }
+    assert_eq!(deleted, 2, "active and experiment");
     let list = get_json(&format!("{base}/v1/sessions")).await;
     assert_eq!(
         ids(&list),
@@ -865,7 +894,7 @@ async fn idle_sessions_expire_and_kept_ones_stay() {
         "{list}"
     );
     let (_, v) = json_of(
-        http.delete(format!("{base}/v1/sessions?idle_for_s=0&include_kept=true"))
+        http.delete(format!("{base}/v1/sessions?name_prefix=over&include_kept=true"))
             .send()
             .await
             .unwrap(),
@@ -1264,12 +1293,19 @@ async fn csv_cells_that_a_spreadsheet_would_run_are_neutralised() {
     assert_eq!(rows.len(), labels.len(), "{csv:?}");
     for (k, (row, cell)) in rows.iter().zip(expected).enumerate() {
         let prefix = format!("{k},{cell},");
-        assert!(row.starts_with(&prefix), "row {k} should start {prefix:?}: {row:?}");
+        assert!(
+            row.starts_with(&prefix),
+            "row {k} should start {prefix:?}: {row:?}"
+        );
     }
     // A tracked pair's numbers are numbers: the disparity cell parses.
     let header: Vec<&str> = csv.lines().next().unwrap().split(',').collect();
     let column = header.iter().position(|h| *h == "disparity_axis_px").unwrap();
     let last = rows[3].split(',').nth(column).unwrap();
-    assert!(last.parse::<f64>().is_ok(), "disparity cell {last:?} in {:?}", rows[3]);
+    assert!(
+        last.parse::<f64>().is_ok(),
+        "disparity cell {last:?} in {:?}",
+        rows[3]
+    );
     server.stop().await.unwrap();
 }
