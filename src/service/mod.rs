@@ -304,13 +304,23 @@ impl Modify for SecurityAddon {
     }
 }
 
+/// The credentials of an `Authorization` value of the Bearer scheme,
+/// whose name is matched case-insensitively (RFC 7235 2.1: `bearer` and
+/// `BEARER` are `Bearer`).
+fn bearer_credentials(value: &str) -> Option<&str> {
+    let (scheme, credentials) = value.split_once(' ')?;
+    scheme
+        .eq_ignore_ascii_case("bearer")
+        .then(|| credentials.trim_start_matches(' '))
+}
+
 async fn require_token(token: Option<Arc<str>>, req: Request, next: Next) -> Response {
     if let Some(expected) = token {
         let given = req
             .headers()
             .get(header::AUTHORIZATION)
             .and_then(|v| v.to_str().ok())
-            .and_then(|v| v.strip_prefix("Bearer "));
+            .and_then(bearer_credentials);
         let ok = given.is_some_and(|g| bool::from(g.as_bytes().ct_eq(expected.as_bytes())));
         if !ok {
             return ApiError::Unauthorized(

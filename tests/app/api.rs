@@ -398,6 +398,25 @@ async fn token_is_required_on_v1_when_configured() {
         .await
         .unwrap();
     assert_eq!(r.status(), 200);
+    // The scheme's name is case-insensitive (RFC 7235; issue #66); the
+    // token is not.
+    for (value, status) in [
+        ("bearer s3cret", 200),
+        ("BEARER s3cret", 200),
+        ("Bearer  s3cret", 200),
+        ("bearer wrong", 401),
+        ("bearer S3CRET", 401),
+        ("Basic s3cret", 401),
+        ("bearers3cret", 401),
+    ] {
+        let r = http
+            .get(format!("{base}/v1/sessions"))
+            .header("authorization", value)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(r.status(), status, "Authorization: {value}");
+    }
     // Operations endpoints stay open for probes.
     let r = http.get(format!("{base}/healthz")).send().await.unwrap();
     assert_eq!(r.status(), 200);
