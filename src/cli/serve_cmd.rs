@@ -11,9 +11,9 @@ use clap::{Args, ValueEnum};
 use super::CliError;
 use crate::service::state::{
     ServiceConfig, DEFAULT_DB_PATH, DEFAULT_HEADER_TIMEOUT_S, DEFAULT_LISTEN, DEFAULT_LIVE_VIEW_MIB,
-    DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_INFLIGHT_MIB, DEFAULT_MAX_MESSAGE_MIB,
-    DEFAULT_MAX_SESSIONS, DEFAULT_MIN_FREE_DISK_MIB, DEFAULT_REQUEST_TIMEOUT_S, DEFAULT_RETENTION,
-    DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
+    DEFAULT_MAX_BODY_MIB, DEFAULT_MAX_CONNECTIONS, DEFAULT_MAX_EVENT_STREAMS, DEFAULT_MAX_INFLIGHT_MIB,
+    DEFAULT_MAX_MESSAGE_MIB, DEFAULT_MAX_SESSIONS, DEFAULT_MIN_FREE_DISK_MIB, DEFAULT_REQUEST_TIMEOUT_S,
+    DEFAULT_RETENTION, DEFAULT_SESSION_EXPIRY_H, DEFAULT_WS_IDLE_TIMEOUT_S, DEFAULT_WS_QUEUE,
 };
 use semdepth_core::imageio::DecodeLimits;
 
@@ -82,6 +82,10 @@ pub struct ServeArgs {
     /// descriptor); beyond it new connections are closed at once.
     #[arg(long, env = "SEMDEPTH_MAX_CONNECTIONS", default_value_t = DEFAULT_MAX_CONNECTIONS)]
     pub max_connections: usize,
+    /// Most live-view event streams (`GET /v1/sessions/{id}/events`) open at
+    /// once; one more is answered 503 `busy`.
+    #[arg(long, env = "SEMDEPTH_MAX_EVENT_STREAMS", default_value_t = DEFAULT_MAX_EVENT_STREAMS)]
+    pub max_event_streams: usize,
     /// Close a WebSocket on which no whole message arrives for this many
     /// seconds (1008, saying so).
     #[arg(long, env = "SEMDEPTH_WS_IDLE_TIMEOUT_S", default_value_t = DEFAULT_WS_IDLE_TIMEOUT_S)]
@@ -155,6 +159,7 @@ impl ServeArgs {
             max_db_bytes: (self.max_db_mib > 0).then(|| self.max_db_mib.saturating_mul(1 << 20)),
             header_timeout: Duration::from_secs_f64(self.header_timeout_s),
             max_connections: self.max_connections,
+            max_event_streams: self.max_event_streams,
             ws_idle_timeout: Duration::from_secs_f64(self.ws_idle_timeout_s),
             live_view_bytes: self.live_view_mib.saturating_mul(1 << 20),
             max_inflight_bytes: self.max_inflight_mib.saturating_mul(1 << 20),

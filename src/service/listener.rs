@@ -1,6 +1,8 @@
 //! The accept loop: HTTP/1.1 connections served by hyper with a deadline for
 //! the request headers and a cap on open connections, drained gracefully on
-//! shutdown. `axum::serve` sets neither: a client sending one header byte
+//! shutdown. Beyond the cap, [`OPS_RESERVED`] more connections are accepted
+//! for the probes alone (`/healthz`, `/readyz`, `/metrics`), so that an
+//! orchestrator never restarts a server that is only busy. `axum::serve` sets neither: a client sending one header byte
 //! every 2 s held its connection for good, and 1,100 of them under a 1024
 //! file-descriptor limit kept `/healthz` from answering.
 
@@ -28,17 +30,35 @@ pub struct Limits {
     pub max_connections: usize,
 }
 
+/// Connections accepted beyond `max_connections` for the probes alone.
+pub const OPS_RESERVED: usize = 8;
+
+/// The paths a connection in a reserved slot is answered on.
+pub const OPS_PATHS: [&str; 3] = ["/healthz", "/readyz", "/metrics"];
+
 /// A connection's place under the cap, in every request's extensions: an
 /// upgraded WebSocket keeps a clone for as long as it is open, so that it
 /// still counts once the HTTP connection has handed its socket over.
 #[derive(Clone)]
-pub struct ConnectionSlot(#[allow(dead_code)] Arc<OwnedSemaphorePermit>);
+pub struct ConnectionSlot {
+    _permit: Arc<OwnedSemaphorePermit>,
+    reserved: bool,
+}
+
+impl ConnectionSlot {
+    /// Whether the connection holds one of the [`OPS_RESERVED`] slots (the
+    /// cap was reached when it came): only [`OPS_PATHS`] are served on it.
+    pub fn reserved(&self) -> bool {
+        self.reserved
+    }
+}
 
 /// Serves `app` on `listener` until `stop` is cancelled, then lets every
 /// open connection finish its requests (upgraded WebSockets are the
 /// application's to close) and returns.
 pub async fn serve(listener: TcpListener, app: Router, limits: Limits, stop: CancellationToken) {
     let slots = Arc::new(Semaphore::new(limits.max_connections));
+    let reserve = Arc::new(Semaphore::new(OPS_RESERVED));
     let (closing, _) = watch::channel(());
     let tasks = TaskTracker::new();
     let mut refused_logged = false;
@@ -56,7 +76,15 @@ pub async fn serve(listener: TcpListener, app: Router, limits: Limits, stop: Can
                 }
             },
         };
-        let Ok(slot) = slots.clone().try_acquire_owned() else {
+        let slot = match slots.clone().try_acquire_owned() {
+            Ok(permit) => Some((permit, false)),
+            Err(_) => reserve
+                .clone()
+                .try_acquire_owned()
+                .ok()
+                .map(|permit| (permit, true)),
+        };
+        let Some((permit, reserved)) = slot else {
             if !refused_logged {
                 tracing::warn!(
                     limit = limits.max_connections,
@@ -67,8 +95,11 @@ pub async fn serve(listener: TcpListener, app: Router, limits: Limits, stop: Can
             drop(stream);
             continue;
         };
-        refused_logged = false;
-        let slot = ConnectionSlot(Arc::new(slot));
+        refused_logged &= reserved;
+        let slot = ConnectionSlot {
+            _permit: Arc::new(permit),
+            reserved,
+        };
         let held = slot.clone();
         let service = TowerToHyperService::new(app.clone().map_request(
             move |mut request: axum::http::Request<Incoming>| {

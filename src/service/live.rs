@@ -187,6 +187,7 @@ pub async fn latest_frame(
         (status = 400, description = "Invalid path: the id is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
+        (status = 503, description = "`busy`: --max-event-streams streams are open; retry after the `Retry-After` seconds", body = ErrorBody),
     )
 )]
 pub async fn session_events(
@@ -194,31 +195,41 @@ pub async fn session_events(
     ApiPath(id): ApiPath<String>,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let session = state.db.session(&id)?;
+    // Held for as long as the stream is open.
+    let permit = state.event_streams.clone().try_acquire_owned().map_err(|_| {
+        ApiError::Busy(format!(
+            "{} event streams are open, the most this server keeps (--max-event-streams); retry later",
+            state.config.max_event_streams
+        ))
+    })?;
     let mut rx = session.subscribe_live();
     if rx.borrow().is_some() {
         rx.mark_changed();
     }
     drop(session);
     let stop = state.shutdown.clone();
-    let events = futures_util::stream::unfold((rx, stop, true), |(mut rx, stop, first)| async move {
-        if !first {
+    let events = futures_util::stream::unfold(
+        (rx, stop, true, permit),
+        |(mut rx, stop, first, permit)| async move {
+            if !first {
+                tokio::select! {
+                    _ = stop.cancelled() => return None,
+                    _ = tokio::time::sleep(EVENT_INTERVAL) => {}
+                }
+            }
             tokio::select! {
                 _ = stop.cancelled() => return None,
-                _ = tokio::time::sleep(EVENT_INTERVAL) => {}
+                // The sender is gone with the session.
+                changed = rx.changed() => changed.ok()?,
             }
-        }
-        tokio::select! {
-            _ = stop.cancelled() => return None,
-            // The sender is gone with the session.
-            changed = rx.changed() => changed.ok()?,
-        }
-        let live = rx.borrow_and_update().clone()?;
-        let event = Event::default()
-            .event("result")
-            .json_data(&live.result)
-            .unwrap_or_else(|e| Event::default().event("error").data(e.to_string()));
-        Some((Ok(event), (rx, stop, false)))
-    });
+            let live = rx.borrow_and_update().clone()?;
+            let event = Event::default()
+                .event("result")
+                .json_data(&live.result)
+                .unwrap_or_else(|e| Event::default().event("error").data(e.to_string()));
+            Some((Ok(event), (rx, stop, false, permit)))
+        },
+    );
     Ok(Sse::new(events).keep_alive(KeepAlive::new().interval(Duration::from_secs(15))))
 }
 

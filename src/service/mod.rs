@@ -169,6 +169,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
     let db = db::Db::open(storage, limits, metrics.active_sessions.clone()).await?;
     let workers = config.workers;
     let config_budget = config.max_inflight_bytes;
+    let event_streams = config.max_event_streams;
     Ok(AppState(Arc::new(Inner {
         config,
         db,
@@ -178,6 +179,7 @@ async fn load_state(config: ServiceConfig, storage: Storage) -> Result<AppState,
         sockets: tokio_util::task::TaskTracker::new(),
         display: tokio::sync::Semaphore::new(1),
         budget: budget::MemoryBudget::new(config_budget),
+        event_streams: Arc::new(tokio::sync::Semaphore::new(event_streams)),
     })))
 }
 
@@ -210,7 +212,29 @@ pub fn app(state: AppState) -> Router {
             tracing::info_span!("request", method = %req.method(), path = %req.uri().path(), request_id = %id)
         }))
         .layer(SetRequestIdLayer::new(REQUEST_ID, MakeRequestUuid))
+        .layer(middleware::from_fn(probes_only_beyond_the_cap))
         .with_state(state)
+}
+
+/// On a connection accepted beyond `--max-connections` (one of
+/// [`listener::OPS_RESERVED`]), answers the probes and refuses the rest with
+/// 503 `busy`, closing the connection.
+async fn probes_only_beyond_the_cap(req: Request, next: Next) -> Response {
+    let reserved = req
+        .extensions()
+        .get::<listener::ConnectionSlot>()
+        .is_some_and(|slot| slot.reserved());
+    if reserved && !listener::OPS_PATHS.contains(&req.uri().path()) {
+        let mut response = ApiError::Busy(
+            "every connection the server keeps (--max-connections) is in use; beyond them only /healthz, /readyz and /metrics are answered".into(),
+        )
+        .into_response();
+        response
+            .headers_mut()
+            .insert(header::CONNECTION, axum::http::HeaderValue::from_static("close"));
+        return response;
+    }
+    next.run(req).await
 }
 
 /// All routes with their OpenAPI descriptions; `/v1` behind the token.

@@ -52,6 +52,9 @@ pub const DEFAULT_MIN_FREE_DISK_MIB: u64 = 512;
 /// Default for [`ServiceConfig::max_connections`]: well inside a 1024
 /// file-descriptor limit, with room for the database and its journal.
 pub const DEFAULT_MAX_CONNECTIONS: usize = 512;
+/// Default for [`ServiceConfig::max_event_streams`]: an eighth of the
+/// connections, so that viewers never crowd out the clients that measure.
+pub const DEFAULT_MAX_EVENT_STREAMS: usize = 64;
 /// Default number of pairs waiting per WebSocket under `policy=all`.
 pub const DEFAULT_WS_QUEUE: usize = 4;
 /// Default time after which a session without activity is deleted, hours
@@ -95,6 +98,9 @@ pub struct ServiceConfig {
     /// Most connections open at once, WebSockets included; beyond it new
     /// connections are closed at once, unread.
     pub max_connections: usize,
+    /// Most `GET /v1/sessions/{id}/events` streams open at once; one more
+    /// is answered 503 `busy` naming the cap.
+    pub max_event_streams: usize,
     /// A WebSocket on which no whole message arrives for this long is
     /// closed (1008, saying so): a half-sent frame holds nothing for good.
     pub ws_idle_timeout: Duration,
@@ -129,6 +135,7 @@ impl Default for ServiceConfig {
             max_db_bytes: None,
             header_timeout: Duration::from_secs_f64(DEFAULT_HEADER_TIMEOUT_S),
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            max_event_streams: DEFAULT_MAX_EVENT_STREAMS,
             ws_idle_timeout: Duration::from_secs_f64(DEFAULT_WS_IDLE_TIMEOUT_S),
             live_view_bytes: DEFAULT_LIVE_VIEW_MIB << 20,
             max_inflight_bytes: DEFAULT_MAX_INFLIGHT_MIB << 20,
@@ -178,6 +185,9 @@ impl ServiceConfig {
                 "invalid max connections {} (expected at least 2)",
                 self.max_connections
             ));
+        }
+        if self.max_event_streams == 0 {
+            return Err("invalid max event streams 0 (expected at least 1)".into());
         }
         if self.header_timeout.is_zero() {
             return Err("invalid header timeout 0 s (expected more than 0)".into());
@@ -235,4 +245,6 @@ pub struct Inner {
     pub display: Semaphore,
     /// Bytes of request bodies, stream messages and decoded images in flight.
     pub budget: super::budget::MemoryBudget,
+    /// One permit per open event stream (`config.max_event_streams`).
+    pub event_streams: Arc<Semaphore>,
 }
