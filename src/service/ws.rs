@@ -195,6 +195,11 @@ impl PairQueue for QueueOut {
     }
 }
 
+/// How long a stream the server ends with an error keeps its socket open
+/// after the close frame, so that the client reads the close before the
+/// connection goes.
+const CLOSE_LINGER: std::time::Duration = std::time::Duration::from_secs(2);
+
 /// What the writer sends next, in order.
 enum Reply {
     /// A reply ready now (an error, a skipped pair).
@@ -282,8 +287,9 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                     return;
                 }
             }
-            let frame = broken.lock().ok().and_then(|mut b| b.take());
-            let frame = frame.unwrap_or_else(|| {
+            let broke = broken.lock().ok().and_then(|mut b| b.take());
+            let lingers = broke.is_some();
+            let frame = broke.unwrap_or_else(|| {
                 let (code, reason) = if state.shutdown.is_cancelled() {
                     (close_code::AWAY, "server shutting down")
                 } else {
@@ -295,6 +301,19 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                 }
             });
             let _ = sink.send(Message::Close(Some(frame))).await;
+            if lingers {
+                // The server ends this stream (1009, 1002, 1008), often while
+                // the client is still sending: closing the socket now, with
+                // its bytes unread, would send a reset that can overtake the
+                // close frame and destroy it unread (RFC 6455 7.1.1 has the
+                // server wait for the client's close). The stream cannot be
+                // read after its error, so the socket is held open, unread,
+                // for a bounded time in which the client reads the close.
+                tokio::select! {
+                    _ = tokio::time::sleep(CLOSE_LINGER) => {}
+                    _ = state.shutdown.cancelled() => {}
+                }
+            }
             let _ = sink.close().await;
         })
     };

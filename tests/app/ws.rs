@@ -603,3 +603,89 @@ async fn idle_and_half_sent_streams_are_closed_at_the_idle_timeout() {
     }
     ws.close(None).await.unwrap();
 }
+
+/// Issue #66: a client that sends the whole of an oversize message (3 MiB
+/// against a 2 MiB limit) while it reads gets the 1009 close frame every
+/// time, twenty times in a row with both cores kept busy: the server holds
+/// the socket open after its close frame instead of resetting the
+/// connection under the close while the message still arrives.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_oversize_message_gets_its_close_code_every_time() {
+    use tokio::io::AsyncWriteExt;
+    let dir = tempfile::tempdir().unwrap();
+    let mut config = test_config(&dir.path().join("db.sqlite3"));
+    config.max_ws_message_bytes = 2 << 20;
+    let server = TestServer::start(config).await;
+    let sid = new_session(&server.base).await;
+    // CPU load: two threads spinning for the length of the test.
+    let spinning = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true));
+    let load: Vec<_> = (0..2)
+        .map(|_| {
+            let spinning = spinning.clone();
+            std::thread::spawn(move || {
+                let mut x = 0u64;
+                while spinning.load(std::sync::atomic::Ordering::Relaxed) {
+                    x = std::hint::black_box(x.wrapping_mul(6364136223846793005).wrapping_add(1));
+                }
+            })
+        })
+        .collect();
+    let size = 3usize << 20;
+    let mut codes = Vec::new();
+    for _ in 0..20 {
+        let tcp = raw_stream(&server, &sid).await;
+        let (mut read, mut write) = tcp.into_split();
+        // The whole message, masked as a client must, written while the
+        // close frame is read.
+        let mut frame = vec![0x80 | 0x02, 0x80 | 127];
+        frame.extend((size as u64).to_be_bytes());
+        frame.extend([9u8, 8, 7, 6]);
+        frame.resize(frame.len() + size, 0x5a);
+        let writer = tokio::spawn(async move { write.write_all(&frame).await.map(|_| write) });
+        // A client slow to read (a loaded machine): the close frame waits
+        // in its socket meanwhile. A client whose write fails first (the
+        // server reset the connection) drops it with the close unread, as
+        // asyncio's transports do: that counts as no close code (0).
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let writer = if writer.is_finished() {
+            if matches!(writer.await, Ok(Err(_))) {
+                codes.push(0);
+                continue;
+            }
+            None
+        } else {
+            Some(writer)
+        };
+        let (code, reason) = raw_close_of_half(&mut read).await;
+        codes.push(code);
+        assert!(reason.contains("too big"), "{reason}");
+        if let Some(writer) = writer {
+            writer.abort();
+        }
+    }
+    spinning.store(false, std::sync::atomic::Ordering::Relaxed);
+    for thread in load {
+        thread.join().unwrap();
+    }
+    assert!(codes.iter().all(|&c| c == 1009), "close codes: {codes:?}");
+    server.stop().await.unwrap();
+}
+
+/// [`raw_close_of`] on the read half of a socket; a connection that ends
+/// without a close frame fails the test.
+async fn raw_close_of_half(tcp: &mut tokio::net::tcp::OwnedReadHalf) -> (u16, String) {
+    use tokio::io::AsyncReadExt;
+    let mut head = [0u8; 4];
+    tokio::time::timeout(Duration::from_secs(20), tcp.read_exact(&mut head))
+        .await
+        .expect("a close frame within 20 s")
+        .expect("a close frame before the connection ended");
+    assert_eq!(head[0], 0x88, "a close frame: {head:?}");
+    let len = usize::from(head[1] & 0x7f);
+    let mut reason = vec![0u8; len - 2];
+    tcp.read_exact(&mut reason).await.unwrap();
+    (
+        u16::from_be_bytes([head[2], head[3]]),
+        String::from_utf8_lossy(&reason).into_owned(),
+    )
+}
