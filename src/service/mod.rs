@@ -256,6 +256,7 @@ fn routes(token: Option<Arc<str>>) -> OpenApiRouter<AppState> {
 pub fn openapi() -> OpenApiDoc {
     let (_, mut api) = routes(None).split_for_parts();
     SecurityAddon.modify(&mut api);
+    LinksAddon.modify(&mut api);
     api
 }
 
@@ -296,6 +297,157 @@ struct ApiDoc;
 
 /// Declares the optional bearer token on every `/v1` operation.
 struct SecurityAddon;
+
+/// An OpenAPI link: `(operation, status, link name, target, parameters)`.
+type Link = (
+    &'static str,
+    &'static str,
+    &'static str,
+    &'static str,
+    &'static [(&'static str, &'static str)],
+);
+
+/// OpenAPI links from the operations that create a resource to those that
+/// take its id, so that a client generator, or a stateful fuzzer such as
+/// schemathesis, follows a session from its creation to its pairs, objects
+/// and samples. A calibration's samples are a list addressed by index
+/// (removing one renumbers the rest), so no link names one.
+const LINKS: &[Link] = {
+    const SESSION: &[(&str, &str)] = &[("id", "$response.body#/id")];
+    const SESSION_OF_PATH: &[(&str, &str)] = &[("id", "$request.path.id")];
+    const FRAME: &[(&str, &str)] = &[("id", "$response.body#/id"), ("side", "left")];
+    const FRAME_OF_PATH: &[(&str, &str)] = &[("id", "$request.path.id"), ("side", "left")];
+    const OBJECT: &[(&str, &str)] = &[("id", "$request.path.id"), ("name", "$request.body#/name")];
+    const CALIBRATION: &[(&str, &str)] = &[("id", "$response.body#/id")];
+    const VERSION: &[(&str, &str)] = &[
+        ("id", "$response.body#/id"),
+        ("version", "$response.body#/version"),
+    ];
+    &[
+        ("create_session", "201", "GetSession", "get_session", SESSION),
+        ("create_session", "201", "PatchSession", "patch_session", SESSION),
+        ("create_session", "201", "UploadPair", "upload_pair", SESSION),
+        ("create_session", "201", "AddObject", "add_object", SESSION),
+        (
+            "create_session",
+            "201",
+            "AddSessionCalibrationSample",
+            "add_session_calibration_sample",
+            SESSION,
+        ),
+        (
+            "create_session",
+            "201",
+            "LatestFrame",
+            "latest_frame_image",
+            FRAME,
+        ),
+        ("create_session", "201", "Results", "session_results", SESSION),
+        (
+            "create_session",
+            "201",
+            "ReinitSession",
+            "reinit_session",
+            SESSION,
+        ),
+        ("create_session", "201", "ResetSession", "reset_session", SESSION),
+        (
+            "create_session",
+            "201",
+            "DeleteSession",
+            "delete_session",
+            SESSION,
+        ),
+        (
+            "upload_pair",
+            "200",
+            "LatestFrame",
+            "latest_frame_image",
+            FRAME_OF_PATH,
+        ),
+        (
+            "upload_pair",
+            "200",
+            "Results",
+            "session_results",
+            SESSION_OF_PATH,
+        ),
+        (
+            "upload_pair",
+            "200",
+            "AddSessionCalibrationSample",
+            "add_session_calibration_sample",
+            SESSION_OF_PATH,
+        ),
+        ("add_object", "201", "ReinitObject", "reinit_object", OBJECT),
+        ("add_object", "201", "DeleteObject", "delete_object", OBJECT),
+        (
+            "create_calibration",
+            "201",
+            "GetCalibration",
+            "get_calibration",
+            CALIBRATION,
+        ),
+        (
+            "create_calibration",
+            "201",
+            "AddCalibrationSample",
+            "add_calibration_sample",
+            CALIBRATION,
+        ),
+        (
+            "create_calibration",
+            "201",
+            "GetCalibrationVersion",
+            "get_calibration_version",
+            VERSION,
+        ),
+        (
+            "create_calibration",
+            "201",
+            "DeleteCalibration",
+            "delete_calibration",
+            CALIBRATION,
+        ),
+    ]
+};
+
+struct LinksAddon;
+
+impl Modify for LinksAddon {
+    fn modify(&self, api: &mut OpenApiDoc) {
+        use utoipa::openapi::link::LinkBuilder;
+        use utoipa::openapi::RefOr;
+        for item in api.paths.paths.values_mut() {
+            for op in [
+                &mut item.get,
+                &mut item.post,
+                &mut item.put,
+                &mut item.patch,
+                &mut item.delete,
+            ]
+            .into_iter()
+            .flatten()
+            {
+                let Some(id) = op.operation_id.clone() else {
+                    continue;
+                };
+                for (_, status, name, target, parameters) in LINKS.iter().filter(|l| l.0 == id) {
+                    let Some(RefOr::T(response)) = op.responses.responses.get_mut(*status) else {
+                        continue;
+                    };
+                    let link = parameters
+                        .iter()
+                        .fold(LinkBuilder::new().operation_id(*target), |link, (p, v)| {
+                            link.parameter(*p, *v)
+                        })
+                        .build();
+                    response.links.insert(name.to_string(), RefOr::T(link));
+                }
+            }
+        }
+    }
+}
 
 impl Modify for SecurityAddon {
     fn modify(&self, api: &mut OpenApiDoc) {

@@ -70,3 +70,54 @@ fn every_operation_has_an_id_and_every_v1_error_is_described() {
         }
     }
 }
+
+/// Every link (issue #66) names an operation that exists and fills exactly
+/// its path parameters, and the operations that take a session's, an
+/// object's or a calibration's id are reached from their creators.
+#[test]
+fn links_lead_from_creators_to_the_operations_that_take_their_ids() {
+    let api: serde_json::Value = serde_json::from_str(semdepth::service::openapi_json_text()).unwrap();
+    let mut path_params = std::collections::BTreeMap::new();
+    for item in api["paths"].as_object().unwrap().values() {
+        for op in item.as_object().unwrap().values() {
+            let Some(id) = op["operationId"].as_str() else {
+                continue;
+            };
+            let params: std::collections::BTreeSet<String> = op["parameters"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter(|p| p["in"] == "path")
+                .map(|p| p["name"].as_str().unwrap().to_string())
+                .collect();
+            path_params.insert(id.to_string(), params);
+        }
+    }
+    let mut reached = std::collections::BTreeSet::new();
+    for item in api["paths"].as_object().unwrap().values() {
+        for op in item.as_object().unwrap().values() {
+            for response in op["responses"].as_object().into_iter().flatten().map(|(_, r)| r) {
+                for (name, link) in response["links"].as_object().into_iter().flatten() {
+                    let target = link["operationId"].as_str().unwrap();
+                    let expected = path_params
+                        .get(target)
+                        .unwrap_or_else(|| panic!("link {name} to unknown operation {target}"));
+                    let given: std::collections::BTreeSet<String> =
+                        link["parameters"].as_object().unwrap().keys().cloned().collect();
+                    assert_eq!(&given, expected, "link {name} to {target}");
+                    reached.insert(target.to_string());
+                }
+            }
+        }
+    }
+    for target in [
+        "upload_pair",
+        "latest_frame_image",
+        "add_session_calibration_sample",
+        "add_object",
+        "delete_object",
+        "add_calibration_sample",
+    ] {
+        assert!(reached.contains(target), "no link reaches {target}");
+    }
+}

@@ -271,6 +271,7 @@ pub struct SessionCreate {
 #[schema(example = json!({"name": "needle", "roi": [0, 120, 300, 90], "polarity": "brighter"}))]
 pub struct ObjectCreate {
     /// 1 to 64 of A-Z a-z 0-9 _ - . (unique in the session).
+    #[schema(pattern = "^[A-Za-z0-9_.-]{1,64}$")]
     pub name: String,
     /// The box `[x, y, width, height]` the object lies in (clipped to the image).
     #[serde(default)]
