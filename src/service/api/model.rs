@@ -282,11 +282,13 @@ pub struct ObjectCreate {
     /// The object against its surroundings; default `any`.
     #[serde(default)]
     pub polarity: Option<Polarity>,
-    /// Smallest expected area, pixels.
+    /// Smallest expected area, pixels (>= 0).
     #[serde(default)]
+    #[schema(minimum = 0.0)]
     pub min_area_px: Option<f64>,
-    /// Largest expected area, pixels.
+    /// Largest expected area, pixels (>= 0, >= `min_area_px`).
     #[serde(default)]
+    #[schema(minimum = 0.0)]
     pub max_area_px: Option<f64>,
 }
 
