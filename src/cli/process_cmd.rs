@@ -35,8 +35,14 @@ pub enum Format {
 #[derive(Debug, Args)]
 pub struct ProcessArgs {
     /// Folder with the pairs NAME_left.EXT / NAME_right.EXT (EXT: png, tif,
-    /// tiff, jpg, jpeg, bmp), processed in order of NAME.
+    /// tiff, jpg, jpeg, bmp), processed in order of NAME; with --series, a
+    /// tilt series of single images.
     pub dir: PathBuf,
+    /// The folder is a tilt series: its images in order of name, each
+    /// after the first paired with the first (first, 2nd), (first, 3rd), ...
+    /// and tracked as one sequence.
+    #[arg(long)]
+    pub series: bool,
     /// Calibration JSON (geometric or fit); fills z_um.
     #[arg(long, value_name = "CAL.json")]
     pub calibration: Option<PathBuf>,
@@ -95,6 +101,51 @@ pub struct ProcessArgs {
     pub progress: bool,
 }
 
+/// The pairs of a tilt series in `dir`: its images (by extension) in order
+/// of file name, each after the first paired with the first, named
+/// `FIRST-K` after their stems. Fewer than two images is an error (exit 2).
+pub fn find_series(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
+    let unreadable = |e: std::io::Error| {
+        CliError::input(format!(
+            "error[io_error]: cannot read the folder {}: {e}",
+            dir.display()
+        ))
+    };
+    let mut images = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(unreadable)? {
+        let path = entry.map_err(unreadable)?.path();
+        let ext = path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase);
+        if path.is_file() && ext.is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str())) {
+            images.push(path);
+        }
+    }
+    images.sort();
+    let stem = |p: &Path| {
+        p.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    match images.as_slice() {
+        [first, rest @ ..] if !rest.is_empty() => Ok(rest
+            .iter()
+            .map(|k| PairFiles {
+                name: format!("{}-{}", stem(first), stem(k)),
+                left: first.clone(),
+                right: k.clone(),
+            })
+            .collect()),
+        _ => Err(CliError::input(format!(
+            "error[no_pairs]: {} image(s) in {} (expected at least two for a tilt series, EXT one of {})",
+            images.len(),
+            dir.display(),
+            IMAGE_EXTENSIONS.join(", ")
+        ))),
+    }
+}
+
 /// One stereo pair found in the folder.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PairFiles {
@@ -145,7 +196,7 @@ pub fn find_pairs(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
     }
     if sides.is_empty() {
         return Err(CliError::input(format!(
-            "error[no_pairs]: no stereo pairs in {} (expected files NAME_left.EXT and NAME_right.EXT, EXT one of {})",
+            "error[no_pairs]: no stereo pairs in {} (expected files NAME_left.EXT and NAME_right.EXT, EXT one of {}; a tilt series of single images takes --series)",
             dir.display(),
             IMAGE_EXTENSIONS.join(", ")
         )));
@@ -353,7 +404,10 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     } else {
         Session::single(params)
     };
-    let pairs = find_pairs(&args.dir)?;
+    let pairs = match args.series {
+        true => find_series(&args.dir)?,
+        false => find_pairs(&args.dir)?,
+    };
     let limits = DecodeLimits::default();
     let mut progress = Progress::new(pairs.len(), args.progress || std::io::stderr().is_terminal());
     let stdout = std::io::stdout();

@@ -842,3 +842,34 @@ fn process_refuses_a_tilt_axis_that_is_not_the_calibrations() {
     assert_success(&run(&["--tilt-axis-deg", "-270"]));
     assert_success(&run(&[]));
 }
+
+/// Issue #65: the shipped quartz tilt series runs as shipped. Without
+/// `--series` the folder has no NAME_left/NAME_right pairs and the message
+/// says what to add; with it, (01, 02) then (01, 03) are tracked as one
+/// sequence, each shift along the tilt axis within 1.5 px of the Otsu masks'
+/// centroid shift (26.97 and 54.07 px; see the real-image accuracy tests).
+#[test]
+fn process_takes_the_quartz_tilt_series() {
+    let quartz = concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/real/quartz");
+    assert_input_error(&semdepth(&["process", quartz]), &["no_pairs", "--series"]);
+    let out = semdepth(&["process", quartz, "--series", "--no-contour"]);
+    assert_success(&out);
+    let records = jsonl(&out);
+    let names: Vec<&str> = records.iter().map(|r| r["name"].as_str().unwrap()).collect();
+    assert_eq!(names, ["Quarz_01-Quarz_02", "Quarz_01-Quarz_03"]);
+    for (record, (status, reference)) in records.iter().zip([("initialised", 26.97), ("tracked", 54.07)]) {
+        assert_eq!(record["status"], status, "{record}");
+        let d = record["disparity_axis_px"].as_f64().unwrap();
+        assert!(
+            (d - reference).abs() < 1.5,
+            "{}: {d:.2} px against {reference}",
+            record["name"]
+        );
+    }
+    let lonely = tempfile::tempdir().unwrap();
+    std::fs::copy(format!("{quartz}/Quarz_01.png"), lonely.path().join("a.png")).unwrap();
+    assert_input_error(
+        &semdepth(&["process", path_str(lonely.path()), "--series"]),
+        &["no_pairs", "at least two"],
+    );
+}
