@@ -414,21 +414,28 @@ const LINKS: &[Link] = {
 
 struct LinksAddon;
 
+/// The operations of a path item that the service has (no PUT, HEAD...
+/// beyond these).
+fn operations_mut(
+    item: &mut utoipa::openapi::PathItem,
+) -> impl Iterator<Item = &mut utoipa::openapi::path::Operation> {
+    [
+        &mut item.get,
+        &mut item.post,
+        &mut item.put,
+        &mut item.patch,
+        &mut item.delete,
+    ]
+    .into_iter()
+    .flatten()
+}
+
 impl Modify for LinksAddon {
     fn modify(&self, api: &mut OpenApiDoc) {
         use utoipa::openapi::link::LinkBuilder;
         use utoipa::openapi::RefOr;
         for item in api.paths.paths.values_mut() {
-            for op in [
-                &mut item.get,
-                &mut item.post,
-                &mut item.put,
-                &mut item.patch,
-                &mut item.delete,
-            ]
-            .into_iter()
-            .flatten()
-            {
+            for op in operations_mut(item) {
                 let Some(id) = op.operation_id.clone() else {
                     continue;
                 };
@@ -460,16 +467,7 @@ impl Modify for SecurityAddon {
             if !path.starts_with("/v1") {
                 continue;
             }
-            for op in [
-                &mut item.get,
-                &mut item.post,
-                &mut item.put,
-                &mut item.patch,
-                &mut item.delete,
-            ]
-            .into_iter()
-            .flatten()
-            {
+            for op in operations_mut(item) {
                 // Either the token (when the server has one) or nothing.
                 op.security = Some(vec![
                     utoipa::openapi::security::SecurityRequirement::new("bearer", Vec::<String>::new()),
