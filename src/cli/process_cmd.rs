@@ -105,23 +105,7 @@ pub struct ProcessArgs {
 /// of file name, each after the first paired with the first, named
 /// `FIRST-K` after their stems. Fewer than two images is an error (exit 2).
 pub fn find_series(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
-    let unreadable = |e: std::io::Error| {
-        CliError::input(format!(
-            "error[io_error]: cannot read the folder {}: {e}",
-            dir.display()
-        ))
-    };
-    let mut images = Vec::new();
-    for entry in std::fs::read_dir(dir).map_err(unreadable)? {
-        let path = entry.map_err(unreadable)?.path();
-        let ext = path
-            .extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_ascii_lowercase);
-        if path.is_file() && ext.is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.as_str())) {
-            images.push(path);
-        }
-    }
+    let mut images: Vec<PathBuf> = folder_files(dir)?.into_iter().filter(|p| is_image(p)).collect();
     images.sort();
     let stem = |p: &Path| {
         p.file_stem()
@@ -161,28 +145,12 @@ pub struct PairFiles {
 /// image without a right one (or the other way round), two images for the
 /// same side and name, and a folder without pairs are errors (exit 2).
 pub fn find_pairs(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
-    let entries = std::fs::read_dir(dir).map_err(|e| {
-        CliError::input(format!(
-            "error[io_error]: cannot read the folder {}: {e}",
-            dir.display()
-        ))
-    })?;
     // name -> (left, right)
     let mut sides: BTreeMap<String, [Option<PathBuf>; 2]> = BTreeMap::new();
-    for entry in entries {
-        let entry = entry.map_err(|e| {
-            CliError::input(format!(
-                "error[io_error]: cannot read the folder {}: {e}",
-                dir.display()
-            ))
-        })?;
-        let path = entry.path();
+    for path in folder_files(dir)? {
         let Some((name, side)) = classify(&path) else {
             continue;
         };
-        if !path.is_file() {
-            continue;
-        }
         let slot = &mut sides.entry(name.clone()).or_default()[side];
         if let Some(other) = slot {
             return Err(CliError::input(format!(
@@ -218,11 +186,35 @@ pub fn find_pairs(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
         .collect()
 }
 
+/// The files (not folders) in `dir`, in no order.
+fn folder_files(dir: &Path) -> Result<Vec<PathBuf>, CliError> {
+    let unreadable = |e: std::io::Error| {
+        CliError::input(format!(
+            "error[io_error]: cannot read the folder {}: {e}",
+            dir.display()
+        ))
+    };
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(unreadable)? {
+        let path = entry.map_err(unreadable)?.path();
+        if path.is_file() {
+            files.push(path);
+        }
+    }
+    Ok(files)
+}
+
+/// Whether the file's extension is one of [`IMAGE_EXTENSIONS`] (any case).
+fn is_image(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e.to_ascii_lowercase().as_str()))
+}
+
 /// `(name, 0 for left / 1 for right)` when the file is NAME_left.EXT or
 /// NAME_right.EXT with a supported extension.
 fn classify(path: &Path) -> Option<(String, usize)> {
-    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
-    if !IMAGE_EXTENSIONS.contains(&ext.as_str()) {
+    if !is_image(path) {
         return None;
     }
     let stem = path.file_stem()?.to_str()?;

@@ -1,10 +1,11 @@
 //! The accept loop: HTTP/1.1 connections served by hyper with a deadline for
 //! the request headers and a cap on open connections, drained gracefully on
-//! shutdown. Beyond the cap, [`OPS_RESERVED`] more connections are accepted
-//! for the probes alone (`/healthz`, `/readyz`, `/metrics`), so that an
-//! orchestrator never restarts a server that is only busy. `axum::serve` sets neither: a client sending one header byte
+//! shutdown. `axum::serve` sets neither: a client sending one header byte
 //! every 2 s held its connection for good, and 1,100 of them under a 1024
-//! file-descriptor limit kept `/healthz` from answering.
+//! file-descriptor limit kept `/healthz` from answering. Beyond the cap,
+//! [`OPS_RESERVED`] more connections are accepted for the probes alone
+//! (`/healthz`, `/readyz`, `/metrics`), so that an orchestrator never
+//! restarts a server that is only busy.
 
 use std::sync::Arc;
 use std::time::Duration;

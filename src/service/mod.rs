@@ -313,27 +313,27 @@ type Link = (
 /// and samples. A calibration's samples are a list addressed by index
 /// (removing one renumbers the rest), so no link names one.
 const LINKS: &[Link] = {
-    const SESSION: &[(&str, &str)] = &[("id", "$response.body#/id")];
+    // The id of what the operation created (a session, a calibration).
+    const CREATED: &[(&str, &str)] = &[("id", "$response.body#/id")];
     const SESSION_OF_PATH: &[(&str, &str)] = &[("id", "$request.path.id")];
     const FRAME: &[(&str, &str)] = &[("id", "$response.body#/id"), ("side", "left")];
     const FRAME_OF_PATH: &[(&str, &str)] = &[("id", "$request.path.id"), ("side", "left")];
     const OBJECT: &[(&str, &str)] = &[("id", "$request.path.id"), ("name", "$request.body#/name")];
-    const CALIBRATION: &[(&str, &str)] = &[("id", "$response.body#/id")];
     const VERSION: &[(&str, &str)] = &[
         ("id", "$response.body#/id"),
         ("version", "$response.body#/version"),
     ];
     &[
-        ("create_session", "201", "GetSession", "get_session", SESSION),
-        ("create_session", "201", "PatchSession", "patch_session", SESSION),
-        ("create_session", "201", "UploadPair", "upload_pair", SESSION),
-        ("create_session", "201", "AddObject", "add_object", SESSION),
+        ("create_session", "201", "GetSession", "get_session", CREATED),
+        ("create_session", "201", "PatchSession", "patch_session", CREATED),
+        ("create_session", "201", "UploadPair", "upload_pair", CREATED),
+        ("create_session", "201", "AddObject", "add_object", CREATED),
         (
             "create_session",
             "201",
             "AddSessionCalibrationSample",
             "add_session_calibration_sample",
-            SESSION,
+            CREATED,
         ),
         (
             "create_session",
@@ -342,21 +342,21 @@ const LINKS: &[Link] = {
             "latest_frame_image",
             FRAME,
         ),
-        ("create_session", "201", "Results", "session_results", SESSION),
+        ("create_session", "201", "Results", "session_results", CREATED),
         (
             "create_session",
             "201",
             "ReinitSession",
             "reinit_session",
-            SESSION,
+            CREATED,
         ),
-        ("create_session", "201", "ResetSession", "reset_session", SESSION),
+        ("create_session", "201", "ResetSession", "reset_session", CREATED),
         (
             "create_session",
             "201",
             "DeleteSession",
             "delete_session",
-            SESSION,
+            CREATED,
         ),
         (
             "upload_pair",
@@ -386,14 +386,14 @@ const LINKS: &[Link] = {
             "201",
             "GetCalibration",
             "get_calibration",
-            CALIBRATION,
+            CREATED,
         ),
         (
             "create_calibration",
             "201",
             "AddCalibrationSample",
             "add_calibration_sample",
-            CALIBRATION,
+            CREATED,
         ),
         (
             "create_calibration",
@@ -407,7 +407,7 @@ const LINKS: &[Link] = {
             "201",
             "DeleteCalibration",
             "delete_calibration",
-            CALIBRATION,
+            CREATED,
         ),
     ]
 };

@@ -734,9 +734,12 @@ pub async fn one_shot_depth(
 ) -> Result<ApiJson<FrameResult>, ApiError> {
     let received = Instant::now();
     let mut params = TrackerParams::default();
-    check_axis(&state, query.tilt_axis_deg, query.calibration_id.as_deref())?;
     if let Some(id) = &query.calibration_id {
-        params.tilt_axis_deg = state.db.calibration(id)?.calibration.tilt_axis_deg();
+        let own = state.db.calibration(id)?.calibration.tilt_axis_deg();
+        if let Some(axis) = query.tilt_axis_deg {
+            same_axis(axis, own)?;
+        }
+        params.tilt_axis_deg = own;
     }
     if let Some(axis) = query.tilt_axis_deg {
         params.tilt_axis_deg = axis;
@@ -755,8 +758,12 @@ fn check_axis(state: &AppState, explicit: Option<f64>, calibration: Option<&str>
     let (Some(axis), Some(id)) = (explicit, calibration) else {
         return Ok(());
     };
-    let own = state.db.calibration(id)?.calibration.tilt_axis_deg();
-    same_tilt_axis(axis, own).map_err(|e| ApiError::bad_request("tilt_axis_conflict", e))
+    same_axis(axis, state.db.calibration(id)?.calibration.tilt_axis_deg())
+}
+
+/// [`same_tilt_axis`] as a 400 `tilt_axis_conflict`.
+fn same_axis(explicit: f64, calibration: f64) -> Result<(), ApiError> {
+    same_tilt_axis(explicit, calibration).map_err(|e| ApiError::bad_request("tilt_axis_conflict", e))
 }
 
 /// Parameters from a base, a top-level `init` and a `tracker` object.

@@ -212,6 +212,31 @@ enum Reply {
     },
 }
 
+/// The reply to a tracked pair: its result (without contours unless asked
+/// for), or its error with its `seq`; None when it cannot be serialised
+/// (logged).
+fn tracked_reply(
+    seq: u64,
+    outcome: Result<super::api::model::FrameResult, ApiError>,
+    contours: bool,
+) -> Option<Message> {
+    let text = match outcome {
+        Ok(result) if contours => serde_json::to_string(&result),
+        Ok(result) => serde_json::to_string(&result.without_contours()),
+        Err(e) => serde_json::to_string(&StreamErrorReply {
+            seq: Some(seq),
+            error: e.body().error,
+        }),
+    };
+    match text {
+        Ok(text) => Some(Message::Text(text.into())),
+        Err(e) => {
+            tracing::error!(error = %e, "serialising a stream reply");
+            None
+        }
+    }
+}
+
 /// The close frame that tells the peer why its stream ends: 1009 for a
 /// message or frame over the limit, 1002 for a protocol violation; `None`
 /// when the connection itself failed (nothing can be sent).
@@ -266,20 +291,9 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                             Ok(tracked) => acknowledge(&state, &session, tracked, received).await,
                             Err(e) => Err(e),
                         };
-                        let text = match outcome {
-                            Ok(result) if contours => serde_json::to_string(&result),
-                            Ok(result) => serde_json::to_string(&result.without_contours()),
-                            Err(e) => serde_json::to_string(&StreamErrorReply {
-                                seq: Some(seq),
-                                error: e.body().error,
-                            }),
-                        };
-                        match text {
-                            Ok(text) => Message::Text(text.into()),
-                            Err(e) => {
-                                tracing::error!(error = %e, "serialising a stream reply");
-                                continue;
-                            }
+                        match tracked_reply(seq, outcome, contours) {
+                            Some(message) => message,
+                            None => continue,
                         }
                     }
                 };

@@ -34,6 +34,11 @@ pub struct PairError {
     pub error: ImageInputError,
 }
 
+/// The error of an image of this side.
+fn side(side: Side) -> impl Fn(ImageInputError) -> PairError {
+    move |error| PairError { side, error }
+}
+
 /// A decoded stereo pair.
 #[derive(Clone, Debug)]
 pub struct DecodedPair {
@@ -50,7 +55,6 @@ impl DecodedPair {
     /// Decodes two image files (PNG, TIFF, JPEG, BMP) and reads their
     /// metadata. CPU-heavy.
     pub fn from_files(left: &[u8], right: &[u8], limits: &DecodeLimits) -> Result<Self, PairError> {
-        let side = |side| move |error| PairError { side, error };
         Ok(Self {
             left: decode(left, limits).map_err(side(Side::Left))?,
             right: decode(right, limits).map_err(side(Side::Right))?,
@@ -67,7 +71,6 @@ impl DecodedPair {
         bit_depth: u8,
         limits: &DecodeLimits,
     ) -> Result<Self, PairError> {
-        let side = |side| move |error| PairError { side, error };
         Ok(Self {
             left: decode_raw(left, width, height, bit_depth, limits).map_err(side(Side::Left))?,
             right: decode_raw(right, width, height, bit_depth, limits).map_err(side(Side::Right))?,

@@ -78,7 +78,10 @@ fn csv_cells(r: &PairResult, name: &str) -> Vec<String> {
         r.frame.to_string(),
         csv_text(name),
         r.status.name().to_string(),
-        r.reason.as_deref().map(csv_text).unwrap_or_default(),
+        r.reason
+            .as_deref()
+            .map(|t| quote(&neutralised(t)))
+            .unwrap_or_default(),
     ];
     for image in [&r.left, &r.right] {
         cells.push(num(image.as_ref().map(|i| i.centroid[0])));
@@ -101,25 +104,34 @@ fn csv_cells(r: &PairResult, name: &str) -> Vec<String> {
         cells.push(num(view.and_then(|v| v.stage_tilt_rad)));
     }
     cells.push(num(meta.and_then(|m| m.stage_tilt_difference_rad)));
-    cells.push(csv_text(&r.warnings.join("; ")));
+    cells.push(if r.warnings.is_empty() {
+        String::new()
+    } else {
+        quote(&neutralised(&r.warnings.join("; ")))
+    });
     cells
 }
 
-/// A text cell: neutralised when a spreadsheet would read it as a formula
-/// (it begins with `=`, `+`, `-`, `@`, a tab or a carriage return: a single
-/// quote goes in front, as OWASP advises), and quoted (RFC 4180) when it
-/// holds a comma, a quote or a line break. Numbers are written by [`num`],
-/// never through this, so a negative number stays a number.
+/// A text cell: [`neutralised`], and quoted (RFC 4180) when it holds a
+/// comma, a quote or a line break.
 pub fn csv_text(s: &str) -> String {
-    let s = if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
-        format!("'{s}")
-    } else {
-        s.to_string()
-    };
+    let s = neutralised(s);
     if s.contains([',', '"', '\n', '\r']) {
         quote(&s)
     } else {
         s
+    }
+}
+
+/// Text a spreadsheet would read as a formula (it begins with `=`, `+`,
+/// `-`, `@`, a tab or a carriage return) with a single quote in front, as
+/// OWASP advises; other text as it is. Numbers are written by [`num`],
+/// never through this, so a negative number stays a number.
+fn neutralised(s: &str) -> String {
+    if s.starts_with(['=', '+', '-', '@', '\t', '\r']) {
+        format!("'{s}")
+    } else {
+        s.to_string()
     }
 }
 
