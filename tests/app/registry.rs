@@ -253,6 +253,22 @@ async fn patch_changes_only_the_parameters_it_names() {
     server.stop().await.unwrap();
 }
 
+/// Creates the calibration z = 1 + 2 d (um, d in px) across the tilt axis
+/// `axis_deg`; returns its id.
+async fn fit_calibration(http: &reqwest::Client, base: &str, axis_deg: f64) -> String {
+    let (status, cal) = json_of(
+        http.post(format!("{base}/v1/calibrations"))
+            .json(&json!({"model": "fit", "degree": 1, "tilt_axis_deg": axis_deg,
+                "samples": [{"disparity_px": 0.0, "z_um": 1.0}, {"disparity_px": 10.0, "z_um": 21.0}]}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 201, "{cal}");
+    cal["id"].as_str().unwrap().to_string()
+}
+
 /// A session measures `disparity_axis_px` across its calibration's tilt
 /// axis, the axis `z_um` is computed on: with the axis at 270 degrees
 /// (pointing up the image), `d_axis = -dx`. The scene moves by
@@ -262,19 +278,10 @@ async fn a_session_measures_across_its_calibrations_axis() {
     let dir = tempfile::tempdir().unwrap();
     let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
     let (http, base) = (reqwest::Client::new(), server.base.clone());
-    let (status, cal) = json_of(
-        http.post(format!("{base}/v1/calibrations"))
-            .json(&json!({"model": "fit", "degree": 1, "tilt_axis_deg": 270.0,
-                "samples": [{"disparity_px": 0.0, "z_um": 1.0}, {"disparity_px": 10.0, "z_um": 21.0}]}))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
-    assert_eq!(status, 201, "{cal}");
+    let cal = fit_calibration(&http, &base, 270.0).await;
     let (status, session) = json_of(
         http.post(format!("{base}/v1/sessions"))
-            .json(&json!({"calibration_id": cal["id"], "init": {"roi": discs::ROI_A}}))
+            .json(&json!({"calibration_id": cal, "init": {"roi": discs::ROI_A}}))
             .send()
             .await
             .unwrap(),
@@ -322,23 +329,10 @@ async fn a_tilt_axis_that_is_not_the_calibrations_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
     let (http, base) = (reqwest::Client::new(), server.base.clone());
-    let calibration = |axis: f64| {
-        let (http, base) = (http.clone(), base.clone());
-        async move {
-            let (status, cal) = json_of(
-                http.post(format!("{base}/v1/calibrations"))
-                    .json(&json!({"model": "fit", "degree": 1, "tilt_axis_deg": axis,
-                        "samples": [{"disparity_px": 0.0, "z_um": 1.0}, {"disparity_px": 10.0, "z_um": 21.0}]}))
-                    .send()
-                    .await
-                    .unwrap(),
-            )
-            .await;
-            assert_eq!(status, 201, "{cal}");
-            cal["id"].as_str().unwrap().to_string()
-        }
-    };
-    let (c90, c0) = (calibration(90.0).await, calibration(0.0).await);
+    let (c90, c0) = (
+        fit_calibration(&http, &base, 90.0).await,
+        fit_calibration(&http, &base, 0.0).await,
+    );
     let conflict = |status: u16, err: &serde_json::Value, a: &str, b: &str| {
         assert_eq!(status, 400, "{err}");
         assert_eq!(err["error"]["code"], "tilt_axis_conflict", "{err}");
