@@ -14,6 +14,7 @@ mod tilted;
 
 mod init_real;
 mod init_synth;
+mod liftout_real;
 mod session_real;
 mod session_synth;
 mod tracker_real;

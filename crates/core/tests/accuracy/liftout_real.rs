@@ -1,0 +1,684 @@
+//! Real lift-out sequences (`../shared/data/real/autoliftout`), end to end:
+//! the needle (and a lamella) named by a box and, separately, by a point,
+//! tracked through real frames, with both kinds of failure counted.
+//!
+//! References, independent of semdepth:
+//! - outlines traced from a coarse hand-drawn outline by
+//!   `tools/trace_reference.py` and checked by eye on the overlays in
+//!   `docs/real/` (`fixtures/real_outlines.json`);
+//! - disparities: the right view of a lift-out frame is the left one moved
+//!   by a known sub-pixel disparity along x (Lanczos-3); the static scans
+//!   are paired two by two (one scene, independent noise), with the right
+//!   scan also moved by a known disparity, and the object's own motion
+//!   between the scans measured by registering each scan to the mean of the
+//!   others over the object ([`object_positions`]).
+//!
+//! A pair is
+//! - *on the object* when its left contour's IoU with the reference is at
+//!   least [`ON_OBJECT_IOU`] and its right contour's centroid lies within
+//!   [`FALSE_ALARM_PX`] of where the known disparity puts it;
+//! - *confident wrong* when it carries a number (initialised or tracked)
+//!   while its IoU is below [`WRONG_IOU`] or its disparity is off by more
+//!   than [`WRONG_PX`] and three of its standard errors;
+//! - a *false alarm* when it is withheld (lost) while on the object: the
+//!   objects here are fully visible in every frame.
+//!
+//! Part of the data is held out of development ([`Sequence::held_out`]) and
+//! reported on its own.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+
+use crate::reference::shared_dir;
+use semdepth_core::display::{render_png, Overlay};
+use semdepth_core::geometry::{mask_iou, Point, Polygon};
+use semdepth_core::imageio::{read_file, DecodeLimits, GrayFrame};
+use semdepth_core::tracker::{PairResult, Status, StereoTracker, TrackerParams};
+
+/// IoU with the reference from which a contour sits on the object.
+const ON_OBJECT_IOU: f64 = 0.8;
+/// IoU below which a contour is on something else.
+const WRONG_IOU: f64 = 0.6;
+/// A withheld pair whose contours' disparity is within this of the truth
+/// was right (pixels).
+const FALSE_ALARM_PX: f64 = 0.2;
+/// A pair with a number off by more than this many pixels (and three
+/// standard errors) is confident wrong.
+const WRONG_PX: f64 = 0.5;
+
+/// How an object is named.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Naming {
+    Box,
+    Point,
+}
+
+/// One object through one real sequence.
+pub struct Sequence {
+    pub name: &'static str,
+    /// Key of the object's outlines in the fixture.
+    pub object: &'static str,
+    /// Left images, in order (paths under `data/real`).
+    pub frames: Vec<String>,
+    /// Right images for the static scans (independent noise); `None`: the
+    /// left image moved by the known disparity.
+    pub rights: Option<Vec<String>>,
+    /// Reference outline key per frame (the static scene has one).
+    pub outlines: Vec<String>,
+    /// The object's box `[x, y, w, h]` and a point on it, on the first frame.
+    pub roi: [i64; 4],
+    pub point: [f64; 2],
+    /// Kept out of development.
+    pub held_out: bool,
+    /// A change of brightness and contrast applied to each frame (gain,
+    /// offset, in grey levels; clipped to the range), as the microscope's
+    /// automatic brightness and contrast make: empty for none.
+    pub grey: Vec<(f64, f64)>,
+}
+
+/// `frame` with its grey levels changed to `gain * v + offset`, clipped.
+pub fn regraded(frame: &GrayFrame, (gain, offset): (f64, f64)) -> GrayFrame {
+    let max = f64::from(frame.max_value());
+    let data = frame
+        .data
+        .iter()
+        .map(|&v| (gain * f64::from(v) + offset).round().clamp(0.0, max) as u16)
+        .collect();
+    GrayFrame::new(frame.width, frame.height, frame.bit_depth, data).expect("same size")
+}
+
+/// The known disparity (x, pixels) given to pair `k`'s right view.
+pub fn known_disparity(k: usize) -> f64 {
+    // Sub-pixel and changing from pair to pair: 3.00, 3.45, 3.90, ...
+    3.0 + 0.45 * k as f64
+}
+
+fn frames(folder: &str, names: &[&str]) -> Vec<String> {
+    names
+        .iter()
+        .map(|n| format!("autoliftout/{folder}/{n}"))
+        .collect()
+}
+
+/// Every real sequence with its references.
+pub fn sequences() -> Vec<Sequence> {
+    let contact: Vec<String> = (0..7).map(|k| format!("frame_{k:02}.png")).collect();
+    let contact_refs: Vec<&str> = contact.iter().map(String::as_str).collect();
+    let contact = frames("contact_1", &contact_refs);
+    let scans: Vec<String> = (0..=45)
+        .step_by(5)
+        .map(|k| format!("autoliftout/static_scans/scan_{k}_eb.png"))
+        .collect();
+    let static_mean = "autoliftout/static_scans/mean_of_scans_0_to_45".to_string();
+    let landing_ib = frames(
+        "landing",
+        &["ref_liftout_needle_ib.png", "liftout_needle_contact_ib.png"],
+    );
+    let landing_eb = frames(
+        "landing",
+        &["ref_liftout_needle_eb.png", "liftout_needle_contact_eb.png"],
+    );
+    // One frame, then the same scene darker and flatter, then harsher.
+    let regrade = vec![
+        (1.0, 0.0),
+        (0.6, 20.0),
+        (0.6, 20.0),
+        (1.4, -50.0),
+        (1.4, -50.0),
+        (1.0, 0.0),
+    ];
+    let still = |rel: &str| vec![rel.to_string(); regrade.len()];
+    vec![
+        Sequence {
+            name: "landing ib needle, brightness",
+            object: "needle",
+            outlines: still("autoliftout/landing/ref_liftout_needle_ib.png"),
+            frames: still("autoliftout/landing/ref_liftout_needle_ib.png"),
+            rights: None,
+            roi: [0, 470, 850, 554],
+            point: [400.0, 850.0],
+            held_out: false,
+            grey: regrade.clone(),
+        },
+        Sequence {
+            name: "landing eb needle, brightness",
+            object: "needle",
+            outlines: still("autoliftout/landing/ref_liftout_needle_eb.png"),
+            frames: still("autoliftout/landing/ref_liftout_needle_eb.png"),
+            rights: None,
+            roi: [0, 225, 680, 485],
+            point: [250.0, 420.0],
+            held_out: true,
+            grey: regrade,
+        },
+        Sequence {
+            name: "contact_1 needle from 3",
+            object: "needle",
+            outlines: contact[3..].to_vec(),
+            frames: contact[3..].to_vec(),
+            rights: None,
+            roi: [0, 255, 500, 462],
+            point: [200.0, 600.0],
+            held_out: false,
+            grey: Vec::new(),
+        },
+        Sequence {
+            name: "contact_1 needle",
+            object: "needle",
+            outlines: contact.clone(),
+            frames: contact,
+            rights: None,
+            roi: [0, 255, 500, 462],
+            point: [200.0, 600.0],
+            held_out: false,
+            grey: Vec::new(),
+        },
+        Sequence {
+            name: "landing ib needle",
+            object: "needle",
+            outlines: landing_ib.clone(),
+            frames: landing_ib,
+            rights: None,
+            roi: [0, 470, 850, 554],
+            point: [400.0, 850.0],
+            held_out: false,
+            grey: Vec::new(),
+        },
+        Sequence {
+            name: "static scans needle",
+            object: "needle",
+            outlines: vec![static_mean.clone(); scans.len() - 1],
+            frames: scans[..scans.len() - 1].to_vec(),
+            rights: Some(scans[1..].to_vec()),
+            roi: [0, 195, 125, 140],
+            point: [50.0, 265.0],
+            held_out: false,
+            grey: Vec::new(),
+        },
+        Sequence {
+            name: "landing eb needle",
+            object: "needle",
+            outlines: landing_eb.clone(),
+            frames: landing_eb,
+            rights: None,
+            roi: [0, 225, 680, 485],
+            point: [250.0, 420.0],
+            held_out: true,
+            grey: Vec::new(),
+        },
+        Sequence {
+            name: "static scans lamella",
+            object: "lamella",
+            outlines: vec![static_mean; scans.len() - 1],
+            frames: scans[..scans.len() - 1].to_vec(),
+            rights: Some(scans[1..].to_vec()),
+            roi: [95, 212, 210, 115],
+            point: [200.0, 270.0],
+            held_out: true,
+            grey: Vec::new(),
+        },
+    ]
+}
+
+fn real_path(rel: &str) -> PathBuf {
+    shared_dir().join("data/real").join(rel)
+}
+
+fn load(rel: &str) -> GrayFrame {
+    let path = real_path(rel);
+    read_file(&path, &DecodeLimits::default()).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// The reference outlines of the fixture, by image key and object.
+pub fn outlines() -> HashMap<(String, String), Vec<Point>> {
+    let text = include_str!("fixtures/real_outlines.json");
+    let json: serde_json::Value = serde_json::from_str(text).expect("fixture parses");
+    let mut out = HashMap::new();
+    for (image, objects) in json["outlines"].as_object().expect("outlines") {
+        for (object, entry) in objects.as_object().expect("objects") {
+            let polygon = entry["polygon"]
+                .as_array()
+                .expect("polygon")
+                .iter()
+                .map(|p| [p[0].as_f64().unwrap(), p[1].as_f64().unwrap()])
+                .collect();
+            out.insert((image.clone(), object.clone()), polygon);
+        }
+    }
+    out
+}
+
+/// `frame` moved by `d` pixels along x (Lanczos-3, the border replicated):
+/// the right view of a pair whose true disparity is `d`.
+pub fn shifted_x(frame: &GrayFrame, d: f64) -> GrayFrame {
+    let (w, h) = (frame.width as usize, frame.height as usize);
+    let base = d.floor();
+    let frac = d - base;
+    // out(x) = in(x - d): source sample x - base - 1 + j lies (j - 1) + frac
+    // from x - d.
+    let taps: Vec<(i64, f64)> = (-2..=3)
+        .map(|j: i64| (j, lanczos3((j - 1) as f64 + frac)))
+        .collect();
+    let norm: f64 = taps.iter().map(|t| t.1).sum();
+    let max = frame.max_value() as f64;
+    let mut data = vec![0u16; w * h];
+    for y in 0..h {
+        let row = &frame.data[y * w..(y + 1) * w];
+        for x in 0..w {
+            let mut s = 0.0;
+            for &(j, weight) in &taps {
+                let src = (x as i64 - base as i64 - 1 + j).clamp(0, w as i64 - 1) as usize;
+                s += weight * row[src] as f64;
+            }
+            data[y * w + x] = (s / norm).round().clamp(0.0, max) as u16;
+        }
+    }
+    GrayFrame::new(frame.width, frame.height, frame.bit_depth, data).expect("same size")
+}
+
+fn lanczos3(t: f64) -> f64 {
+    if t.abs() < 1e-12 {
+        1.0
+    } else if t.abs() >= 3.0 {
+        0.0
+    } else {
+        let pt = std::f64::consts::PI * t;
+        3.0 * pt.sin() * (pt / 3.0).sin() / (pt * pt)
+    }
+}
+
+/// Where the object lies in each of the static `scans` relative to the
+/// mean of the others, pixels: by a registration independent of semdepth.
+/// Each scan is registered to the mean of the other scans (their noise
+/// averaged away) over the object's reference outline grown by 6 px, both
+/// smoothed (Gaussian, sigma 1), by Gauss-Newton on a translation with
+/// bilinear sampling (Lucas-Kanade). The whole frame is no reference: the
+/// needle and its lamella move against the rest of the scene by up to
+/// 0.6 px between scans.
+pub fn object_positions(scans: &[GrayFrame], outline: &[Point]) -> Vec<Point> {
+    let (w, h) = (scans[0].width as usize, scans[0].height as usize);
+    let grown = grow(
+        &Polygon::new(outline.to_vec()).rasterize(w as u32, h as u32),
+        w,
+        h,
+        6,
+    );
+    let pixels: Vec<(usize, usize)> = (0..w * h)
+        .filter(|&i| grown[i] && i % w >= 3 && i % w + 3 < w && i / w >= 3 && i / w + 3 < h)
+        .map(|i| (i % w, i / w))
+        .collect();
+    let smoothed: Vec<Vec<f64>> = scans.iter().map(|s| gaussian(&s.data, w, h, 1.0)).collect();
+    (0..scans.len())
+        .map(|k| {
+            let others = (scans.len() - 1) as f64;
+            let mean: Vec<f64> = (0..w * h)
+                .map(|i| {
+                    (0..scans.len())
+                        .filter(|&j| j != k)
+                        .map(|j| smoothed[j][i])
+                        .sum::<f64>()
+                        / others
+                })
+                .collect();
+            let d = register(&smoothed[k], &mean, w, &pixels);
+            // `d` is where scan k's pixels lie in the mean: the object sits
+            // at -d in scan k relative to the mean.
+            [-d[0], -d[1]]
+        })
+        .collect()
+}
+
+/// The translation `d` that best maps `a` onto `b` over `pixels`:
+/// `b(p + d) = a(p)`.
+fn register(a: &[f64], b: &[f64], w: usize, pixels: &[(usize, usize)]) -> Point {
+    let sample = |img: &[f64], x: f64, y: f64| -> f64 {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (i, j) = (x0 as usize, y0 as usize);
+        let p = |ii: usize, jj: usize| img[jj * w + ii];
+        (1.0 - fy) * ((1.0 - fx) * p(i, j) + fx * p(i + 1, j))
+            + fy * ((1.0 - fx) * p(i, j + 1) + fx * p(i + 1, j + 1))
+    };
+    let mut d = [0.0f64; 2];
+    for _ in 0..50 {
+        let (mut hxx, mut hxy, mut hyy, mut bx, mut by) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(x, y) in pixels {
+            let (xb, yb) = (x as f64 + d[0], y as f64 + d[1]);
+            let gx = sample(b, xb + 0.5, yb) - sample(b, xb - 0.5, yb);
+            let gy = sample(b, xb, yb + 0.5) - sample(b, xb, yb - 0.5);
+            let e = sample(b, xb, yb) - a[y * w + x];
+            hxx += gx * gx;
+            hxy += gx * gy;
+            hyy += gy * gy;
+            bx += gx * e;
+            by += gy * e;
+        }
+        let det = hxx * hyy - hxy * hxy;
+        let step = [(hyy * bx - hxy * by) / det, (hxx * by - hxy * bx) / det];
+        d = [
+            (d[0] - step[0]).clamp(-2.0, 2.0),
+            (d[1] - step[1]).clamp(-2.0, 2.0),
+        ];
+        if step[0].hypot(step[1]) < 1e-5 {
+            break;
+        }
+    }
+    d
+}
+
+/// `mask` grown by `r` pixels (square neighbourhood).
+fn grow(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            if mask[y * w + x] {
+                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                        out[yy * w + xx] = true;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn gaussian(data: &[u16], w: usize, h: usize, sigma: f64) -> Vec<f64> {
+    let r = (3.0 * sigma).ceil() as i64;
+    let kernel: Vec<f64> = (-r..=r)
+        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let sum: f64 = kernel.iter().sum();
+    let kernel: Vec<f64> = kernel.iter().map(|k| k / sum).collect();
+    let src: Vec<f64> = data.iter().map(|&v| v as f64).collect();
+    let mut tmp = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut s = 0.0;
+            for (i, k) in kernel.iter().enumerate() {
+                let xx = (x as i64 + i as i64 - r).clamp(0, w as i64 - 1) as usize;
+                s += k * src[y * w + xx];
+            }
+            tmp[y * w + x] = s;
+        }
+    }
+    let mut out = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut s = 0.0;
+            for (i, k) in kernel.iter().enumerate() {
+                let yy = (y as i64 + i as i64 - r).clamp(0, h as i64 - 1) as usize;
+                s += k * tmp[yy * w + x];
+            }
+            out[y * w + x] = s;
+        }
+    }
+    out
+}
+
+/// What one pair was, against the references.
+#[derive(Clone, Debug)]
+pub struct Judged {
+    pub status: Status,
+    pub reason: Option<String>,
+    pub iou: f64,
+    /// Tracked disparity (x) minus the truth, when the pair has a number.
+    pub error: Option<f64>,
+    pub std: Option<f64>,
+    /// Contours' centroid disparity minus the truth (also for lost pairs).
+    pub contour_error: Option<f64>,
+    pub on_object: bool,
+    pub confident_wrong: bool,
+    pub false_alarm: bool,
+}
+
+/// A sequence's counts.
+#[derive(Clone, Debug, Default)]
+pub struct Counts {
+    pub pairs: usize,
+    pub with_number: usize,
+    pub confident_wrong: usize,
+    pub false_alarms: usize,
+    /// Pairs with a number: error over standard error.
+    pub z_scores: Vec<f64>,
+    pub errors: Vec<f64>,
+}
+
+fn judge(result: &PairResult, reference: &[Point], truth: f64, w: u32, h: u32) -> Judged {
+    let ref_mask = Polygon::new(reference.to_vec()).rasterize(w, h);
+    let iou = result
+        .left
+        .as_ref()
+        .map(|l| mask_iou(&Polygon::new(l.contour.clone()).rasterize(w, h), &ref_mask))
+        .unwrap_or(0.0);
+    let contour_error = match (&result.left, &result.right) {
+        (Some(l), Some(r)) => Some(r.centroid[0] - l.centroid[0] - truth),
+        _ => None,
+    };
+    let has_number =
+        matches!(result.status, Status::Tracked | Status::Initialised) && result.disparity_px.is_some();
+    let error = has_number.then(|| result.disparity_px.unwrap()[0] - truth);
+    let std = result.disparity_std_px;
+    let on_object = iou >= ON_OBJECT_IOU && contour_error.is_some_and(|e| e.abs() <= FALSE_ALARM_PX);
+    let confident_wrong = has_number
+        && (iou < WRONG_IOU
+            || error.is_some_and(|e| e.abs() > WRONG_PX && e.abs() > 3.0 * std.unwrap_or(0.0)));
+    let false_alarm = result.status == Status::Lost && on_object;
+    Judged {
+        status: result.status,
+        reason: result.reason.clone(),
+        iou,
+        error,
+        std,
+        contour_error,
+        on_object,
+        confident_wrong,
+        false_alarm,
+    }
+}
+
+/// Tracks `seq` with the object named by `naming`, judges every pair and
+/// writes overlays to `$SEMDEPTH_REAL_OVERLAYS` when set.
+pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judged>, Counts) {
+    let outlines = outlines();
+    let mut params = params.clone();
+    match naming {
+        Naming::Box => params.init.roi = Some(seq.roi),
+        Naming::Point => params.init.point = Some(seq.point),
+    }
+    let mut tracker = StereoTracker::new(params);
+    // The static scans' object positions, from all scans of the scene.
+    let positions = seq.rights.as_ref().map(|rights| {
+        let mut names = seq.frames.clone();
+        names.push(rights.last().expect("a right scan").clone());
+        let scans: Vec<GrayFrame> = names.iter().map(|n| load(n)).collect();
+        let key = (seq.outlines[0].clone(), seq.object.to_string());
+        object_positions(&scans, &outlines[&key])
+    });
+    let mut judged = Vec::new();
+    let mut counts = Counts::default();
+    for (k, rel) in seq.frames.iter().enumerate() {
+        let left = match seq.grey.get(k) {
+            Some(&grade) => regraded(&load(rel), grade),
+            None => load(rel),
+        };
+        let d = known_disparity(k);
+        let (right, truth) = match &seq.rights {
+            None => (shifted_x(&left, d), d),
+            Some(rights) => {
+                let positions = positions.as_ref().expect("positions");
+                let moved = positions[k + 1][0] - positions[k][0];
+                (shifted_x(&load(&rights[k]), d), d + moved)
+            }
+        };
+        let result = tracker.process(&left, &right).expect("same-size pair");
+        let key = (seq.outlines[k].clone(), seq.object.to_string());
+        let reference = outlines.get(&key).unwrap_or_else(|| panic!("no outline {key:?}"));
+        let j = judge(&result, reference, truth, left.width, left.height);
+        counts.pairs += 1;
+        if let Some(e) = j.error {
+            counts.with_number += 1;
+            counts.errors.push(e);
+            if let Some(s) = j.std {
+                counts.z_scores.push(e / s);
+            }
+        }
+        counts.confident_wrong += j.confident_wrong as usize;
+        counts.false_alarms += j.false_alarm as usize;
+        if let Ok(dir) = std::env::var("SEMDEPTH_REAL_OVERLAYS") {
+            write_overlay(&dir, seq, naming, k, [&left, &right], reference, truth, &result);
+        }
+        eprintln!(
+            "{} [{:?}] pair {k}: {} {} IoU {:.3}{} err {} std {} contour err {}{}{}",
+            seq.name,
+            naming,
+            j.status.name(),
+            j.reason.as_deref().unwrap_or(""),
+            j.iou,
+            if j.on_object { " (on the object)" } else { "" },
+            j.error.map_or("-".into(), |e| format!("{e:+.3}")),
+            j.std.map_or("-".into(), |s| format!("{s:.3}")),
+            j.contour_error.map_or("-".into(), |e| format!("{e:+.3}")),
+            if j.confident_wrong { " CONFIDENT WRONG" } else { "" },
+            if j.false_alarm { " FALSE ALARM" } else { "" },
+        );
+        judged.push(j);
+    }
+    (judged, counts)
+}
+
+/// Writes the pair's left and right images side by side, each with the
+/// reference outline (green; in the right image moved by the true
+/// disparity) and the tracked contour (red; orange when the pair is lost).
+#[allow(clippy::too_many_arguments)]
+fn write_overlay(
+    dir: &str,
+    seq: &Sequence,
+    naming: Naming,
+    k: usize,
+    [left, right]: [&GrayFrame; 2],
+    reference: &[Point],
+    truth: f64,
+    result: &PairResult,
+) {
+    let colour = if result.status == Status::Lost {
+        [255, 200, 0]
+    } else {
+        [255, 0, 0]
+    };
+    let moved: Vec<Point> = reference.iter().map(|p| [p[0] + truth, p[1]]).collect();
+    let mut images = Vec::new();
+    for (frame, outline, view) in [
+        (left, reference, &result.left),
+        (right, &moved[..], &result.right),
+    ] {
+        let mut overlays = vec![Overlay {
+            contour: outline,
+            colour: [0, 255, 0],
+        }];
+        if let Some(v) = view {
+            overlays.push(Overlay {
+                contour: &v.contour,
+                colour,
+            });
+        }
+        let png = render_png(frame, Some(768), &overlays).expect("render");
+        images.push(image::load_from_memory(&png).expect("png").to_rgb8());
+    }
+    let (w, h) = (images[0].width(), images[0].height());
+    let mut both = image::RgbImage::new(2 * w + 8, h);
+    image::imageops::replace(&mut both, &images[0], 0, 0);
+    image::imageops::replace(&mut both, &images[1], i64::from(w) + 8, 0);
+    let name = format!("{}_{:?}_{k:02}.png", seq.name.replace(' ', "_"), naming).to_lowercase();
+    std::fs::create_dir_all(dir).expect("overlay folder");
+    both.save(PathBuf::from(dir).join(name)).expect("write overlay");
+}
+
+/// What the real sequences must not exceed, per sequence and naming:
+/// confident wrong pairs, false alarms, pairs withheld. The issue's aim is
+/// no confident wrong pair and at most 10% false alarms per sequence; these
+/// are the figures measured when the suite was made (docs/real/README.md),
+/// so that no change makes a real scene worse unnoticed. Lower them as the
+/// tracker improves.
+const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
+    ("landing ib needle, brightness", Naming::Box, [0, 0, 0]),
+    ("landing ib needle, brightness", Naming::Point, [0, 0, 0]),
+    ("landing eb needle, brightness", Naming::Box, [0, 0, 0]),
+    ("landing eb needle, brightness", Naming::Point, [0, 0, 0]),
+    ("contact_1 needle from 3", Naming::Box, [0, 2, 3]),
+    ("contact_1 needle from 3", Naming::Point, [0, 2, 3]),
+    ("contact_1 needle", Naming::Box, [0, 4, 6]),
+    ("contact_1 needle", Naming::Point, [0, 4, 6]),
+    ("landing ib needle", Naming::Box, [0, 1, 1]),
+    ("landing ib needle", Naming::Point, [0, 1, 1]),
+    ("static scans needle", Naming::Box, [0, 1, 8]),
+    ("static scans needle", Naming::Point, [0, 0, 8]),
+    ("landing eb needle", Naming::Box, [0, 0, 1]),
+    ("landing eb needle", Naming::Point, [0, 0, 1]),
+    ("static scans lamella", Naming::Box, [2, 0, 7]),
+    ("static scans lamella", Naming::Point, [1, 0, 8]),
+];
+
+/// Tracks every sequence named by a box and by a point, prints the table
+/// of docs/real/README.md (development and held-out sequences marked) and
+/// holds each to its [`CEILINGS`].
+#[test]
+fn liftout_sequences_count_confident_wrong_and_false_alarms() {
+    let params = TrackerParams::default();
+    let mut report = Vec::new();
+    for seq in sequences() {
+        for naming in [Naming::Box, Naming::Point] {
+            let (_, c) = run(&seq, naming, &params);
+            report.push((seq.name, seq.held_out, naming, c));
+        }
+    }
+    eprintln!("\n| sequence | held out | named by | pairs | with a number | confident wrong | withheld | of them false alarms | RMS error px | RMS error/std |");
+    eprintln!("|---|---|---|---|---|---|---|---|---|---|");
+    for (name, held, naming, c) in &report {
+        let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
+        eprintln!(
+            "| {name} | {} | {naming:?} | {} | {} | {} | {} | {} | {:.3} | {:.2} |",
+            if *held { "yes" } else { "no" },
+            c.pairs,
+            c.with_number,
+            c.confident_wrong,
+            c.pairs - c.with_number,
+            c.false_alarms,
+            rms(&c.errors),
+            rms(&c.z_scores)
+        );
+    }
+    for (name, _, naming, c) in &report {
+        let &(_, _, [wrong, alarms, withheld]) = CEILINGS
+            .iter()
+            .find(|(n, m, _)| n == name && m == naming)
+            .unwrap_or_else(|| panic!("no ceiling for {name} [{naming:?}]"));
+        assert!(
+            c.confident_wrong <= wrong && c.false_alarms <= alarms && c.pairs - c.with_number <= withheld,
+            "{name} [{naming:?}]: {} confident wrong (at most {wrong}), {} false alarms (at most {alarms}), {} withheld (at most {withheld})",
+            c.confident_wrong,
+            c.false_alarms,
+            c.pairs - c.with_number
+        );
+    }
+}
+
+/// Item 3 of issue #64, on a real frame: the lift-out needle named by a
+/// box, its frame made darker and flatter (0.6 v + 20), then harsher
+/// (1.4 v - 50, clipped), as the microscope's automatic brightness and
+/// contrast do. Every pair carries a number within 0.1 px of the known
+/// disparity, none confident wrong.
+#[test]
+fn a_needle_whose_frame_gets_darker_then_harsher_keeps_being_tracked() {
+    let seq = sequences()
+        .into_iter()
+        .find(|s| s.name == "landing ib needle, brightness")
+        .expect("sequence");
+    let (judged, counts) = run(&seq, Naming::Box, &TrackerParams::default());
+    assert_eq!(counts.confident_wrong, 0, "{judged:#?}");
+    assert_eq!(counts.with_number, counts.pairs, "pairs withheld: {judged:#?}");
+    for (k, j) in judged.iter().enumerate() {
+        let e = j.error.expect("a number");
+        assert!(e.abs() < 0.1, "pair {k}: disparity {e:+.3} px off (limit 0.1 px)");
+    }
+}
