@@ -5,7 +5,7 @@
 use crate::fit::{Pose, RigidTemplate};
 use crate::geometry::{dist, Point};
 use crate::imageio::GrayFrame;
-use crate::occlusion::{judge_look, runs_at_least, SectorTemplate};
+use crate::occlusion::{runs_at_least, SectorTemplate};
 use crate::region::PixelRect;
 use crate::uncertainty;
 use std::borrow::Cow;
@@ -84,6 +84,15 @@ pub(super) const MIN_HELD_SHARE: f64 = 0.03;
 /// from where its domain was fixed is fitted again in the domain at its
 /// pose, pixels.
 pub(super) const FIXED_REFIT_PX: f64 = 0.5;
+
+/// Least contrast, relative to its first pair's, that the outline fixing
+/// a border-cut object's weakest direction keeps (weighted by what each
+/// sector of it fixes) for a move of more than [`FAR_MOVE_PX`] along that
+/// direction to be followed (see [`StereoTracker::unconfirmed_slide`]).
+/// Between a needle's tip over a grain as bright as itself (the tilted
+/// renderer's scenes) and the real lift-out needle sliding along its axis
+/// (BENCHMARKS.md).
+pub(super) const MIN_SLIDE_CONTRAST: f64 = 0.85;
 
 /// Where the left-out sectors of `fit` lie along the unit direction `w`,
 /// relative to its pose, when they lie towards one end of the object
@@ -519,16 +528,19 @@ impl StereoTracker {
                         0.0
                     },
                 )
-            } else if self.unconfirmed_slide(left, left_templates, &state, left_fit.pose, along) {
+            } else if let Some(kept) =
+                self.unconfirmed_slide(left, left_templates, &state, (left_fit.pose, w), along)
+            {
                 // A tool cut by the border is placed along its axis by its
                 // tip alone: a fit that left the prediction along that axis
-                // for a pose where the outline is not as it was (a needle's
-                // tip over a grain as bright as itself, its contour stopped
-                // where the needle seemed to end, `tracked` up to 125 px
-                // behind the tip) is not followed.
+                // for a pose where its tip lost its contrast (a needle's tip
+                // over a grain as bright as itself: its contour stopped
+                // where the needle seemed to end) is not followed.
                 result.mark_lost(format!(
-                    "{UNCERTAIN}: the contour of an object cut by the border moved {:.1} px along its weakest direction from the prediction, to where its outline is not as on the first pair{GOES_ON}",
-                    along.abs()
+                    "{UNCERTAIN}: the contour of an object cut by the border moved {:.1} px along its weakest direction from the prediction, to where the outline that places it along that direction kept {:.0}% of its contrast (least {:.0}%){GOES_ON}",
+                    along.abs(),
+                    100.0 * kept,
+                    100.0 * MIN_SLIDE_CONTRAST
                 ));
                 Some(along)
             } else {
@@ -550,28 +562,54 @@ impl StereoTracker {
         result
     }
 
-    /// For a template cut by the border: whether the left fit at `pose`,
-    /// `along` px from the prediction along its weakest direction, moved
-    /// more than [`FAR_MOVE_PX`] to where the sectors do not confirm the
-    /// pose ([`crate::occlusion::SectorJudgement::confirms_pose`]).
+    /// For a template cut by the border whose left fit at `pose` moved
+    /// `along` px from the prediction along its weakest direction `w`, more
+    /// than [`FAR_MOVE_PX`]: the contrast the outline that fixes `w` kept,
+    /// when below [`MIN_SLIDE_CONTRAST`]. That is the sectors' contrast
+    /// ratios to the first pair (over their median, so that a change of
+    /// the whole outline's contrast does not count), averaged with the
+    /// weight of the information each sector gives along `w`
+    /// ([`uncertainty::weighted_length`] of its arc): a needle's tip
+    /// carries it, and loses its contrast over a grain as bright as itself,
+    /// while the needle's sides, whose backdrop changes as it slides over
+    /// a structured substrate, carry little.
     pub(super) fn unconfirmed_slide(
         &self,
         left: &GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
         state: &TrackerState,
-        pose: Pose,
+        (pose, w): (Pose, Point),
         along: f64,
-    ) -> bool {
+    ) -> Option<f64> {
         if template.cuts.is_empty() || along.abs() <= FAR_MOVE_PX {
-            return false;
+            return None;
         }
         let sums = self.sums_around(left, template, pose, Self::NEAR_REACH_PX);
-        let judged = judge_look(
-            state.left_look(),
-            &sectors.look(&sums, pose),
-            self.params.occlusion.min_contrast_ratio,
-            self.params.occlusion.max_contrast_ratio,
-        );
-        !judged.confirms_pose()
+        let look = sectors.look(&sums, pose);
+        let reference = state.left_look().contrasts;
+        let ratios: Vec<Option<f64>> = (0..sectors.len())
+            .map(|k| {
+                let (r, c) = (reference.get(k).copied()?, look.contrasts.get(k).copied()?);
+                (r.is_finite() && c.is_finite() && r != 0.0).then(|| c / r)
+            })
+            .collect();
+        let mut seen: Vec<f64> = ratios.iter().flatten().copied().collect();
+        if seen.is_empty() {
+            return None;
+        }
+        seen.sort_by(f64::total_cmp);
+        let median = seen[seen.len() / 2];
+        if median <= 0.0 {
+            return Some(0.0);
+        }
+        let (mut weighted, mut weights) = (0.0, 0.0);
+        for (k, ratio) in ratios.iter().enumerate() {
+            let Some(ratio) = ratio else { continue };
+            let others: Vec<bool> = (0..sectors.len()).map(|j| j != k).collect();
+            let information = uncertainty::weighted_length(&sectors.visible_arcs(pose, &others), w);
+            weighted += information * (ratio / median).min(1.0);
+            weights += information;
+        }
+        (weights > 0.0 && weighted / weights < MIN_SLIDE_CONTRAST).then_some(weighted / weights)
     }
 }
