@@ -65,7 +65,8 @@ pub struct InitArgs {
     pub unfitted: bool,
 }
 
-/// Runs `semdepth init`; exit code 3 when no object is found.
+/// Runs `semdepth init`; exit code 3 when no object is found, 2 when a
+/// `--point` or `--polarity` matches no region.
 pub fn run(args: InitArgs) -> Result<(), CliError> {
     let frame = read_file(&args.image, &DecodeLimits::default())?;
     let params = InitParams {
@@ -87,6 +88,10 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         }
         semdepth_core::init::InitError::InvalidHint { .. } => {
             super::hint_error(&e, |field| format!("--{field}"))
+        }
+        // A hint that names nothing is the request's fault, not the image's.
+        semdepth_core::init::InitError::HintMatchesNothing { .. } => {
+            CliError::input(format!("error[{}]: {}: {e}", e.code(), args.image.display()))
         }
         _ => CliError::with_code(
             3,

@@ -424,6 +424,9 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
                         true => hint_error(hint, |field| format!("{field} of --object {}", e.object)),
                         false => hint_error(hint, |field| args.hint_source(field)),
                     };
+                    if named && !matches!(hint, InitError::InvalidHint { .. }) {
+                        err.message = format!("{} (--object {})", err.message, e.object);
+                    }
                     err.message = format!("{} (pair {:?}, {})", err.message, pair.name, pair.left.display());
                     err
                 }

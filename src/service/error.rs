@@ -127,11 +127,17 @@ impl ApiError {
 
     /// 422 `invalid_hint` for a hint (`init.roi`, `init.point`) that is
     /// out of range or does not fit the images, the message naming the
-    /// field; other initialisation errors are 400 `invalid_parameter`.
+    /// field; 422 `hint_matches_nothing` for a `point` or `polarity` that
+    /// no region of the first pair satisfies, and `objects_share_a_region`
+    /// for two objects whose hints name one region; other initialisation
+    /// errors are 400 `invalid_parameter`.
     pub fn hint(e: InitError) -> Self {
         match &e {
             InitError::InvalidHint { field, message } => {
                 Self::Unprocessable(e.code(), format!("invalid init.{field}: {message}"))
+            }
+            InitError::HintMatchesNothing { .. } | InitError::SameRegion { .. } => {
+                Self::Unprocessable(e.code(), format!("init: {e}"))
             }
             other => Self::bad_request("invalid_parameter", format!("init: {other}")),
         }

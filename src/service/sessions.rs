@@ -363,7 +363,7 @@ pub async fn delete_sessions(
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
-        (status = 422, description = "The session's hints do not fit the pair's images (`invalid_hint`: init.roi outside the image, init.point outside the image or the roi); the pair is not counted", body = ErrorBody),
+        (status = 422, description = "The session's hints do not fit the pair's images (`invalid_hint`: init.roi outside the image, init.point outside the image or the roi), a first pair's point or polarity matches no region (`hint_matches_nothing`, naming what was found instead), or two objects' hints resolve to one region (`objects_share_a_region`, naming both); the pair is not counted", body = ErrorBody),
         (status = 503, description = "Storage failed, the server is shutting down, or `busy`: the memory for work in flight (--max-inflight-mib) is in use; retry after the `Retry-After` seconds (the pair is not counted)", body = ErrorBody),
     )
 )]
@@ -723,7 +723,7 @@ impl DepthQuery {
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
-        (status = 422, description = "Invalid hint (`invalid_hint`): roi under 16 px a side or outside the image, point not finite or outside the image or the roi", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): roi under 16 px a side or outside the image, point not finite or outside the image or the roi; or a point or polarity that matches no region (`hint_matches_nothing`)", body = ErrorBody),
         (status = 503, description = "The server is shutting down, or `busy`: the memory for work in flight (--max-inflight-mib) is in use; retry after the `Retry-After` seconds", body = ErrorBody),
     )
 )]

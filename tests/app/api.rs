@@ -459,6 +459,109 @@ fn assert_on_disc(r: &Value, frame: u64, status: &str, disc: [f64; 3], motion: [
     );
 }
 
+/// Issue #65: a hint that names nothing is refused, not replaced. A
+/// `polarity` no region has (both discs are bright) is 422
+/// `hint_matches_nothing` on the first pair, naming the hint and what was
+/// found instead; the pair is not counted and the session stays, so new
+/// hints take the next pair. Two objects whose hints resolve to one disc
+/// are 422 `objects_share_a_region`, naming both.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let http = reqwest::Client::new();
+    let base = &server.base;
+    let session = |body: Value| {
+        let http = http.clone();
+        async move {
+            let (status, s) = json_of(
+                http.post(format!("{base}/v1/sessions"))
+                    .json(&body)
+                    .send()
+                    .await
+                    .unwrap(),
+            )
+            .await;
+            assert_eq!(status, 201, "{s}");
+            s["id"].as_str().unwrap().to_string()
+        }
+    };
+    let message = |r: &Value, code: &str| {
+        assert_eq!(r["error"]["code"], code, "{r}");
+        r["error"]["message"].as_str().unwrap().to_string()
+    };
+
+    let sid = session(json!({"init": {"polarity": "darker"}})).await;
+    let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
+    assert_eq!(status, 422, "{r}");
+    let m = message(&r, "hint_matches_nothing");
+    for needle in ["polarity darker", "found instead", "centred at"] {
+        assert!(m.contains(needle), "message should mention {needle:?}: {m}");
+    }
+    let (_, s) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(
+        (s["frames"].as_u64(), s["state"].as_str()),
+        (Some(0), Some("awaiting_first_pair")),
+        "{s}"
+    );
+    // A point on the background of the scene names nothing either.
+    let (status, _) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
+            .json(&json!({"init": {"point": [300.0, 220.0]}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 200);
+    let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
+    assert_eq!(status, 422, "{r}");
+    assert!(
+        message(&r, "hint_matches_nothing").contains("point (300, 220)"),
+        "{r}"
+    );
+    // Hints that name a disc take the next pair.
+    let (status, _) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
+            .json(&json!({"init": {"point": [discs::DISC_A[0], discs::DISC_A[1]]}}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(status, 200);
+    let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
+    assert_eq!(status, 200, "{r}");
+    assert_on_disc(&r, 0, "initialised", discs::DISC_A, [0.0, 0.0]);
+
+    // Two objects, a box around disc A and a point on it: one region.
+    let sid = session(json!({"objects": [
+        {"name": "boxed", "roi": discs::ROI_A},
+        {"name": "pointed", "point": [discs::DISC_A[0], discs::DISC_A[1]]}
+    ]}))
+    .await;
+    let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
+    assert_eq!(status, 422, "{r}");
+    let m = message(&r, "objects_share_a_region");
+    for needle in ["\"pointed\"", "\"boxed\""] {
+        assert!(m.contains(needle), "message should name {needle}: {m}");
+    }
+    let (_, s) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(s["frames"].as_u64(), Some(0), "{s}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hints_name_the_object_and_reinit_switches_to_the_other() {
     let dir = tempfile::tempdir().unwrap();

@@ -205,6 +205,19 @@ fn init_hints_pick_the_object_and_bad_hints_exit_2() {
     assert_input_error(&out, &["--polarity", "'up'", "brighter", "darker", "any"]);
     let out = semdepth(&["init", image, "--point", "10"]);
     assert_input_error(&out, &["--point"]);
+
+    // Hints that name nothing (issue #65): both discs are bright, and the
+    // corner is background. Exit 2 naming the hint and what was found.
+    let out = semdepth(&["init", image, "--polarity", "darker"]);
+    assert_input_error(
+        &out,
+        &["hint_matches_nothing", "polarity darker", "found instead"],
+    );
+    let out = semdepth(&["init", image, "--point", "300", "220"]);
+    assert_input_error(
+        &out,
+        &["hint_matches_nothing", "point (300, 220)", "found instead"],
+    );
 }
 
 /// Issue #22: the placeholder token of `docker/semdepth.env.example` is

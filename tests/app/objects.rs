@@ -2,7 +2,8 @@
 //! session, added, removed and named anew; every pair measures each object
 //! and the height of each relative to each other; the objects survive a
 //! restart. A real server on 127.0.0.1 port 0 with a SQLite file; a scene
-//! of two discs at different heights (A: 6 px of disparity, B: 2.5 px).
+//! of three discs at different heights (A: 6 px of disparity, B: 2.5 px,
+//! C: 4 px).
 
 use crate::discs;
 
@@ -10,14 +11,26 @@ use crate::server::{frames_form, json_of, test_config, TestServer};
 use semdepth_core::imageio::GrayFrame;
 use serde_json::{json, Value};
 
-/// Pair `k`: both discs moved by 1.5 px in x per pair.
+/// A third, smaller disc below B, and a box around it.
+const DISC_C: [f64; 3] = [232.0, 196.0, 16.0];
+const ROI_C: [i64; 4] = [206, 172, 52, 50];
+
+/// Pair `k`: the discs moved by 1.5 px in x per pair.
 fn pair(k: usize) -> (GrayFrame, GrayFrame) {
     let m = 1.5 * k as f64;
     let at = |d: [f64; 3], shift: f64| [d[0] + m + shift, d[1], d[2]];
     let (w, h) = (discs::WIDTH, discs::HEIGHT);
     (
-        discs::discs_frame(w, h, &[at(discs::DISC_A, 0.0), at(discs::DISC_B, 0.0)]),
-        discs::discs_frame(w, h, &[at(discs::DISC_A, 6.0), at(discs::DISC_B, 2.5)]),
+        discs::discs_frame(
+            w,
+            h,
+            &[at(discs::DISC_A, 0.0), at(discs::DISC_B, 0.0), at(DISC_C, 0.0)],
+        ),
+        discs::discs_frame(
+            w,
+            h,
+            &[at(discs::DISC_A, 6.0), at(discs::DISC_B, 2.5), at(DISC_C, 4.0)],
+        ),
     )
 }
 
@@ -171,11 +184,39 @@ async fn sessions_measure_several_objects_and_the_heights_between_them() {
     .await;
     assert_eq!(got, 409);
 
+    // A third object whose box names the disc "low" follows is refused on
+    // the pair it would initialise on (issue #65), naming both; the pair is
+    // not counted and the others keep their state.
+    let (got, s) = json_of(
+        http.post(&objects_url)
+            .json(&json!({"name": "twin", "roi": discs::ROI_B}))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(got, 201, "{s}");
+    let (left, right) = pair(3);
+    let (got, err) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(frames_form(&left, &right))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(got, 422, "{err}");
+    assert_eq!(err["error"]["code"], "objects_share_a_region", "{err}");
+    let m = err["error"]["message"].as_str().unwrap();
+    assert!(m.contains("\"twin\"") && m.contains("\"low\""), "{m}");
+    let (got, s) = json_of(http.delete(format!("{objects_url}/twin")).send().await.unwrap()).await;
+    assert_eq!((got, s["frames"].as_u64()), (200, Some(3)), "{s}");
+
     // A third object, added mid-session: initialised on the next pair while
     // the others go on; six relative entries.
     let (got, s) = json_of(
         http.post(&objects_url)
-            .json(&json!({"name": "again", "roi": discs::ROI_B}))
+            .json(&json!({"name": "again", "roi": ROI_C}))
             .send()
             .await
             .unwrap(),
@@ -185,28 +226,28 @@ async fn sessions_measure_several_objects_and_the_heights_between_them() {
     assert_eq!(s["objects"][2]["state"], "awaiting_first_pair");
     let r = upload(&http, &base, &sid, 3).await;
     object(&r, "high", "tracked", 6.0);
-    object(&r, "again", "initialised", 2.5);
+    object(&r, "again", "initialised", 4.0);
     assert_eq!(r["relative"].as_array().unwrap().len(), 6);
     let (got, s) = json_of(http.delete(format!("{objects_url}/again")).send().await.unwrap()).await;
     assert_eq!((got, s["objects"].as_array().unwrap().len()), (200, 2), "{s}");
 
-    // Name "low" anew (on the other disc): it initialises there, "high" goes on.
+    // Name "low" anew (on disc C): it initialises there, "high" goes on.
     let (got, s) = json_of(
         http.post(format!("{objects_url}/low/reinit"))
-            .json(&json!({"init": {"roi": discs::ROI_A}}))
+            .json(&json!({"init": {"roi": ROI_C}}))
             .send()
             .await
             .unwrap(),
     )
     .await;
     assert_eq!(got, 200, "{s}");
-    assert_eq!(s["objects"][1]["roi"], json!(discs::ROI_A));
+    assert_eq!(s["objects"][1]["roi"], json!(ROI_C));
     assert_eq!(s["objects"][1]["point"], Value::Null);
     let r = upload(&http, &base, &sid, 4).await;
     object(&r, "high", "tracked", 6.0);
-    object(&r, "low", "initialised", 6.0);
+    object(&r, "low", "initialised", 4.0);
     let r = upload(&http, &base, &sid, 5).await;
-    object(&r, "low", "tracked", 6.0);
+    object(&r, "low", "tracked", 4.0);
 
     // CSV: a row per object and per ordered pair of objects.
     let text = http
@@ -232,7 +273,7 @@ async fn sessions_measure_several_objects_and_the_heights_between_them() {
     let base = server.base.clone();
     let r = upload(&http, &base, &sid, 6).await;
     object(&r, "high", "tracked", 6.0);
-    object(&r, "low", "tracked", 6.0);
+    object(&r, "low", "tracked", 4.0);
     assert_eq!(r["frame"], 6);
     // The last object cannot go.
     let (got, _) = json_of(

@@ -623,6 +623,35 @@ fn process_hints_name_the_object() {
     assert_tracks_disc(&out, discs::DISC_B, &motions, "--roi around B over the file's A");
 }
 
+/// Issue #65: two objects whose hints resolve to one disc are refused,
+/// naming both (exit 2), before any record is written; so is an object
+/// whose polarity no region has.
+#[test]
+fn process_refuses_two_objects_on_one_region_and_hints_that_name_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (folder, _) = two_disc_folder(dir.path());
+    let folder = path_str(&folder);
+    let [ax, ay, _] = discs::DISC_A;
+    let [x, y, w, h] = discs::ROI_A;
+    let boxed = format!("boxed:roi={x},{y},{w},{h}");
+    let pointed = format!("pointed:point={ax},{ay}");
+    let out = semdepth(&["process", folder, "--object", &boxed, "--object", &pointed]);
+    assert_input_error(&out, &["objects_share_a_region", "\"boxed\"", "--object pointed"]);
+    assert!(out.stdout.is_empty(), "no record before the refusal");
+    let out = semdepth(&[
+        "process",
+        folder,
+        "--object",
+        &boxed,
+        "--object",
+        "dark:polarity=darker",
+    ]);
+    assert_input_error(
+        &out,
+        &["hint_matches_nothing", "polarity darker", "--object dark"],
+    );
+}
+
 #[test]
 fn process_refuses_bad_hints_naming_them() {
     let dir = tempfile::tempdir().unwrap();

@@ -22,7 +22,9 @@
 //! together.
 
 use crate::calib::{Calibration, MetaWatch};
+use crate::geometry::{polygon_iou, Polygon};
 use crate::imageio::GrayFrame;
+use crate::init::{InitError, SAME_REGION_IOU};
 use crate::meta::ImageMeta;
 use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
 
@@ -350,6 +352,16 @@ impl Session {
                 }
             }
         }
+        if let Some((object, error)) = same_region(&objects) {
+            for (o, (state, frames)) in self.objects.iter_mut().zip(before) {
+                let params = o.tracker.params().clone();
+                o.tracker = StereoTracker::from_state(params, state, frames);
+            }
+            return Err(MeasureError {
+                object,
+                error: TrackError::Hint(error),
+            });
+        }
         let frame = self.frames;
         // Each object's fits' own standard error on this pair, which its
         // tracker keeps as the last pair of its run.
@@ -370,6 +382,33 @@ impl Session {
             relative,
         })
     }
+}
+
+/// The first object initialised on this pair whose left outline overlaps an
+/// earlier object's (also initialised here, or already tracked) by more
+/// than [`SAME_REGION_IOU`], with the error naming the other.
+fn same_region(objects: &[ObjectResult]) -> Option<(String, InitError)> {
+    let outline = |o: &ObjectResult| o.result.left.as_ref().map(|l| Polygon::new(l.contour.clone()));
+    for (k, later) in objects.iter().enumerate() {
+        if later.result.status != Status::Initialised {
+            continue;
+        }
+        let Some(b) = outline(later) else { continue };
+        for earlier in &objects[..k] {
+            let Some(a) = outline(earlier) else { continue };
+            let iou = polygon_iou(&a, &b);
+            if iou > SAME_REGION_IOU {
+                return Some((
+                    later.name.clone(),
+                    InitError::SameRegion {
+                        other: earlier.name.clone(),
+                        iou,
+                    },
+                ));
+            }
+        }
+    }
+    None
 }
 
 /// Every ordered pair of distinct objects (see the module docs).
@@ -500,16 +539,80 @@ mod tests {
         assert_eq!(session.objects()[0].tracker.frames(), 0);
     }
 
+    /// Two scenes side by side: one frame with an object in each half.
+    fn two_scenes(seeds: [u64; 2]) -> (Vec<crate::synth::Scene>, u32) {
+        let scenes: Vec<_> = seeds
+            .iter()
+            .map(|&seed| {
+                let cfg = crate::synth::SynthConfig {
+                    frames: 3,
+                    ..crate::synth::SynthConfig::preset(
+                        crate::synth::Preset::Noisy,
+                        crate::synth::Shape::Tip,
+                        seed,
+                    )
+                };
+                crate::synth::Scene::new(&cfg).unwrap()
+            })
+            .collect();
+        let width = scenes[0].render(0).left.width;
+        (scenes, width)
+    }
+
+    fn side_by_side(a: &GrayFrame, b: &GrayFrame) -> GrayFrame {
+        let (w, h) = (a.width as usize, a.height as usize);
+        let data = (0..h)
+            .flat_map(|y| {
+                a.data[y * w..(y + 1) * w]
+                    .iter()
+                    .chain(&b.data[y * w..(y + 1) * w])
+                    .copied()
+            })
+            .collect();
+        GrayFrame::new(2 * a.width, a.height, a.bit_depth, data).unwrap()
+    }
+
+    /// Issue #65: two objects whose hints resolve to one region (a box and
+    /// a point on one tip) are refused on their first pair, naming both,
+    /// and neither tracker moves on.
+    #[test]
+    fn two_objects_on_one_region_are_refused() {
+        let (scenes, _) = two_scenes([11, 12]);
+        let truth = scenes[0].render(0).truth.left;
+        let hinted = |roi: Option<[i64; 4]>, point: Option<[f64; 2]>| TrackerParams {
+            init: crate::init::InitParams {
+                roi,
+                point,
+                ..Default::default()
+            },
+            ..TrackerParams::default()
+        };
+        let mut session = Session::new(
+            vec![
+                SessionObject::new("box", hinted(Some(truth.roi_hint(0.1)), None)),
+                SessionObject::new("point", hinted(None, Some(truth.visible_centroid))),
+            ],
+            0,
+        )
+        .unwrap();
+        let pair = scenes[0].render(0);
+        let err = session.measure(&pair.left, &pair.right, None, None).unwrap_err();
+        assert_eq!(err.object, "point");
+        assert!(
+            matches!(&err.error, TrackError::Hint(InitError::SameRegion { other, .. }) if other == "box"),
+            "{err}"
+        );
+        assert_eq!(session.frames(), 0);
+        assert!(session.objects().iter().all(|o| o.tracker.state().is_none()));
+    }
+
     #[test]
     fn objects_tracked_side_by_side_measure_as_one_after_the_other() {
-        let cfg = crate::synth::SynthConfig {
-            frames: 3,
-            ..crate::synth::SynthConfig::preset(crate::synth::Preset::Noisy, crate::synth::Shape::Tip, 11)
-        };
-        let scene = crate::synth::Scene::new(&cfg).unwrap();
-        let truth = scene.render(0).truth.left;
+        let (scenes, width) = two_scenes([11, 12]);
+        let (a, b) = (scenes[0].render(0).truth.left, scenes[1].render(0).truth.left);
         let session = || {
-            // The same object three ways: automatic, from a box, from a point.
+            // One object in each half: automatic in the left one (the
+            // larger), from a box and from a point in the right one.
             let hinted = |roi: Option<[i64; 4]>, point: Option<[f64; 2]>| TrackerParams {
                 init: crate::init::InitParams {
                     roi,
@@ -518,24 +621,24 @@ mod tests {
                 },
                 ..TrackerParams::default()
             };
+            let [x, y, w, h] = a.roi_hint(0.1);
+            let [px, py] = b.visible_centroid;
             Session::new(
                 vec![
-                    SessionObject::new("auto", TrackerParams::default()),
-                    SessionObject::new("box", hinted(Some(truth.roi_hint(0.1)), None)),
-                    SessionObject::new("point", hinted(None, Some(truth.visible_centroid))),
+                    SessionObject::new("box", hinted(Some([x, y, w, h]), None)),
+                    SessionObject::new("point", hinted(None, Some([px + f64::from(width), py]))),
                 ],
                 0,
             )
             .unwrap()
         };
-        let (mut one, mut side_by_side) = (session(), session());
+        let (mut one, mut threaded) = (session(), session());
         for k in 0..3 {
-            let pair = scene.render(k);
-            let a = one.measure_on(&pair.left, &pair.right, None, None, 1).unwrap();
-            let b = side_by_side
-                .measure_on(&pair.left, &pair.right, None, None, 2)
-                .unwrap();
-            assert_eq!(a.objects.len(), 3);
+            let (p, q) = (scenes[0].render(k), scenes[1].render(k));
+            let (left, right) = (side_by_side(&p.left, &q.left), side_by_side(&p.right, &q.right));
+            let a = one.measure_on(&left, &right, None, None, 1).unwrap();
+            let b = threaded.measure_on(&left, &right, None, None, 2).unwrap();
+            assert_eq!(a.objects.len(), 2);
             for (x, y) in a.objects.iter().zip(&b.objects) {
                 assert_eq!(x.name, y.name);
                 assert_eq!(x.result.status, y.result.status, "pair {k}, {}", x.name);

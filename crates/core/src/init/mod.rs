@@ -274,7 +274,30 @@ pub enum InitError {
     /// Regions exist, but none is a plausible object with these hints.
     #[error("no plausible object: {message} (point at the object or draw a box around it)")]
     NoPlausibleRegion { message: String },
+    /// A `point` or `polarity` hint that no region satisfies: the object
+    /// it names is not there, and another is not taken in its place.
+    #[error("no region fits the hints {hint}; found instead: {found}")]
+    HintMatchesNothing {
+        /// The hint, as given (`point (520, 300)`, `polarity darker`).
+        hint: String,
+        /// What the image holds instead.
+        found: String,
+    },
+    /// Two objects of one session whose hints resolve to one region (their
+    /// first outlines overlap by more than [`SAME_REGION_IOU`]): a height
+    /// of an object above itself is no measurement.
+    #[error("its hints resolve to the region of object {other:?} (IoU {iou:.2} of their first outlines); give each object hints that only it fits")]
+    SameRegion {
+        /// The other object's name.
+        other: String,
+        /// The IoU of the two first outlines.
+        iou: f64,
+    },
 }
+
+/// The IoU of two objects' first outlines above which they are one region
+/// (see [`InitError::SameRegion`]).
+pub const SAME_REGION_IOU: f64 = 0.5;
 
 impl InitError {
     /// A stable snake_case code for APIs and logs.
@@ -286,6 +309,8 @@ impl InitError {
             Self::NothingInSizeRange { .. } => "nothing_in_size_range",
             Self::TouchesBorder { .. } => "object_touches_border",
             Self::NoPlausibleRegion { .. } => "no_plausible_region",
+            Self::HintMatchesNothing { .. } => "hint_matches_nothing",
+            Self::SameRegion { .. } => "objects_share_a_region",
         }
     }
 }
@@ -586,7 +611,11 @@ fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, Ini
                     paper.diagnostics.runners_up = runners_up;
                     paper
                 }
-                // No candidate to challenge it: the paper's region stands.
+                // No candidate to challenge it: the paper's region stands,
+                // unless it misses the point or the polarity too.
+                Err(e) if !prompted::admits(frame, params, &hints, &stage, (&border, radius)) => {
+                    return Err(hint_matches_nothing(&hints, &paper, &e));
+                }
                 Err(_) => paper,
             });
         }
@@ -608,6 +637,30 @@ fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, Ini
         (_, Ok(_)) => Err(InitError::NoPlausibleRegion {
             message: "the largest region lies outside the roi and no candidate fits the hints".into(),
         }),
+    }
+}
+
+/// The error for a `point` or `polarity` hint that neither a candidate nor
+/// the paper's region (`paper`) satisfies: it names the hints and what was
+/// found instead (the paper's region, and why each candidate was turned
+/// down, from `candidates`).
+fn hint_matches_nothing(hints: &Hints, paper: &InitResult, candidates: &InitError) -> InitError {
+    let mut hint = Vec::new();
+    if let Some([x, y]) = hints.point {
+        hint.push(format!("point ({x:.0}, {y:.0})"));
+    }
+    if hints.polarity != Polarity::Any {
+        hint.push(format!("polarity {}", hints.polarity.name()));
+    }
+    let [x0, y0, x1, y1] = paper.bbox;
+    let [cx, cy] = paper.centroid;
+    InitError::HintMatchesNothing {
+        hint: hint.join(" and "),
+        found: format!(
+            "the largest region, centred at ({cx:.0}, {cy:.0}), {:.0} x {:.0} px, which the hints exclude; {candidates}",
+            x1 - x0,
+            y1 - y0
+        ),
     }
 }
 

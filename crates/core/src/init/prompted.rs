@@ -122,10 +122,8 @@ pub(super) fn find(
     let EdgeStage {
         area,
         scale,
-        ref work,
         noise_work,
         sigma,
-        ref blurred,
         low,
         high,
         ref edges,
@@ -134,36 +132,7 @@ pub(super) fn find(
         ..
     } = *stage;
     let (w, h) = edges.dimensions();
-    let searched_area = hints.roi[2] as f64 * hints.roi[3] as f64;
-    let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
-    let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
-    let px_per_work = (scale * scale) as f64;
-    let image_sides = [
-        area[0] == 0,
-        area[1] == 0,
-        area[0] + area[2] == frame.width,
-        area[1] + area[3] == frame.height,
-    ];
-    let work_area = WorkArea {
-        work,
-        blurred,
-        scale,
-        image_sides,
-        domain: working_domain(hints, area, scale, [w, h]),
-        point: hints.point.map(|[px, py]| {
-            let s = scale as f64;
-            [
-                (((px + 0.5 - area[0] as f64) / s).floor().max(0.0) as u32).min(w - 1),
-                (((py + 0.5 - area[1] as f64) / s).floor().max(0.0) as u32).min(h - 1),
-            ]
-        }),
-        polarity: hints.polarity,
-        min_area: min_area / px_per_work,
-        max_area: max_area / px_per_work,
-        offset: 1.0 / frame.max_value() as f64,
-        table: SummedArea::new(work),
-    };
-
+    let (work_area, min_area, max_area, px_per_work) = work_area(frame, params, hints, stage);
     let mut rejected = Rejections::default();
     let mut candidates = Vec::new();
     let mut edge_outlines = Vec::new();
@@ -305,6 +274,70 @@ pub(super) fn find(
             runners_up: runners_up(&candidates[usize::from(boxed.is_none())..], scale, area),
         },
     }))
+}
+
+/// The candidates' common ground for a frame and its hints, with the size
+/// range (full-resolution pixels) and the pixels per working pixel.
+fn work_area<'a>(
+    frame: &GrayFrame,
+    params: &InitParams,
+    hints: &Hints,
+    stage: &'a EdgeStage,
+) -> (WorkArea<'a>, f64, f64, f64) {
+    let EdgeStage {
+        area,
+        scale,
+        ref work,
+        ref blurred,
+        ref edges,
+        ..
+    } = *stage;
+    let (w, h) = edges.dimensions();
+    let searched_area = hints.roi[2] as f64 * hints.roi[3] as f64;
+    let min_area = params.min_area_px.unwrap_or(0.002 * searched_area);
+    let max_area = params.max_area_px.unwrap_or(0.9 * searched_area);
+    let px_per_work = (scale * scale) as f64;
+    let image_sides = [
+        area[0] == 0,
+        area[1] == 0,
+        area[0] + area[2] == frame.width,
+        area[1] + area[3] == frame.height,
+    ];
+    let work_area = WorkArea {
+        work,
+        blurred,
+        scale,
+        image_sides,
+        domain: working_domain(hints, area, scale, [w, h]),
+        point: hints.point.map(|[px, py]| {
+            let s = scale as f64;
+            [
+                (((px + 0.5 - area[0] as f64) / s).floor().max(0.0) as u32).min(w - 1),
+                (((py + 0.5 - area[1] as f64) / s).floor().max(0.0) as u32).min(h - 1),
+            ]
+        }),
+        polarity: hints.polarity,
+        min_area: min_area / px_per_work,
+        max_area: max_area / px_per_work,
+        offset: 1.0 / frame.max_value() as f64,
+        table: SummedArea::new(work),
+    };
+    (work_area, min_area, max_area, px_per_work)
+}
+
+/// Whether the region inside `border` (working pixels, closed at dilation
+/// `radius`: the paper's region) holds the `point` and has the `polarity`
+/// of the hints, as a candidate must.
+pub(super) fn admits(
+    frame: &GrayFrame,
+    params: &InitParams,
+    hints: &Hints,
+    stage: &EdgeStage,
+    (border, radius): (&[[i32; 2]], u8),
+) -> bool {
+    let (area, ..) = work_area(frame, params, hints, stage);
+    area.edge_candidate(border, radius, &mut Rejections::default())
+        .is_some()
 }
 
 /// The first four of `candidates`, for diagnosis.

@@ -9,7 +9,7 @@ use crate::fit::{
 };
 use crate::geometry::{polygon_iou, Point, Polygon};
 use crate::imageio::GrayFrame;
-use crate::init::{edge_width, fitted_to_edge, initialise, InitResult};
+use crate::init::{edge_width, fitted_to_edge, initialise, InitError, InitResult};
 use crate::occlusion::SectorTemplate;
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
@@ -18,7 +18,7 @@ use crate::strips::refit_without_strips;
 
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
-use super::result::{lost_result, PairResult, Status};
+use super::result::{lost_result, PairResult, Status, TrackError};
 use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
 use super::view_fit::ImageFit;
@@ -51,11 +51,20 @@ pub const REFUSED_INITS: u32 = 3;
 pub const FREE_FIT_MIN_IOU: f64 = 0.8;
 
 impl StereoTracker {
-    /// First pair (or after a loss): find, fit, search the right view.
-    pub(super) fn initialise(&mut self, frame: u64, left: &GrayFrame, right: &GrayFrame) -> PairResult {
+    /// First pair (or after a loss): find, fit, search the right view. On
+    /// the very first pair a `point` or `polarity` hint that no region
+    /// satisfies is an error (the object it names is not in view, and
+    /// another is not taken in its place); after a loss the pair is lost.
+    pub(super) fn initialise(
+        &mut self,
+        frame: u64,
+        left: &GrayFrame,
+        right: &GrayFrame,
+    ) -> Result<PairResult, TrackError> {
         match initialise(left, &self.params.init) {
-            Ok(found) => self.initialise_found(frame, left, right, found),
-            Err(e) => lost_result(frame, format!("initialisation failed: {e}")),
+            Ok(found) => Ok(self.initialise_found(frame, left, right, found)),
+            Err(e @ InitError::HintMatchesNothing { .. }) if self.state.is_none() => Err(TrackError::Hint(e)),
+            Err(e) => Ok(lost_result(frame, format!("initialisation failed: {e}"))),
         }
     }
 

@@ -269,7 +269,9 @@ impl StereoTracker {
             }
             (_, templates) => {
                 self.template = templates;
+                // A refused first pair is not counted.
                 self.initialise(frame, left, right)
+                    .inspect_err(|_| self.frames = frame)?
             }
         };
         let first = self.state.as_ref().map_or(0.0, |s| s.first_disparity_std_px);
