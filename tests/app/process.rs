@@ -167,6 +167,39 @@ fn process_with_a_geometric_calibration_fills_z() {
     }
 }
 
+/// Issue #65: a straight line through two samples has no error of its
+/// own, yet every tracked pair carries `z_std_um`: the disparity's standard
+/// error through the slope (2.5 um/px here), with a warning that says what
+/// it leaves out.
+#[test]
+fn a_two_sample_fit_gives_z_std_from_the_disparity_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let (seq, _) = synth_clean(dir.path());
+    let cal = dir.path().join("cal.json");
+    std::fs::write(
+        &cal,
+        r#"{"model":"fit","degree":1,"samples":[{"disparity_px":0.0,"z_um":0.0},{"disparity_px":4.0,"z_um":10.0}]}"#,
+    )
+    .unwrap();
+    let out = semdepth(&[
+        "process",
+        path_str(&seq),
+        "--calibration",
+        path_str(&cal),
+        "--no-contour",
+    ]);
+    assert_success(&out);
+    for r in jsonl(&out) {
+        let std = f(&r["disparity_std_px"]);
+        assert!((f(&r["z_std_um"]) - 2.5 * std).abs() < 1e-9, "{r}");
+        let warned = r["warnings"].as_array().is_some_and(|w| {
+            w.iter()
+                .any(|w| w.as_str().is_some_and(|w| w.contains("its own error is unknown")))
+        });
+        assert!(warned, "no warning: {r}");
+    }
+}
+
 /// `png` rewritten as an FEI TIFF (see [`common::fei_tiff`]).
 fn fei_tiff(png: &Path, tiff: &Path, pixel_m: f64, tilt_rad: f64) {
     let image = image::open(png).unwrap().to_luma8();

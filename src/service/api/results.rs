@@ -137,8 +137,9 @@ pub struct PairResult {
     #[serde(default)]
     pub disparity_std_px: Option<f64>,
     /// Standard error of `z_um`, micrometres: `disparity_std_px` through the
-    /// calibration's slope, and a fitted calibration's prediction error;
-    /// null without `z_um`.
+    /// calibration's slope, and a fitted calibration's prediction error
+    /// (unknown for a fit with as many samples as coefficients, which a
+    /// warning then says); null without `z_um`.
     #[serde(default)]
     pub z_std_um: Option<f64>,
     /// What the two images' metadata say (pixel size, stage tilt and their

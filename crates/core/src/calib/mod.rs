@@ -545,8 +545,10 @@ impl Calibration {
     /// disparity whose component across the tilt axis has standard error
     /// `std_px`: the slope dz/dd times `std_px` and, for a fit, its
     /// prediction error at d, `s^2 (1 + h(d))` with `s^2 = SS_res / (n - p)`
-    /// and `h` the leverage of d. `None` when there is no height, or a fit
-    /// has no more samples than coefficients (its error is then unknown).
+    /// and `h` the leverage of d. A fit with no more samples than
+    /// coefficients has no known error of its own: the slope's term alone
+    /// (see [`Calibration::fit_error_unknown`]). `None` when there is no
+    /// height.
     pub fn z_std_for_pair(
         &self,
         disparity_px: [f64; 2],
@@ -555,7 +557,7 @@ impl Calibration {
     ) -> Option<f64> {
         let slope = self.slope_for_pair(disparity_px, meta)?;
         let mut variance = (slope * std_px).powi(2);
-        if let Some(fit) = self.fit_variance()? {
+        if let Some(Some(fit)) = self.fit_variance() {
             // A new observation: the fit's scatter plus its coefficients'.
             let x0 = fit.row(axis_component(self.tilt_axis_deg(), disparity_px));
             variance += fit.s2 * (1.0 + fit.leverage(&x0)?);
@@ -585,7 +587,7 @@ impl Calibration {
             for (d, s) in [(from, std_px[0]), (to, std_px[1])] {
                 variance += (self.slope_for_pair(d, meta)? * s).powi(2);
             }
-            if let Some(fit) = self.fit_variance()? {
+            if let Some(Some(fit)) = self.fit_variance() {
                 let axis = self.tilt_axis_deg();
                 let (a, b) = (
                     fit.row(axis_component(axis, from)),
@@ -607,6 +609,13 @@ impl Calibration {
         let (sin_t, cos_t) = sin_cos_deg(self.tilt_axis_deg());
         let moved = |k: f64| [disparity_px[0] + k * sin_t, disparity_px[1] - k * cos_t];
         Some((self.z_for_pair(moved(1.0), meta).ok()? - self.z_for_pair(moved(-1.0), meta).ok()?) / 2.0)
+    }
+
+    /// Whether this is a fit with no more samples than coefficients (two
+    /// for a straight line): its own prediction error is then unknown, and
+    /// the standard errors of its heights count the disparity's alone.
+    pub fn fit_error_unknown(&self) -> bool {
+        self.fit_variance().is_none()
     }
 
     /// What the prediction error of a fitted calibration needs: its design

@@ -468,14 +468,17 @@ fn height_errors_carry_the_slope_and_a_fit_s_own_error() {
         let got = fit.z_std_for_pair([x, 0.0], 0.05, None).unwrap();
         assert!((got - expected).abs() < 1e-9, "d {x}: {got} against {expected}");
     }
-    // As many samples as coefficients: the fit's error is unknown.
+    // As many samples as coefficients: the fit's error is unknown, and the
+    // height's standard error is the disparity's through the slope (2 um/px).
     let exact = build(CalibrationSpec::Fit(FitSpec {
         degree: 1,
         samples: vec![Sample::new(0.0, 0.0), Sample::new(1.0, 2.0)],
         tilt_axis_deg: 90.0,
     }))
     .unwrap();
-    assert_eq!(exact.z_std_for_pair([0.5, 0.0], 0.05, None), None);
+    assert!(exact.fit_error_unknown() && !fit.fit_error_unknown());
+    let std = exact.z_std_for_pair([0.5, 0.0], 0.05, None).unwrap();
+    assert!((std - 0.1).abs() < 1e-9, "{std}");
     // A height difference in one pair: the intercept and the fit's
     // scatter cancel, the slope's uncertainty stays, s^2 (a - b)^2 / Sxx.
     for (a, b) in [(1.0, 3.0), (-1.0, 6.0), (2.0, 2.0)] {

@@ -106,7 +106,8 @@ pub struct PairResult {
     pub disparity_std_px: Option<f64>,
     /// Standard error of `z_um`, micrometres: `disparity_std_px` through the
     /// calibration's slope, and a fitted calibration's own prediction
-    /// error; null without `z_um`.
+    /// error (unknown for a fit with as many samples as coefficients:
+    /// [`FIT_ERROR_UNKNOWN`] then warns); null without `z_um`.
     #[cfg_attr(feature = "serde", serde(default))]
     pub z_std_um: Option<f64>,
     /// What the two images' own metadata say (pixel size, stage tilt and
@@ -167,11 +168,18 @@ impl PairResult {
                 self.z_std_um = self
                     .disparity_std_px
                     .and_then(|std| c.z_std_for_pair(d, std, self.metadata.as_ref()));
+                if self.z_std_um.is_some() && c.fit_error_unknown() {
+                    self.warnings.push(FIT_ERROR_UNKNOWN.into());
+                }
             }
             Err(why) => self.warnings.push(format!("no z: {why}")),
         }
     }
 }
+
+/// The warning on a height from a fit with as many samples as
+/// coefficients: its standard error counts the disparity's alone.
+pub const FIT_ERROR_UNKNOWN: &str = "z_std_um counts the disparity's standard error only: the calibration has no more samples than coefficients, so its own error is unknown (add samples)";
 
 /// Why a pair could not be processed at all (as opposed to a lost object).
 #[derive(Debug, thiserror::Error)]
