@@ -36,13 +36,18 @@ pub enum Format {
 pub struct ProcessArgs {
     /// Folder with the pairs NAME_left.EXT / NAME_right.EXT (EXT: png, tif,
     /// tiff, jpg, jpeg, bmp), processed in order of NAME; with --series, a
-    /// tilt series of single images.
+    /// tilt series of single images; with --pairs, the pairs it lists.
     pub dir: PathBuf,
     /// The folder is a tilt series: its images in order of name, each
     /// after the first paired with the first (first, 2nd), (first, 3rd), ...
     /// and tracked as one sequence.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "pairs")]
     pub series: bool,
+    /// The pairs to process, in order: LEFT:RIGHT file names in the folder,
+    /// comma-separated (`Quarz_01.png:Quarz_02.png,Quarz_01.png:Quarz_03.png`),
+    /// tracked as one sequence and named LEFT-RIGHT after their stems.
+    #[arg(long, value_name = "LEFT:RIGHT,...")]
+    pub pairs: Option<String>,
     /// Calibration JSON (geometric or fit); fills z_um.
     #[arg(long, value_name = "CAL.json")]
     pub calibration: Option<PathBuf>,
@@ -128,6 +133,54 @@ pub fn find_series(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
             IMAGE_EXTENSIONS.join(", ")
         ))),
     }
+}
+
+/// The pairs `list` names in `dir` (see [`ProcessArgs::pairs`]): each
+/// `LEFT:RIGHT` must name two image files in the folder (exit 2 naming the
+/// entry otherwise).
+pub fn listed_pairs(dir: &Path, list: &str) -> Result<Vec<PairFiles>, CliError> {
+    let stem = |p: &Path| {
+        p.file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    let pairs: Vec<PairFiles> = list
+        .split(',')
+        .map(str::trim)
+        .filter(|entry| !entry.is_empty())
+        .map(|entry| {
+            let bad = |why: String| {
+                CliError::input(format!("error[invalid_pairs]: --pairs entry {entry:?}: {why}"))
+            };
+            let (left, right) = entry
+                .split_once(':')
+                .ok_or_else(|| bad("expected LEFT:RIGHT, two file names in the folder".into()))?;
+            let file = |name: &str| {
+                let path = dir.join(name.trim());
+                if !(path.is_file() && is_image(&path)) {
+                    return Err(bad(format!(
+                        "{} is no image file (expected one of {} in {})",
+                        path.display(),
+                        IMAGE_EXTENSIONS.join(", "),
+                        dir.display()
+                    )));
+                }
+                Ok(path)
+            };
+            let (left, right) = (file(left)?, file(right)?);
+            Ok(PairFiles {
+                name: format!("{}-{}", stem(&left), stem(&right)),
+                left,
+                right,
+            })
+        })
+        .collect::<Result<_, CliError>>()?;
+    if pairs.is_empty() {
+        return Err(CliError::input(
+            "error[invalid_pairs]: --pairs names no pair (expected LEFT:RIGHT,...)",
+        ));
+    }
+    Ok(pairs)
 }
 
 /// One stereo pair found in the folder.
@@ -396,9 +449,10 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     } else {
         Session::single(params)
     };
-    let pairs = match args.series {
-        true => find_series(&args.dir)?,
-        false => find_pairs(&args.dir)?,
+    let pairs = match (&args.pairs, args.series) {
+        (Some(list), _) => listed_pairs(&args.dir, list)?,
+        (None, true) => find_series(&args.dir)?,
+        (None, false) => find_pairs(&args.dir)?,
     };
     let limits = DecodeLimits::default();
     let mut progress = Progress::new(pairs.len(), args.progress || std::io::stderr().is_terminal());

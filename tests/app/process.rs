@@ -934,4 +934,24 @@ fn process_takes_the_quartz_tilt_series() {
         &semdepth(&["process", path_str(lonely.path()), "--series"]),
         &["no_pairs", "at least two"],
     );
+
+    // The same pairs listed explicitly, in another order: the records follow
+    // the list, and the pair listed alone measures as it does first.
+    let listed = |list: &str| semdepth(&["process", quartz, "--pairs", list, "--no-contour"]);
+    let out = listed("Quarz_01.png:Quarz_03.png, Quarz_01.png:Quarz_02.png");
+    assert_success(&out);
+    let names: Vec<String> = jsonl(&out)
+        .iter()
+        .map(|r| r["name"].as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(names, ["Quarz_01-Quarz_03", "Quarz_01-Quarz_02"]);
+    let alone = jsonl(&listed("Quarz_01.png:Quarz_02.png"));
+    assert_eq!(alone[0]["disparity_axis_px"], records[0]["disparity_axis_px"]);
+    // Entries that name no pair: exit 2 naming the entry.
+    assert_input_error(
+        &listed("Quarz_01.png"),
+        &["invalid_pairs", "\"Quarz_01.png\"", "LEFT:RIGHT"],
+    );
+    assert_input_error(&listed("Quarz_01.png:nope.png"), &["invalid_pairs", "nope.png"]);
+    assert_input_error(&listed(" , "), &["invalid_pairs", "no pair"]);
 }
