@@ -175,8 +175,12 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
     session = api.create_session(name="two objects", calibration_id=cal["id"])
     sid = session["id"]
     page.wait_for_selector(f'tr[data-session="{sid}"]')
-    check(page.inner_text(f'tr[data-session="{sid}"]').startswith("two objects"),
-          "the session created over REST appears in the list")
+    row = page.inner_text(f'tr[data-session="{sid}"]')
+    check(row.startswith("two objects"), "the session created over REST appears in the list")
+    # Two sessions of one name tell apart: the row shows when each was
+    # created and its id (issue #65).
+    check(session["created_at"][:10] in row and sid in row,
+          f"the row names the creation time and the id: {row!r}")
     page.screenshot(path=str(shots / "01-sessions.png"))
 
     # 2. Streaming updates the plot, the overlay and the numbers. The page's

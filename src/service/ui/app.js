@@ -182,7 +182,7 @@ async function sessionsPage(signal) {
     body.replaceChildren(...sessions.map((s) => {
       const r = lastResult.get(s.id)?.[1];
       return el("tr", { "data-session": s.id },
-        el("td", {}, el("a", { href: `#/sessions/${encodeURIComponent(s.id)}` }, s.name ?? s.id), s.name ? el("div", { class: "muted" }, s.id) : null),
+        el("td", {}, el("a", { href: `#/sessions/${encodeURIComponent(s.id)}` }, s.name ?? s.id), el("div", { class: "muted" }, `created ${created(s)}${s.name ? ` · ${s.id}` : ""}`)),
         el("td", {}, badge(s.state)),
         el("td", { class: "num" }, s.frames),
         el("td", {}, s.calibration_id ? el("a", { href: `#/calibrations/${encodeURIComponent(s.calibration_id)}` }, s.calibration_id) : el("span", { class: "muted" }, "none")),
@@ -191,6 +191,11 @@ async function sessionsPage(signal) {
     }));
     await sleep(2000, signal);
   }
+}
+
+/** When a session was created, to the minute (UTC): two sessions of one name tell apart. */
+function created(s) {
+  return s.created_at ? `${s.created_at.slice(0, 16).replace("T", " ")} UTC` : "?";
 }
 
 // ---- one session ----------------------------------------------------------
@@ -588,7 +593,7 @@ async function calibrationPage(id, signal) {
       el("td", { class: "num" }, fmt(c.residuals_um?.[i], 4)), el("td", {}, s.session_id ?? "typed in")))));
   const zInput = el("input", { type: "number", step: "any", id: "sample-z", placeholder: "z µm", required: "" });
   const withSession = sessions.filter((s) => s.latest_disparity_px);
-  const pick = el("select", { id: "sample-session" }, withSession.map((s) => el("option", { value: s.id }, `${s.name ?? s.id} (latest ${fmt(s.latest_disparity_px[0], 2)}, ${fmt(s.latest_disparity_px[1], 2)} px)`)));
+  const pick = el("select", { id: "sample-session" }, withSession.map((s) => el("option", { value: s.id }, `${s.name ?? s.id} (created ${created(s)}${s.name ? `, ${s.id}` : ""}; latest ${fmt(s.latest_disparity_px[0], 2)}, ${fmt(s.latest_disparity_px[1], 2)} px)`)));
   const form = c.model === "fit"
     ? el("form", { class: "inline", id: "add-sample", onsubmit: async (ev) => {
       ev.preventDefault();
