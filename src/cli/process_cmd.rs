@@ -106,17 +106,20 @@ pub struct ProcessArgs {
     pub progress: bool,
 }
 
+/// A file's name without its extension ("" for none): what a pair made of
+/// two single images is named after.
+fn stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
 /// The pairs of a tilt series in `dir`: its images (by extension) in order
 /// of file name, each after the first paired with the first, named
 /// `FIRST-K` after their stems. Fewer than two images is an error (exit 2).
 pub fn find_series(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
     let mut images: Vec<PathBuf> = folder_files(dir)?.into_iter().filter(|p| is_image(p)).collect();
     images.sort();
-    let stem = |p: &Path| {
-        p.file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
     match images.as_slice() {
         [first, rest @ ..] if !rest.is_empty() => Ok(rest
             .iter()
@@ -139,11 +142,6 @@ pub fn find_series(dir: &Path) -> Result<Vec<PairFiles>, CliError> {
 /// `LEFT:RIGHT` must name two image files in the folder (exit 2 naming the
 /// entry otherwise).
 pub fn listed_pairs(dir: &Path, list: &str) -> Result<Vec<PairFiles>, CliError> {
-    let stem = |p: &Path| {
-        p.file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default()
-    };
     let pairs: Vec<PairFiles> = list
         .split(',')
         .map(str::trim)

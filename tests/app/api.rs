@@ -511,15 +511,17 @@ async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
         "{s}"
     );
     // A point on the background of the scene names nothing either.
-    let (status, _) = json_of(
-        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
-            .json(&json!({"init": {"point": [300.0, 220.0]}}))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
-    assert_eq!(status, 200);
+    let reinit = |sid: String, init: Value| {
+        let http = http.clone();
+        async move {
+            let r = http
+                .post(format!("{base}/v1/sessions/{sid}/reinit"))
+                .json(&json!({"init": init}))
+                .send();
+            assert_eq!(r.await.unwrap().status(), 200);
+        }
+    };
+    reinit(sid.clone(), json!({"point": [300.0, 220.0]})).await;
     let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
     assert_eq!(status, 422, "{r}");
     assert!(
@@ -527,15 +529,11 @@ async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
         "{r}"
     );
     // Hints that name a disc take the next pair.
-    let (status, _) = json_of(
-        http.post(format!("{base}/v1/sessions/{sid}/reinit"))
-            .json(&json!({"init": {"point": [discs::DISC_A[0], discs::DISC_A[1]]}}))
-            .send()
-            .await
-            .unwrap(),
+    reinit(
+        sid.clone(),
+        json!({"point": [discs::DISC_A[0], discs::DISC_A[1]]}),
     )
     .await;
-    assert_eq!(status, 200);
     let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
     assert_eq!(status, 200, "{r}");
     assert_on_disc(&r, 0, "initialised", discs::DISC_A, [0.0, 0.0]);

@@ -34,16 +34,21 @@ fn pair(k: usize) -> (GrayFrame, GrayFrame) {
     )
 }
 
-async fn upload(http: &reqwest::Client, base: &str, sid: &str, k: usize) -> Value {
+/// Pair `k` posted to the session: the status and the body.
+async fn post_pair(http: &reqwest::Client, base: &str, sid: &str, k: usize) -> (u16, Value) {
     let (left, right) = pair(k);
-    let (status, r) = json_of(
+    json_of(
         http.post(format!("{base}/v1/sessions/{sid}/frames"))
             .multipart(frames_form(&left, &right))
             .send()
             .await
             .unwrap(),
     )
-    .await;
+    .await
+}
+
+async fn upload(http: &reqwest::Client, base: &str, sid: &str, k: usize) -> Value {
+    let (status, r) = post_pair(http, base, sid, k).await;
     assert_eq!(status, 200, "{r}");
     r
 }
@@ -196,15 +201,7 @@ async fn sessions_measure_several_objects_and_the_heights_between_them() {
     )
     .await;
     assert_eq!(got, 201, "{s}");
-    let (left, right) = pair(3);
-    let (got, err) = json_of(
-        http.post(format!("{base}/v1/sessions/{sid}/frames"))
-            .multipart(frames_form(&left, &right))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
+    let (got, err) = post_pair(&http, &base, &sid, 3).await;
     assert_eq!(got, 422, "{err}");
     assert_eq!(err["error"]["code"], "objects_share_a_region", "{err}");
     let m = err["error"]["message"].as_str().unwrap();

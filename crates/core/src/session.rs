@@ -26,7 +26,7 @@ use crate::geometry::{polygon_iou, Polygon};
 use crate::imageio::GrayFrame;
 use crate::init::{InitError, SAME_REGION_IOU};
 use crate::meta::ImageMeta;
-use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
+use crate::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams, TrackerState};
 
 /// Most objects a session holds.
 pub const MAX_OBJECTS: usize = 16;
@@ -344,19 +344,13 @@ impl Session {
                 }
                 Err(error) => {
                     let object = object.name.clone();
-                    for (o, (state, frames)) in self.objects.iter_mut().zip(before) {
-                        let params = o.tracker.params().clone();
-                        o.tracker = StereoTracker::from_state(params, state, frames);
-                    }
+                    self.restore(before);
                     return Err(MeasureError { object, error });
                 }
             }
         }
         if let Some((object, error)) = same_region(&objects) {
-            for (o, (state, frames)) in self.objects.iter_mut().zip(before) {
-                let params = o.tracker.params().clone();
-                o.tracker = StereoTracker::from_state(params, state, frames);
-            }
+            self.restore(before);
             return Err(MeasureError {
                 object,
                 error: TrackError::Hint(error),
@@ -381,6 +375,17 @@ impl Session {
             objects,
             relative,
         })
+    }
+}
+
+impl Session {
+    /// Every object's tracker as it was before a pair (`before`: each one's
+    /// state and frame count): a refused pair moves none of them on.
+    fn restore(&mut self, before: Vec<(Option<TrackerState>, u64)>) {
+        for (o, (state, frames)) in self.objects.iter_mut().zip(before) {
+            let params = o.tracker.params().clone();
+            o.tracker = StereoTracker::from_state(params, state, frames);
+        }
     }
 }
 
@@ -539,6 +544,18 @@ mod tests {
         assert_eq!(session.objects()[0].tracker.frames(), 0);
     }
 
+    /// Tracker parameters with the hints `roi` and `point`.
+    fn hinted(roi: Option<[i64; 4]>, point: Option<[f64; 2]>) -> TrackerParams {
+        TrackerParams {
+            init: crate::init::InitParams {
+                roi,
+                point,
+                ..Default::default()
+            },
+            ..TrackerParams::default()
+        }
+    }
+
     /// Two scenes side by side: one frame with an object in each half.
     fn two_scenes(seeds: [u64; 2]) -> (Vec<crate::synth::Scene>, u32) {
         let scenes: Vec<_> = seeds
@@ -579,14 +596,6 @@ mod tests {
     fn two_objects_on_one_region_are_refused() {
         let (scenes, _) = two_scenes([11, 12]);
         let truth = scenes[0].render(0).truth.left;
-        let hinted = |roi: Option<[i64; 4]>, point: Option<[f64; 2]>| TrackerParams {
-            init: crate::init::InitParams {
-                roi,
-                point,
-                ..Default::default()
-            },
-            ..TrackerParams::default()
-        };
         let mut session = Session::new(
             vec![
                 SessionObject::new("box", hinted(Some(truth.roi_hint(0.1)), None)),
@@ -611,16 +620,8 @@ mod tests {
         let (scenes, width) = two_scenes([11, 12]);
         let (a, b) = (scenes[0].render(0).truth.left, scenes[1].render(0).truth.left);
         let session = || {
-            // One object in each half: automatic in the left one (the
-            // larger), from a box and from a point in the right one.
-            let hinted = |roi: Option<[i64; 4]>, point: Option<[f64; 2]>| TrackerParams {
-                init: crate::init::InitParams {
-                    roi,
-                    point,
-                    ..Default::default()
-                },
-                ..TrackerParams::default()
-            };
+            // One object in each half: from a box in the left one, from a
+            // point in the right one.
             let [x, y, w, h] = a.roi_hint(0.1);
             let [px, py] = b.visible_centroid;
             Session::new(

@@ -202,21 +202,29 @@ pub enum TrackError {
 }
 
 pub(super) fn lost_result(frame: u64, reason: String) -> PairResult {
-    PairResult {
-        frame,
-        status: Status::Lost,
-        reason: Some(reason),
-        left: None,
-        right: None,
-        disparity_px: None,
-        disparity_axis_px: None,
-        relative_disparity_axis_px: None,
-        angle_diff_rad: None,
-        z_um: None,
-        disparity_std_px: None,
-        z_std_um: None,
-        metadata: None,
-        warnings: Vec::new(),
+    PairResult::lost(frame, reason)
+}
+
+impl PairResult {
+    /// Pair `frame`, lost for `reason`: no contour, disparity, z or
+    /// uncertainty.
+    pub fn lost(frame: u64, reason: String) -> Self {
+        PairResult {
+            frame,
+            status: Status::Lost,
+            reason: Some(reason),
+            left: None,
+            right: None,
+            disparity_px: None,
+            disparity_axis_px: None,
+            relative_disparity_axis_px: None,
+            angle_diff_rad: None,
+            z_um: None,
+            disparity_std_px: None,
+            z_std_um: None,
+            metadata: None,
+            warnings: Vec::new(),
+        }
     }
 }
 

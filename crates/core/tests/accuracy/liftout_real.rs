@@ -514,22 +514,7 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
         // A hint that names nothing is refused: the pair has no number.
         let result = match tracker.process(&left, &right) {
             Ok(result) => result,
-            Err(TrackError::Hint(e)) => PairResult {
-                frame: k as u64,
-                status: Status::Lost,
-                reason: Some(format!("refused: {e}")),
-                left: None,
-                right: None,
-                disparity_px: None,
-                disparity_axis_px: None,
-                relative_disparity_axis_px: None,
-                angle_diff_rad: None,
-                z_um: None,
-                disparity_std_px: None,
-                z_std_um: None,
-                metadata: None,
-                warnings: Vec::new(),
-            },
+            Err(TrackError::Hint(e)) => PairResult::lost(k as u64, format!("refused: {e}")),
             Err(e) => panic!("{}: {e}", seq.name),
         };
         let key = (seq.outlines[k].clone(), seq.object.to_string());
