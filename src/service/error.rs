@@ -424,12 +424,68 @@ async fn json_object_bytes<S: Send + Sync>(req: Request, state: &S) -> Result<By
         .await
         .map_err(|e| body_rejection(e.status(), e.body_text()))?;
     match bytes.iter().find(|b| !b.is_ascii_whitespace()) {
-        Some(b'{') | None => Ok(bytes),
-        Some(_) => Err(ApiError::bad_request(
-            "invalid_json",
-            "expected a JSON object ({...}) as the request body",
-        )),
+        Some(b'{') => {}
+        None => return Ok(bytes),
+        Some(_) => {
+            return Err(ApiError::bad_request(
+                "invalid_json",
+                "expected a JSON object ({...}) as the request body",
+            ))
+        }
     }
+    // Malformed JSON is left to the typed parse, whose message is precise.
+    if let Ok(serde_json::Value::Object(body)) = serde_json::from_slice::<serde_json::Value>(&bytes) {
+        if let Some(path) = misplaced_array(&body, "") {
+            return Err(ApiError::bad_request(
+                "invalid_json",
+                format!("{path}: expected an object or a single value, got an array"),
+            ));
+        }
+    }
+    Ok(bytes)
+}
+
+/// The request-body fields whose values are arrays: of numbers (`roi`,
+/// `point`) or of objects (`objects`, `samples`).
+const ARRAY_FIELDS: [&str; 4] = ["roi", "point", "objects", "samples"];
+
+/// The path of the first array in `object` where the API takes no array.
+/// serde reads a struct from an array of its fields in order, so without
+/// this check `"tracker": []` would pass as the default parameters.
+fn misplaced_array(object: &serde_json::Map<String, serde_json::Value>, path: &str) -> Option<String> {
+    use serde_json::Value;
+    for (key, value) in object {
+        let here = if path.is_empty() {
+            key.clone()
+        } else {
+            format!("{path}.{key}")
+        };
+        match value {
+            Value::Object(inner) => {
+                if let Some(p) = misplaced_array(inner, &here) {
+                    return Some(p);
+                }
+            }
+            Value::Array(items) if ARRAY_FIELDS.contains(&key.as_str()) => {
+                let of_objects = matches!(key.as_str(), "objects" | "samples");
+                for (i, item) in items.iter().enumerate() {
+                    let at = format!("{here}[{i}]");
+                    match item {
+                        Value::Array(_) => return Some(at),
+                        Value::Object(inner) if of_objects => {
+                            if let Some(p) = misplaced_array(inner, &at) {
+                                return Some(p);
+                            }
+                        }
+                        _ => {}
+                    }
+                }
+            }
+            Value::Array(_) => return Some(here),
+            _ => {}
+        }
+    }
+    None
 }
 
 /// `application/json` or `application/*+json`, parameters ignored (what
@@ -549,6 +605,35 @@ mod tests {
         for ct in [None, Some("text/plain"), Some("application/jsonx"), Some("json")] {
             let e = extract(ct, "{}").await.unwrap_err();
             assert_eq!(e.status(), StatusCode::UNSUPPORTED_MEDIA_TYPE, "{ct:?}");
+        }
+    }
+
+    #[tokio::test]
+    async fn an_array_where_an_object_belongs_is_refused_at_any_depth() {
+        let ok = r#"{"init": {"roi": [0, 0, 20, 20], "point": [5, 5]},
+                     "objects": [{"name": "a", "roi": [0, 0, 20, 20]}]}"#;
+        assert!(extract(Some("application/json"), ok).await.is_ok());
+        for (body, path) in [
+            (r#"{"tracker": []}"#, "tracker"),
+            (r#"{"tracker": {"rigid": [8.0]}}"#, "tracker.rigid"),
+            (r#"{"objects": [["a"]]}"#, "objects[0]"),
+            (
+                r#"{"objects": [{"name": "a", "roi": [[0], 0, 20, 20]}]}"#,
+                "objects[0].roi[0]",
+            ),
+        ] {
+            let e = extract(Some("application/json"), body).await.unwrap_err();
+            assert_eq!(
+                (e.status(), e.code()),
+                (StatusCode::BAD_REQUEST, "invalid_json"),
+                "{body}"
+            );
+            assert!(
+                e.to_string().ends_with(&format!(
+                    "invalid_json: {path}: expected an object or a single value, got an array"
+                )),
+                "{body}: {e}"
+            );
         }
     }
 }

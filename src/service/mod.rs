@@ -17,6 +17,7 @@
 //! - [`live`]: the browser page at `/`, latest frames as PNG, result events.
 //! - [`api`], [`error`]: the wire types (requests, responses, versioned) and
 //!   the one error type.
+//! - [`merge_patch`]: JSON merge patches (the parameters of a session's PATCH) and their schemas.
 //! - [`stamp`]: time stamps and ids.
 //! - [`metrics`]: Prometheus counters and histograms.
 
@@ -45,6 +46,7 @@ pub mod db;
 pub mod error;
 pub mod listener;
 pub mod live;
+pub mod merge_patch;
 pub mod metrics;
 pub mod ops;
 pub mod pipeline;
@@ -257,6 +259,13 @@ pub fn openapi() -> OpenApiDoc {
     let (_, mut api) = routes(None).split_for_parts();
     SecurityAddon.modify(&mut api);
     LinksAddon.modify(&mut api);
+    // PATCH /v1/sessions/{id} takes merge patches of the parameters.
+    merge_patch::add_schemas(
+        &mut api,
+        &["InitParams", "TrackerParams"],
+        "SessionPatch",
+        &["init", "tracker"],
+    );
     api
 }
 

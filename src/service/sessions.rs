@@ -29,6 +29,7 @@ use super::api::model::{
 use super::calibrations::{add_sample, check_name};
 use super::db::SessionCore;
 use super::error::{ApiError, ApiJson, ApiJsonFields, ApiPath, ApiQuery, ErrorBody};
+use super::merge_patch;
 use super::pipeline::{process_one_shot, process_session_pair, read_pair_upload};
 use super::stamp::now_rfc3339;
 use super::state::AppState;
@@ -654,10 +655,16 @@ pub struct DepthQuery {
     pub tilt_axis_deg: Option<f64>,
     /// Hint: the box `x,y,width,height` (pixels) the object lies in, clipped
     /// to the image; width and height >= 16 (a session's `init.roi`).
-    #[param(example = "120,80,200,160")]
+    #[param(
+        example = "120,80,200,160",
+        pattern = r"^ *[+-]?[0-9]+ *(, *[+-]?[0-9]+ *){3}$"
+    )]
     pub roi: Option<String>,
     /// Hint: a point `x,y` (pixels) on the object (a session's `init.point`).
-    #[param(example = "210.5,160")]
+    #[param(
+        example = "210.5,160",
+        pattern = r"^ *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *, *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *$"
+    )]
     pub point: Option<String>,
     /// Hint: `brighter`, `darker` or `any` (default; a session's `init.polarity`).
     #[param(value_type = Option<ApiPolarity>)]
@@ -669,7 +676,10 @@ impl DepthQuery {
     /// value that does not parse, naming the parameter.
     fn apply_hints(&self, init: &mut InitParams) -> Result<(), ApiError> {
         if let Some(text) = &self.roi {
-            let values: Option<Vec<i64>> = text.split(',').map(|v| v.trim().parse().ok()).collect();
+            let values: Option<Vec<i64>> = text
+                .split(',')
+                .map(|v| v.trim_matches(' ').parse().ok())
+                .collect();
             match values.as_deref() {
                 Some(&[x, y, w, h]) => init.roi = Some([x, y, w, h]),
                 _ => {
@@ -681,7 +691,11 @@ impl DepthQuery {
             }
         }
         if let Some(text) = &self.point {
-            let values: Option<Vec<f64>> = text.split(',').map(|v| v.trim().parse().ok()).collect();
+            // "inf" and "NaN" parse, and are refused with the other hints' checks.
+            let values: Option<Vec<f64>> = text
+                .split(',')
+                .map(|v| v.trim_matches(' ').parse().ok())
+                .collect();
             match values.as_deref() {
                 Some(&[x, y]) => init.point = Some([x, y]),
                 _ => {
@@ -941,7 +955,7 @@ fn patched_params(
                 format!("tracker: expected an object of the fields to change, got {patch}"),
             ));
         }
-        merge_patch(&mut params, patch);
+        merge_patch::apply(&mut params, patch);
     }
     if let Some(patch) = init {
         if !patch.is_object() {
@@ -950,33 +964,10 @@ fn patched_params(
                 format!("init: expected an object of the fields to change, got {patch}"),
             ));
         }
-        merge_patch(&mut params["init"], patch);
+        merge_patch::apply(&mut params["init"], patch);
     }
     let params: api::TrackerParams = serde_json::from_value(params).map_err(|e| invalid("tracker", e))?;
     checked(params.into())
-}
-
-/// Applies a JSON merge patch (RFC 7396) to `target`: members of an object
-/// patch replace the target's recursively, `null` members remove them.
-fn merge_patch(target: &mut serde_json::Value, patch: serde_json::Value) {
-    use serde_json::Value;
-    match patch {
-        Value::Object(members) => {
-            if !target.is_object() {
-                *target = Value::Object(Default::default());
-            }
-            if let Value::Object(t) = target {
-                for (key, value) in members {
-                    if value.is_null() {
-                        t.remove(&key);
-                    } else {
-                        merge_patch(t.entry(key).or_insert(Value::Null), value);
-                    }
-                }
-            }
-        }
-        other => *target = other,
-    }
 }
 
 /// Validated parameters: 422 `invalid_hint` for a hint out of range (the

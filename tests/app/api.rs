@@ -695,23 +695,37 @@ async fn one_shot_depth_takes_hints_as_query_parameters() {
     let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
     let http = reqwest::Client::new();
     let (left, right) = discs::scene_pair([0.0, 0.0]);
+    let depth = |query: &'static str| {
+        let request = http
+            .post(format!("{}/v1/depth?{query}", server.base))
+            .multipart(frames_form(&left, &right));
+        async move { json_of(request.send().await.unwrap()).await }
+    };
     for (query, disc) in [
         ("roi=200,75,70,70&polarity=brighter", discs::DISC_B),
         ("roi=40,80,100,100&polarity=any", discs::DISC_A),
         // A box past the top and right borders, and a point on B.
         ("roi=190,-30,200,230&point=235,110", discs::DISC_B),
     ] {
-        let (status, r) = json_of(
-            http.post(format!("{}/v1/depth?{query}", server.base))
-                .multipart(frames_form(&left, &right))
-                .send()
-                .await
-                .unwrap(),
-        )
-        .await;
+        let (status, r) = depth(query).await;
         assert_eq!(status, 200, "{query}: {r}");
         assert_eq!(r["session_id"], Value::Null);
         assert_on_disc(&r, 0, "initialised", disc, [0.0, 0.0]);
+    }
+    // Spaces around the numbers pass; other white space is refused as the
+    // documented pattern says, a number that is not finite as a hint.
+    for (query, status, code) in [
+        ("roi=%20200%20,75,%2070,70&polarity=brighter", 200, ""),
+        ("roi=200,75,70,70%09", 400, "invalid_query"),
+        ("point=%09235,110", 400, "invalid_query"),
+        ("point=inf,110", 422, "invalid_hint"),
+        ("point=235,1e999", 422, "invalid_hint"),
+    ] {
+        let (got, r) = depth(query).await;
+        assert_eq!(got, status, "{query}: {r}");
+        if status != 200 {
+            assert_eq!(r["error"]["code"], code, "{query}: {r}");
+        }
     }
     server.stop().await.unwrap();
 }
@@ -1113,6 +1127,52 @@ async fn results_without_contours_are_light() {
 /// sample's residual is shown, and correcting or removing an outlier
 /// refits and restores R^2. Every change makes a new version; results keep the version they
 /// used, and every version stays readable, across a restart.
+/// A point on the image corner makes a contour that encloses no area: its
+/// energy has no finite value. The pair is lost with `energy: null`, and the
+/// stored result reads back (a non-finite energy used to be stored as null
+/// and then refused as unreadable by every later read of the results).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_pair_whose_energy_is_not_finite_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("energy.sqlite3"))).await;
+    let base = server.base.clone();
+    let http = reqwest::Client::new();
+    let s = post_json(&format!("{base}/v1/sessions"), json!({"init": {"point": [0, 0]}})).await;
+    let sid = s["id"].as_str().unwrap();
+    let config = semdepth_core::synth::SynthConfig {
+        frames: 3,
+        ..semdepth_core::synth::SynthConfig::preset(Preset::Clean, Shape::Blob, 0)
+    }
+    .with_size(96, 80);
+    let pair = semdepth_core::synth::frames(&config).unwrap().next().unwrap();
+    let (code, v) = json_of(
+        http.post(format!("{base}/v1/sessions/{sid}/frames"))
+            .multipart(pair_form(&pair))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(code, 200, "{v}");
+    assert_eq!(v["status"], "lost", "{v}");
+    assert!(
+        v["left"]["energy"].is_null(),
+        "left energy {}",
+        v["left"]["energy"]
+    );
+    for format in ["", "?format=csv"] {
+        let r = http
+            .get(format!("{base}/v1/sessions/{sid}/results{format}"))
+            .send()
+            .await
+            .unwrap();
+        let code = r.status().as_u16();
+        let text = r.text().await.unwrap();
+        assert_eq!(code, 200, "results{format}: {text}");
+        assert!(text.contains("lost"), "results{format}: {text}");
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn calibration_samples_are_traced_and_outliers_removable() {
     let dir = tempfile::tempdir().unwrap();

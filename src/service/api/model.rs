@@ -125,8 +125,11 @@ impl CalibrationCreate {
     }
 }
 
-/// A stored calibration as the API returns it.
+/// A stored calibration as the API returns it. Named `Calibration` in the
+/// OpenAPI document: the resource a `calibration_id` names (tools that
+/// infer links from field names, as schemathesis does, match the two).
 #[derive(Clone, Debug, Serialize, Deserialize, ToSchema)]
+#[schema(as = Calibration)]
 #[schema(example = json!({"id": "c_3f2a", "name": "stage steps", "model": "fit", "tilt_axis_deg": 90.0, "coefficients": [-5.45, 4.54], "degree": 1, "samples": [{"disparity_px": 1.2, "z_um": 0.0}, {"disparity_px": 3.4, "z_um": 10.0}], "residual_rms_um": 0.0, "r_squared": 1.0, "created_at": "2026-11-21T10:00:00Z", "updated_at": "2026-11-21T10:00:00Z"}))]
 pub struct CalibrationView {
     /// Opaque id.
@@ -273,11 +276,13 @@ pub struct ObjectCreate {
     /// 1 to 64 of A-Z a-z 0-9 _ - . (unique in the session).
     #[schema(pattern = "^[A-Za-z0-9_.-]{1,64}$")]
     pub name: String,
-    /// The box `[x, y, width, height]` the object lies in (clipped to the image).
+    /// The box `[x, y, width, height]` the object lies in.
     #[serde(default)]
+    #[schema(schema_with = super::params::roi_schema)]
     pub roi: Option<[i64; 4]>,
     /// A point `[x, y]` on the object.
     #[serde(default)]
+    #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub point: Option<[f64; 2]>,
     /// The object against its surroundings; default `any`.
     #[serde(default)]

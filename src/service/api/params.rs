@@ -151,7 +151,7 @@ impl Default for InitParams {
 }
 
 /// OpenAPI schema of [`InitParams::roi`]: null or four 64-bit integers.
-fn roi_schema() -> utoipa::openapi::schema::Array {
+pub(crate) fn roi_schema() -> utoipa::openapi::schema::Array {
     use utoipa::openapi::schema::{ArrayBuilder, KnownFormat, ObjectBuilder, SchemaFormat, SchemaType, Type};
     ArrayBuilder::new()
         .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))

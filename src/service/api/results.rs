@@ -73,8 +73,9 @@ pub struct ImageResult {
     pub centroid: Point,
     /// Orientation of the contour's principal axis, radians in (-pi/2, pi/2].
     pub angle_rad: f64,
-    /// Energy of the contour (lower is better).
-    pub energy: f64,
+    /// Energy of the contour (lower is better); null when it has no finite
+    /// value (a contour that encloses no area, on a lost pair).
+    pub energy: Option<f64>,
     /// Michelson contrast of inside against the background window, -1..=1
     /// (over the visible sectors when part of the outline is occluded).
     pub contrast: f64,
@@ -218,7 +219,7 @@ impl From<tracker::ImageResult> for ImageResult {
             contour: r.contour,
             centroid: r.centroid,
             angle_rad: r.angle_rad,
-            energy: r.energy,
+            energy: r.energy.is_finite().then_some(r.energy),
             contrast: r.contrast,
             occluded_fraction: r.occluded_fraction,
         }
