@@ -135,85 +135,14 @@ if [ -z "$ready" ]; then
     exit 1
 fi
 
-# -- real stereo pairs -------------------------------------------------------
-# schemathesis cannot invent images the tracker accepts (its multipart parts
-# are random bytes or a 1x1 PNG, answered 400), so without help no upload
-# would ever return a FrameResult and the response schemas of
-# POST /v1/sessions/{id}/frames, POST /v1/depth and GET .../results would go
-# untested. A hook offers small synthetic pairs (`semdepth synth`) as an
-# alternative to the generated body of positive upload cases: a 3-pair
-# sequence (initialised, tracked), another object of the same size and a
-# featureless pair (lost, re-initialised), a pair of another size (400
-# pair_size_changed inside a session) and a pair of mismatched sizes (400).
+# -- real data for the unit phases ------------------------------------------
+# schemathesis cannot invent images the tracker accepts, nor the ids of
+# sessions and calibrations that exist: tools/schemathesis_hooks.py offers
+# small synthetic pairs (written here with `semdepth synth`) and creates
+# fixture sessions and calibrations on the server under test.
 "$bin" synth --shape blob --frames 3 --width 96 --height 80 "$work/pairs/a" >/dev/null
 "$bin" synth --shape rod --preset cluttered --seed 5 --frames 1 --width 96 --height 80 "$work/pairs/c" >/dev/null
 "$bin" synth --shape tip --preset noisy --seed 3 --frames 1 --width 72 --height 64 "$work/pairs/b" >/dev/null
-cat >"$work/hooks.py" <<'PY'
-"""schemathesis hooks of tools/schemathesis_run.sh: real pairs for uploads."""
-import os
-import pathlib
-import struct
-import zlib
-
-import schemathesis
-from hypothesis import strategies as st
-
-_DIR = pathlib.Path(os.environ["SEMDEPTH_ST_PAIRS"])
-
-
-def _pair(left, right):
-    return {"left": (_DIR / left).read_bytes(), "right": (_DIR / right).read_bytes()}
-
-
-def _flat_png(width, height, grey):
-    def chunk(kind, data):
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
-
-    rows = b"".join(b"\x00" + bytes([grey]) * width for _ in range(height))
-    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b"")
-
-
-FLAT = _flat_png(96, 80, 128)
-PAIRS = [_pair(f"a/{i:04}_left.png", f"a/{i:04}_right.png") for i in range(3)] + [
-    _pair("c/0000_left.png", "c/0000_right.png"),
-    {"left": FLAT, "right": FLAT},
-    _pair("b/0000_left.png", "b/0000_right.png"),
-    _pair("a/0000_left.png", "b/0000_right.png"),
-]
-UPLOADS = {("POST", "/v1/sessions/{id}/frames"), ("POST", "/v1/depth")}
-
-
-def _is_positive(case):
-    # Only positive cases: a negative one must stay invalid in whatever
-    # component made it so.
-    meta = case.meta
-    return meta is None or meta.generation.mode.is_positive
-
-
-@schemathesis.hook
-def flatmap_case(context, case):
-    if (case.method.upper(), case.path) not in UPLOADS or not _is_positive(case):
-        return st.just(case)
-
-    def with_pair(index):
-        if index is None:
-            return case
-        # A new case (public API) rather than an edit of this one: an edited
-        # body with bytes in it would be revalidated, and bytes never pass a
-        # JSON Schema validation, so the case would turn "negative".
-        return case.operation.Case(
-            method=case.method,
-            path_parameters=dict(case.path_parameters),
-            headers=dict(case.headers),
-            cookies=dict(case.cookies),
-            query=dict(case.query),
-            body=dict(PAIRS[index]),
-            media_type=case.media_type,
-        )
-
-    return st.sampled_from([None, *range(len(PAIRS))]).map(with_pair)
-PY
 
 # -- the run -----------------------------------------------------------------
 # Checks: no 5xx; every status, content type, header and body as documented;
@@ -247,7 +176,20 @@ set +e
 # Run from the work directory so nothing (caches, reports) lands in the tree.
 (
     cd "$work"
-    export SCHEMATHESIS_HOOKS=$work/hooks.py SEMDEPTH_ST_PAIRS=$work/pairs
+    # Fuzzing: no values captured from responses (the ids of fixtures would
+    # change the strategies hypothesis replays). Stateful: the document's
+    # own links only (links inferred from field names tie a session's name
+    # to an object's), and scenarios long enough to go from a session to its
+    # objects, pairs and samples.
+    cat >schemathesis.toml <<'TOML'
+[phases.fuzzing.extra-data-sources]
+responses = false
+[phases.stateful]
+max-steps = 40
+[phases.stateful.inference]
+algorithms = []
+TOML
+    export SCHEMATHESIS_HOOKS=$root/tools/schemathesis_hooks.py SEMDEPTH_ST_PAIRS=$work/pairs SEMDEPTH_ST_BASE=$base
     "${st[@]}" run "$root/openapi/openapi.yaml" \
         --url "$base" \
         --checks "$checks" \
