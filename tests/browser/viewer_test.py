@@ -207,6 +207,15 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
     page.wait_for_selector(f"#view-right[data-frame='{STREAMED - 1}']")
     check(True, "both images show the last pair")
     check(page.get_attribute("#plot-z", "data-points") == str(STREAMED), "the z plot holds every pair")
+    # Axes a reader can use: round ticks on both, named (frame, px), and a
+    # standard-error band drawn.
+    y_ticks = page.eval_on_selector_all("#plot-disparity text.tick[text-anchor='end']", "ts => ts.map(t => t.textContent)")
+    x_ticks = page.eval_on_selector_all("#plot-disparity text.tick[text-anchor='middle']", "ts => ts.map(t => t.textContent)")
+    names = page.eval_on_selector_all("#plot-disparity text.axis-name", "ts => ts.map(t => t.textContent)")
+    check(len(y_ticks) >= 3 and len(x_ticks) >= 3 and sorted(names) == ["frame", "px"],
+          f"the disparity plot's axes are ticked and named (y {y_ticks}, x {x_ticks}, {names})")
+    check(page.eval_on_selector("#plot-disparity", "p => p.querySelectorAll('polygon.band').length") >= 1,
+          "the disparity plot shades its standard-error band")
     status = page.get_attribute("#numbers .badge", "data-status")
     check(status == "tracked", f"the page's status is the last result's ({status})")
     z_text = page.inner_text("#z-value")

@@ -209,8 +209,8 @@ async function sessionPage(id, signal) {
   const left = imageView("left", true);
   const right = imageView("right", false);
   const numbers = el("div", { class: "numbers", id: "numbers" });
-  const zPlot = plotPanel("z (µm)", "plot-z");
-  const dPlot = plotPanel("disparity across the tilt axis (px)", "plot-disparity");
+  const zPlot = plotPanel("z (µm), ±1 standard error shaded", "plot-z", "µm");
+  const dPlot = plotPanel("disparity across the tilt axis (px), ±1 standard error shaded", "plot-disparity", "px");
   main.replaceChildren(title, meta, message, el("div", { class: "views" }, left.node, right.node), numbers, zPlot.node, dPlot.node);
 
   const series = []; // {frame, status, d, ds, z, zs}
@@ -258,7 +258,7 @@ async function sessionPage(id, signal) {
           el("td", { class: "num" }, pm(x.dz_um, x.dz_std_um, 3), " µm"))))),
     ] : [];
     numbers.replaceChildren(
-      cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason" }, r.reason) : null),
+      cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason", title: r.reason }, r.reason) : null),
       cell("frame", r.frame),
       cell("disparity (x, y) px", r.disparity_px ? `${fmt(r.disparity_px[0], 2)}, ${fmt(r.disparity_px[1], 2)}` : "–"),
       cell("disparity across the axis px", pm(r.disparity_axis_px, r.disparity_std_px, 3)),
@@ -413,7 +413,7 @@ function imageView(side, pointable) {
   const othersGroup = svg("g", { class: "others" });
   overlay.append(othersGroup, polygon, hintRect);
   const empty = el("div", { class: "empty" }, "No image yet");
-  const node = el("div", { class: `view${pointable ? " pointable" : ""}`, id: `view-${side}` }, img, overlay, empty, el("span", { class: "label" }, side));
+  const node = el("div", { class: `view${pointable ? " pointable" : ""}`, id: `view-${side}` }, img, overlay, empty, el("span", { class: "label" }, side === "left" ? "left view" : "right view"));
   const view = { node, onHint: null, frame: null };
   let box = null; // [x0, y0, width, height] of the image in frame coordinates
   let busy = false, again = false, url = null;
@@ -493,10 +493,22 @@ function imageView(side, pointable) {
   return view;
 }
 
+// Round tick values between lo and hi: the widest step of 1, 2 or 5 times a
+// power of ten (at least `least`) that gives n - 1 ticks or more.
+function ticks(lo, hi, n, least = 0) {
+  const mag = 10 ** Math.floor(Math.log10(Math.max(hi - lo, 1e-12) / n));
+  const count = (s) => Math.floor(hi / s + 1e-9) - Math.ceil(lo / s - 1e-9) + 1;
+  const steps = [10, 5, 2, 1, 0.5].map((m) => m * mag).filter((s) => s >= least);
+  const step = steps.find((s) => count(s) >= n - 1) ?? steps.at(-1) ?? least;
+  const values = [];
+  for (let k = Math.ceil(lo / step - 1e-9); k * step <= hi + step * 1e-9; k++) values.push(Number((k * step).toPrecision(12)));
+  return { values, digits: Math.max(0, -Math.floor(Math.log10(step) + 1e-9)) };
+}
+
 // A plot of one series over frames with its +-1 std band; lost pairs are
-// red marks on the frame axis.
-function plotPanel(label, id) {
-  const plot = svg("svg", { id, viewBox: "0 0 1000 200" });
+// red marks on the frame axis. Axes: frames along x, `unit` along y.
+function plotPanel(label, id, unit) {
+  const plot = svg("svg", { id, viewBox: "0 0 1000 222" });
   const node = el("div", { class: "plot" }, el("div", { class: "title" }, label), plot);
   return {
     node,
@@ -515,19 +527,26 @@ function plotPanel(label, id) {
       if (hi - lo < 1e-6) { lo -= 0.5; hi += 0.5; }
       const pad = (hi - lo) * 0.08;
       lo -= pad; hi += pad;
-      const X = (f) => 50 + ((f - f0) / (f1 - f0)) * 940;
+      const X = (f) => 70 + ((f - f0) / (f1 - f0)) * 915;
       const Y = (v) => 185 - ((v - lo) / (hi - lo)) * 175;
-      plot.append(svg("line", { class: "axis", x1: 50, x2: 990, y1: 185, y2: 185 }));
-      for (const v of [lo + pad, hi - pad]) {
-        const t = svg("text", { x: 4, y: Y(v) + 4 });
-        t.textContent = v.toPrecision(4);
-        plot.append(t, svg("line", { class: "axis", x1: 50, x2: 990, y1: Y(v), y2: Y(v) }));
+      plot.append(svg("line", { class: "axis", x1: 70, x2: 985, y1: 185, y2: 185 }));
+      const yTicks = ticks(lo, hi, 4);
+      for (const v of yTicks.values) {
+        const t = svg("text", { class: "tick", x: 62, y: Y(v) + 4, "text-anchor": "end" });
+        t.textContent = v.toFixed(yTicks.digits);
+        plot.append(t, svg("line", { class: "grid", x1: 70, x2: 985, y1: Y(v), y2: Y(v) }));
       }
-      for (const [f, anchor] of [[series[0].frame, "start"], [series.at(-1).frame, "end"]]) {
-        const t = svg("text", { x: X(f), y: 198, "text-anchor": anchor });
-        t.textContent = `frame ${f}`;
-        plot.append(t);
+      const xTicks = ticks(f0, f1, 8, 1);
+      for (const f of xTicks.values) {
+        const t = svg("text", { class: "tick", x: X(f), y: 201, "text-anchor": "middle" });
+        t.textContent = String(f);
+        plot.append(t, svg("line", { class: "axis", x1: X(f), x2: X(f), y1: 185, y2: 190 }));
       }
+      const xName = svg("text", { class: "axis-name", x: 985, y: 218, "text-anchor": "end" });
+      xName.textContent = "frame";
+      const yName = svg("text", { class: "axis-name", x: 4, y: 12 });
+      yName.textContent = unit;
+      plot.append(xName, yName);
       // Runs of consecutive good points: a gap where a pair was lost, and
       // a new run (after a dashed line) where the tracker initialised again.
       const runs = [];
