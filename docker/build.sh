@@ -5,19 +5,29 @@
 #
 #   docker/build.sh [IMAGE_TAG]     (default semdepth:latest)
 #
-# Environment: CARGO_TARGET_DIR is honoured; the static build lives in its
-# own target triple folder, so it does not disturb the normal build.
+# Environment: SEMDEPTH_BIN names a static binary already built (as .ci/run
+# builds it); without it the binary is compiled here. CARGO_TARGET_DIR is
+# honoured; the static build lives in its own target triple folder, so it
+# does not disturb the normal build.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 tag="${1:-semdepth:latest}"
 triple=x86_64-unknown-linux-gnu
 target_dir="${CARGO_TARGET_DIR:-target}"
 
-echo "== static binary ($triple, +crt-static)"
-# .ci/run builds the same binary with the same settings first (one build).
-RUSTFLAGS="-C target-feature=+crt-static" CARGO_PROFILE_RELEASE_STRIP=symbols \
-    cargo build --release --locked --bin semdepth --target "$triple"
-binary="$target_dir/$triple/release/semdepth"
+if [ -n "${SEMDEPTH_BIN:-}" ]; then
+    binary="$SEMDEPTH_BIN"
+    echo "== static binary: $binary (SEMDEPTH_BIN; not compiled again)"
+else
+    echo "== static binary ($triple, +crt-static)"
+    RUSTFLAGS="-C target-feature=+crt-static" CARGO_PROFILE_RELEASE_STRIP=symbols \
+        cargo build --release --locked --bin semdepth --target "$triple"
+    binary="$target_dir/$triple/release/semdepth"
+fi
+if [ ! -x "$binary" ]; then
+    echo "error: no executable at $binary" >&2
+    exit 1
+fi
 if ldd "$binary" 2>&1 | grep -q '=>'; then
     echo "error: $binary is dynamically linked:" >&2
     ldd "$binary" >&2
@@ -33,4 +43,5 @@ cp docker/Dockerfile "$context/Dockerfile"
 
 echo "== image $tag"
 docker build --quiet -t "$tag" "$context"
-docker image inspect "$tag" --format 'image {{.RepoTags}}: {{.Size}} bytes'
+size=$(docker image inspect "$tag" --format '{{.Size}}')
+echo "image $tag: $size bytes ($(( (size + 524288) / 1048576 )) MiB)"

@@ -33,6 +33,16 @@ cleanup() {
 }
 trap cleanup EXIT
 
+log "docker/up.sh refuses the example's placeholder token before starting anything"
+mkdir -p "$work/up"
+cp -r docker "$work/up/docker"
+cp docker/semdepth.env.example "$work/up/docker/semdepth.env"
+if out=$("$work/up/docker/up.sh" 2>&1); then
+    fail "docker/up.sh went ahead with the placeholder token: $out"
+fi
+grep -q "placeholder" <<<"$out" || fail "docker/up.sh refused the placeholder token without naming it: $out"
+echo "$out"
+
 log "docker"
 # The daemon, not only a client: a machine may ship a docker CLI alone.
 if ! command -v docker >/dev/null 2>&1 || { ! docker info >/dev/null 2>&1 && ! command -v dockerd >/dev/null 2>&1; }; then
