@@ -301,6 +301,8 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
     page.wait_for_selector(f"#view-left[data-frame='{STREAMED - 1}']")
     page.wait_for_selector("table#objects tr[data-object='b']")
     check(page.locator("table#objects tr").count() == 2, "the page lists both objects")
+    fits = page.eval_on_selector("table#objects", "t => { const c = t.closest('div'); return [t.scrollWidth, c.clientWidth]; }")
+    check(fits[0] <= fits[1], f"the objects table fits inside its card ({fits[0]} px in {fits[1]} px)")
     rel = next(x for x in last["relative"] if x["from"] == "a" and x["to"] == "b")
     shown = page.inner_text("table#relative tr[data-from='a'][data-to='b']")
     expected = f"{rel['dz_um']:.3f} ± {rel['dz_std_um']:.3f}"

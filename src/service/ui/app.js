@@ -243,22 +243,24 @@ async function sessionPage(id, signal) {
     left.others(others.map(({ o, colour }) => ({ name: o.name, points: o.left?.contour, colour })));
     right.others(others.map(({ o, colour }) => ({ name: o.name, points: o.right?.contour, colour })));
     const several = (r.objects ?? []).length > 1;
+    const table = (node) => Object.assign(node, { className: "table" });
     const objectCells = several ? [
-      cell("objects", el("table", { class: "objects", id: "objects" }, ...r.objects.map((o, k) =>
+      table(cell("objects", el("table", { class: "objects", id: "objects" }, ...r.objects.map((o, k) =>
         el("tr", { "data-object": o.name },
           el("td", {}, el("span", { class: `swatch ${measured(o) ? `c${k % PALETTE.length}` : "lost"}` }), " ", o.name),
           el("td", {}, badge(o.status)),
           el("td", { class: "num" }, pm(o.disparity_axis_px, o.disparity_std_px, 2), " px"),
-          el("td", { class: "num" }, pm(o.z_um, o.z_std_um, 2), " µm"))))),
-      cell("relative height", el("table", { class: "objects", id: "relative" }, ...(r.relative ?? [])
+          el("td", { class: "num" }, pm(o.z_um, o.z_std_um, 2), " µm")))))),
+      table(cell("relative height", el("table", { class: "objects", id: "relative" }, ...(r.relative ?? [])
         .filter((x) => r.objects.findIndex((o) => o.name === x.from) < r.objects.findIndex((o) => o.name === x.to))
         .map((x) => el("tr", { "data-from": x.from, "data-to": x.to },
           el("td", {}, `${x.from} − ${x.to}`),
           el("td", { class: "num" }, pm(x.disparity_axis_px, x.disparity_std_px, 3), " px"),
-          el("td", { class: "num" }, pm(x.dz_um, x.dz_std_um, 3), " µm"))))),
+          el("td", { class: "num" }, pm(x.dz_um, x.dz_std_um, 3), " µm")))))),
     ] : [];
     numbers.replaceChildren(
-      cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason", title: r.reason }, r.reason) : null),
+      Object.assign(cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason", title: r.reason }, r.reason) : null),
+        { className: r.reason ? "wide" : "" }),
       cell("frame", r.frame),
       cell("disparity (x, y) px", r.disparity_px ? `${fmt(r.disparity_px[0], 2)}, ${fmt(r.disparity_px[1], 2)}` : "–"),
       cell("disparity across the axis px", pm(r.disparity_axis_px, r.disparity_std_px, 3)),
