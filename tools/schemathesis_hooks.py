@@ -142,6 +142,11 @@ def _is_positive(case):
     return meta.generation.mode.is_positive and not any(c.mode.is_negative for c in components.values())
 
 
+def _op(case):
+    """The case's operation: (METHOD, path template)."""
+    return (case.method.upper(), case.path)
+
+
 def _phase(case):
     """The phase that generated the case (None for the cases made here)."""
     if case.meta is None:
@@ -162,7 +167,7 @@ def _take(case, generated):
     operation."""
     if _phase(case) == "fuzzing":
         return zlib.crc32(repr(generated).encode()) % 4 != 3
-    return next(_counters[(case.method, case.path)]) % 4 != 3
+    return next(_counters[_op(case)]) % 4 != 3
 
 
 def _with_pair(case, index, query=None):
@@ -186,7 +191,7 @@ def _with_pair(case, index, query=None):
 @schemathesis.hook
 def flatmap_case(context, case):
     """Examples and fuzzing: a real pair or the generated body, at random."""
-    if (case.method.upper(), case.path) not in UPLOADS or not _is_positive(case):
+    if _op(case) not in UPLOADS or not _is_positive(case):
         return st.just(case)
     choices = st.sampled_from([None, *range(len(PAIRS))])
     return choices.map(lambda index: case if index is None else _with_pair(case, index))
@@ -199,7 +204,7 @@ def before_add_examples(context, examples):
     more = [
         _with_pair(case, 0, {k: v for k, v in case.query.items() if k not in ("roi", "point")})
         for case in examples
-        if (case.method.upper(), case.path) in UPLOADS and _is_positive(case)
+        if _op(case) in UPLOADS and _is_positive(case)
     ]
     examples.extend(more)
 
@@ -207,7 +212,7 @@ def before_add_examples(context, examples):
 @schemathesis.hook
 def map_case(context, case):
     """Coverage (no strategies there): every pair in turn, then the generated body."""
-    op = (case.method.upper(), case.path)
+    op = _op(case)
     if op not in UPLOADS or not _is_positive(case) or _phase(case) != "coverage":
         return case
     index = next(_counters[("coverage pair", op)]) % (len(PAIRS) + 1)
@@ -229,7 +234,7 @@ def before_call(context, case, kwargs):
     stateful = _phase(case) == "stateful"
     if not stateful and not _is_positive(case):
         return
-    op = (case.method.upper(), case.path)
+    op = _op(case)
     params = case.path_parameters
     if not stateful and "id" in params and case.path.startswith("/v1/sessions/") and _take(case, params["id"]):
         if op == ("DELETE", "/v1/sessions/{id}/objects/{name}"):

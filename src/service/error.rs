@@ -384,7 +384,7 @@ where
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        let bytes = json_object_bytes(req, state).await?;
+        let (bytes, _) = json_object_body(req, state).await?;
         let axum::Json(value) = axum::Json::<T>::from_bytes(&bytes)?;
         Ok(Self(value))
     }
@@ -404,19 +404,29 @@ where
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        let bytes = json_object_bytes(req, state).await?;
+        let (bytes, fields) = json_object_body(req, state).await?;
         // Typed first: its errors name the offending field.
         let axum::Json(value) = axum::Json::<T>::from_bytes(&bytes)?;
-        let axum::Json(fields) =
-            axum::Json::<serde_json::Map<String, serde_json::Value>>::from_bytes(&bytes)?;
+        let fields = match fields {
+            Some(fields) => fields,
+            None => axum::Json::<JsonObject>::from_bytes(&bytes)?.0,
+        };
         Ok(Self(value, fields))
     }
 }
 
-/// The body of a request that must be a JSON object: 415 without a JSON
-/// content type, 400 for anything but an object (an empty body passes, for
-/// serde to refuse or default).
-async fn json_object_bytes<S: Send + Sync>(req: Request, state: &S) -> Result<Bytes, ApiError> {
+/// A JSON object's members.
+type JsonObject = serde_json::Map<String, serde_json::Value>;
+
+/// The body of a request that must be a JSON object, and its members when
+/// it parses as one: 415 without a JSON content type, 400 for anything but
+/// an object or for an array where the API takes none (an empty or
+/// malformed body passes, for serde to refuse or default with its own
+/// message).
+async fn json_object_body<S: Send + Sync>(
+    req: Request,
+    state: &S,
+) -> Result<(Bytes, Option<JsonObject>), ApiError> {
     if !has_json_content_type(req.headers()) {
         return Err(unsupported_json_media_type());
     }
@@ -425,7 +435,7 @@ async fn json_object_bytes<S: Send + Sync>(req: Request, state: &S) -> Result<By
         .map_err(|e| body_rejection(e.status(), e.body_text()))?;
     match bytes.iter().find(|b| !b.is_ascii_whitespace()) {
         Some(b'{') => {}
-        None => return Ok(bytes),
+        None => return Ok((bytes, None)),
         Some(_) => {
             return Err(ApiError::bad_request(
                 "invalid_json",
@@ -433,16 +443,14 @@ async fn json_object_bytes<S: Send + Sync>(req: Request, state: &S) -> Result<By
             ))
         }
     }
-    // Malformed JSON is left to the typed parse, whose message is precise.
-    if let Ok(serde_json::Value::Object(body)) = serde_json::from_slice::<serde_json::Value>(&bytes) {
-        if let Some(path) = misplaced_array(&body, "") {
-            return Err(ApiError::bad_request(
-                "invalid_json",
-                format!("{path}: expected an object or a single value, got an array"),
-            ));
-        }
+    let fields = serde_json::from_slice::<JsonObject>(&bytes).ok();
+    if let Some(path) = fields.as_ref().and_then(|f| misplaced_array(f, "")) {
+        return Err(ApiError::bad_request(
+            "invalid_json",
+            format!("{path}: expected an object or a single value, got an array"),
+        ));
     }
-    Ok(bytes)
+    Ok((bytes, fields))
 }
 
 /// The request-body fields whose values are arrays: of numbers (`roi`,
@@ -452,7 +460,7 @@ const ARRAY_FIELDS: [&str; 4] = ["roi", "point", "objects", "samples"];
 /// The path of the first array in `object` where the API takes no array.
 /// serde reads a struct from an array of its fields in order, so without
 /// this check `"tracker": []` would pass as the default parameters.
-fn misplaced_array(object: &serde_json::Map<String, serde_json::Value>, path: &str) -> Option<String> {
+fn misplaced_array(object: &JsonObject, path: &str) -> Option<String> {
     use serde_json::Value;
     for (key, value) in object {
         let here = if path.is_empty() {

@@ -52,6 +52,7 @@ pub fn add_schemas(api: &mut OpenApiDoc, roots: &[&str], body: &str, fields: &[&
         .iter()
         .filter_map(|(name, schema)| Some((name.clone(), serde_json::to_value(schema).ok()?)))
         .collect();
+    let objects = object_components(&full);
     let mut todo: Vec<String> = roots.iter().map(|r| r.to_string()).collect();
     let mut done = BTreeSet::new();
     while let Some(name) = todo.pop() {
@@ -61,7 +62,7 @@ pub fn add_schemas(api: &mut OpenApiDoc, roots: &[&str], body: &str, fields: &[&
         let Some(schema) = full.get(&name) else {
             continue;
         };
-        let patch = patch_schema(schema, &full, &mut todo);
+        let patch = patch_schema(schema, &objects, &mut todo);
         full.insert(patch_name(&name), patch);
     }
     if let Some(Value::Object(b)) = full.get_mut(body) {
@@ -84,10 +85,20 @@ pub fn add_schemas(api: &mut OpenApiDoc, roots: &[&str], body: &str, fields: &[&
     }
 }
 
+/// The names of the components that are objects (have properties): those
+/// a merge patch merges into rather than replaces.
+fn object_components(all: &serde_json::Map<String, Value>) -> BTreeSet<String> {
+    all.iter()
+        .filter(|(_, v)| v.get("properties").is_some())
+        .map(|(k, _)| k.clone())
+        .collect()
+}
+
 /// The merge-patch form of the object schema `schema`: no required
-/// properties, no defaults, each property nullable, references to object
-/// components replaced by their patch schemas (queued on `todo`).
-fn patch_schema(schema: &Value, all: &serde_json::Map<String, Value>, todo: &mut Vec<String>) -> Value {
+/// properties, no defaults, each property nullable, references to the
+/// object components `objects` replaced by their patch schemas (queued on
+/// `todo`).
+fn patch_schema(schema: &Value, objects: &BTreeSet<String>, todo: &mut Vec<String>) -> Value {
     let mut patch = schema.clone();
     let Value::Object(p) = &mut patch else {
         return patch;
@@ -96,13 +107,8 @@ fn patch_schema(schema: &Value, all: &serde_json::Map<String, Value>, todo: &mut
     p.remove("example");
     p.remove("default");
     if let Some(Value::Object(properties)) = p.get_mut("properties") {
-        let objects: BTreeSet<String> = all
-            .iter()
-            .filter(|(_, v)| v.get("properties").is_some())
-            .map(|(k, _)| k.clone())
-            .collect();
         for property in properties.values_mut() {
-            retarget(property, &objects, todo);
+            retarget(property, objects, todo);
             nullable(property);
         }
     }
@@ -191,7 +197,7 @@ mod tests {
         }))
         .unwrap();
         let mut todo = Vec::new();
-        let patch = patch_schema(&all["Outer"], &all, &mut todo);
+        let patch = patch_schema(&all["Outer"], &object_components(&all), &mut todo);
         assert_eq!(todo, ["Inner"]);
         assert_eq!(patch.get("required"), None);
         let p = &patch["properties"];

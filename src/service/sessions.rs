@@ -676,37 +676,23 @@ impl DepthQuery {
     /// value that does not parse, naming the parameter.
     fn apply_hints(&self, init: &mut InitParams) -> Result<(), ApiError> {
         if let Some(text) = &self.roi {
-            let values: Option<Vec<i64>> = text
-                .split(',')
-                .map(|v| v.trim_matches(' ').parse().ok())
-                .collect();
-            match values.as_deref() {
-                Some(&[x, y, w, h]) => init.roi = Some([x, y, w, h]),
-                _ => {
-                    return Err(ApiError::bad_request(
-                        "invalid_query",
-                        format!("invalid roi {text:?} (expected four integers x,y,width,height in pixels, e.g. roi=120,80,200,160)"),
-                    ))
-                }
-            }
+            init.roi = Some(numbers(text).ok_or_else(|| {
+                ApiError::bad_request(
+                    "invalid_query",
+                    format!("invalid roi {text:?} (expected four integers x,y,width,height in pixels, e.g. roi=120,80,200,160)"),
+                )
+            })?);
         }
         if let Some(text) = &self.point {
             // "inf" and "NaN" parse, and are refused with the other hints' checks.
-            let values: Option<Vec<f64>> = text
-                .split(',')
-                .map(|v| v.trim_matches(' ').parse().ok())
-                .collect();
-            match values.as_deref() {
-                Some(&[x, y]) => init.point = Some([x, y]),
-                _ => {
-                    return Err(ApiError::bad_request(
-                        "invalid_query",
-                        format!(
+            init.point = Some(numbers(text).ok_or_else(|| {
+                ApiError::bad_request(
+                    "invalid_query",
+                    format!(
                         "invalid point {text:?} (expected two numbers x,y in pixels, e.g. point=210.5,160)"
                     ),
-                    ))
-                }
-            }
+                )
+            })?);
         }
         if let Some(text) = &self.polarity {
             let all = [Polarity::Brighter, Polarity::Darker, Polarity::Any];
@@ -719,6 +705,16 @@ impl DepthQuery {
         }
         Ok(())
     }
+}
+
+/// Exactly `N` comma-separated numbers, each with optional spaces around it
+/// (the pattern the query parameters document).
+fn numbers<T: std::str::FromStr, const N: usize>(text: &str) -> Option<[T; N]> {
+    let values: Vec<T> = text
+        .split(',')
+        .map(|v| v.trim_matches(' ').parse().ok())
+        .collect::<Option<_>>()?;
+    values.try_into().ok()
 }
 
 /// Initialise and measure one pair without a session.

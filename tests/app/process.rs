@@ -72,6 +72,22 @@ fn synth_clean(dir: &Path) -> (PathBuf, Value) {
     (seq, truth)
 }
 
+/// `semdepth process SEQ --calibration CAL --no-contour`, the calibration
+/// JSON `calibration` written into `dir`: its records (the run must succeed).
+fn process_calibrated(dir: &Path, seq: &Path, calibration: &str) -> Vec<Value> {
+    let path = dir.join("cal.json");
+    std::fs::write(&path, calibration).unwrap();
+    let out = semdepth(&[
+        "process",
+        path_str(seq),
+        "--calibration",
+        path_str(&path),
+        "--no-contour",
+    ]);
+    assert_success(&out);
+    jsonl(&out)
+}
+
 fn f(v: &Value) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("expected a number, got {v}"))
 }
@@ -132,21 +148,11 @@ fn process_tracks_a_synthetic_sequence_against_its_truth() {
 fn process_with_a_geometric_calibration_fills_z() {
     let dir = tempfile::tempdir().unwrap();
     let (seq, _) = synth_clean(dir.path());
-    let cal = dir.path().join("cal.json");
-    std::fs::write(
-        &cal,
+    let records = process_calibrated(
+        dir.path(),
+        &seq,
         r#"{"model":"geometric","pixel_size_um":1.0,"vergence_deg":10.0}"#,
-    )
-    .unwrap();
-    let out = semdepth(&[
-        "process",
-        path_str(&seq),
-        "--calibration",
-        path_str(&cal),
-        "--no-contour",
-    ]);
-    assert_success(&out);
-    let records = jsonl(&out);
+    );
     assert_eq!(records.len(), 10);
     let per_px = 1.0 / (2.0 * 5.0f64.to_radians().sin());
     for r in &records {
@@ -175,21 +181,12 @@ fn process_with_a_geometric_calibration_fills_z() {
 fn a_two_sample_fit_gives_z_std_from_the_disparity_with_a_warning() {
     let dir = tempfile::tempdir().unwrap();
     let (seq, _) = synth_clean(dir.path());
-    let cal = dir.path().join("cal.json");
-    std::fs::write(
-        &cal,
+    let records = process_calibrated(
+        dir.path(),
+        &seq,
         r#"{"model":"fit","degree":1,"samples":[{"disparity_px":0.0,"z_um":0.0},{"disparity_px":4.0,"z_um":10.0}]}"#,
-    )
-    .unwrap();
-    let out = semdepth(&[
-        "process",
-        path_str(&seq),
-        "--calibration",
-        path_str(&cal),
-        "--no-contour",
-    ]);
-    assert_success(&out);
-    for r in jsonl(&out) {
+    );
+    for r in records {
         let std = f(&r["disparity_std_px"]);
         assert!((f(&r["z_std_um"]) - 2.5 * std).abs() < 1e-9, "{r}");
         let warned = r["warnings"].as_array().is_some_and(|w| {
@@ -237,19 +234,7 @@ fn process_takes_pixel_size_and_stage_tilt_from_the_images() {
             tilt_r,
         );
     }
-    let run = |calibration: &str| {
-        let path = dir.path().join("cal.json");
-        std::fs::write(&path, calibration).unwrap();
-        let out = semdepth(&[
-            "process",
-            path_str(&tiffs),
-            "--calibration",
-            path_str(&path),
-            "--no-contour",
-        ]);
-        assert_success(&out);
-        jsonl(&out)
-    };
+    let run = |calibration: &str| process_calibrated(dir.path(), &tiffs, calibration);
     let from_images =
         run(r#"{"model": "geometric", "pixel_size": "from_images", "vergence": "from_stage_tilt"}"#);
     let typed = run(&format!(

@@ -243,15 +243,14 @@ async function sessionPage(id, signal) {
     left.others(others.map(({ o, colour }) => ({ name: o.name, points: o.left?.contour, colour })));
     right.others(others.map(({ o, colour }) => ({ name: o.name, points: o.right?.contour, colour })));
     const several = (r.objects ?? []).length > 1;
-    const table = (node) => Object.assign(node, { className: "table" });
     const objectCells = several ? [
-      table(cell("objects", el("table", { class: "objects", id: "objects" }, ...r.objects.map((o, k) =>
+      classed("table", cell("objects", el("table", { class: "objects", id: "objects" }, ...r.objects.map((o, k) =>
         el("tr", { "data-object": o.name },
           el("td", {}, el("span", { class: `swatch ${measured(o) ? `c${k % PALETTE.length}` : "lost"}` }), " ", o.name),
           el("td", {}, badge(o.status)),
           el("td", { class: "num" }, pm(o.disparity_axis_px, o.disparity_std_px, 2), " px"),
           el("td", { class: "num" }, pm(o.z_um, o.z_std_um, 2), " µm")))))),
-      table(cell("relative height", el("table", { class: "objects", id: "relative" }, ...(r.relative ?? [])
+      classed("table", cell("relative height", el("table", { class: "objects", id: "relative" }, ...(r.relative ?? [])
         .filter((x) => r.objects.findIndex((o) => o.name === x.from) < r.objects.findIndex((o) => o.name === x.to))
         .map((x) => el("tr", { "data-from": x.from, "data-to": x.to },
           el("td", {}, `${x.from} − ${x.to}`),
@@ -259,8 +258,7 @@ async function sessionPage(id, signal) {
           el("td", { class: "num" }, pm(x.dz_um, x.dz_std_um, 3), " µm")))))),
     ] : [];
     numbers.replaceChildren(
-      Object.assign(cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason", title: r.reason }, r.reason) : null),
-        { className: r.reason ? "wide" : "" }),
+      classed(r.reason ? "wide" : "", cell("status", badge(r.status), r.reason ? el("div", { class: "muted", id: "reason", title: r.reason }, r.reason) : null)),
       cell("frame", r.frame),
       cell("disparity (x, y) px", r.disparity_px ? `${fmt(r.disparity_px[0], 2)}, ${fmt(r.disparity_px[1], 2)}` : "–"),
       cell("disparity across the axis px", pm(r.disparity_axis_px, r.disparity_std_px, 3)),
@@ -403,6 +401,12 @@ function hintText(init) {
 
 function cell(key, ...value) {
   return el("div", {}, el("span", { class: "k" }, key), el("span", { class: "v" }, ...value));
+}
+
+// `node` with the class `name` (none when empty): a card that spans columns.
+function classed(name, node) {
+  if (name) node.className = name;
+  return node;
 }
 
 // An image with its contour drawn over it as SVG, in the frame's pixel

@@ -18,7 +18,7 @@ use crate::strips::refit_without_strips;
 
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
-use super::result::{lost_result, PairResult, Status, TrackError};
+use super::result::{PairResult, Status, TrackError};
 use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
 use super::view_fit::ImageFit;
@@ -64,7 +64,7 @@ impl StereoTracker {
         match initialise(left, &self.params.init) {
             Ok(found) => Ok(self.initialise_found(frame, left, right, found)),
             Err(e @ InitError::HintMatchesNothing { .. }) if self.state.is_none() => Err(TrackError::Hint(e)),
-            Err(e) => Ok(lost_result(frame, format!("initialisation failed: {e}"))),
+            Err(e) => Ok(PairResult::lost(frame, format!("initialisation failed: {e}"))),
         }
     }
 
@@ -238,10 +238,10 @@ impl StereoTracker {
     ) -> PairResult {
         let fitted = found.core.as_ref().unwrap_or(&found.contour);
         let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted) else {
-            return lost_result(frame, "initial contour lies outside the image".into());
+            return PairResult::lost(frame, "initial contour lies outside the image".into());
         };
         if let Some(reason) = self.refuse_unlike_lost(&template) {
-            return lost_result(frame, reason);
+            return PairResult::lost(frame, reason);
         }
         let energy = &self.params.energy;
         // The reported outline: a dark object's runs over its rim; any
@@ -269,7 +269,7 @@ impl StereoTracker {
         };
         let right_pose = match self.search_right(right, &template, left_pose, None) {
             Some(p) => p,
-            None => return lost_result(frame, "object not found in the right image".into()),
+            None => return PairResult::lost(frame, "object not found in the right image".into()),
         };
         // Both views of an object cut by the border fit the part of it that
         // both show.

@@ -8,7 +8,7 @@ use crate::imageio::GrayFrame;
 use crate::occlusion::{grey_change, judge_look, SectorReference, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
 
-use super::result::{lost_result, PairResult, Status, REACQUIRED};
+use super::result::{PairResult, Status, REACQUIRED};
 use super::state::{Phase, TrackerState, REACQUIRE_PAIRS};
 use super::std_error::{fixed_share, noise_bands};
 use super::view_fit::{either, fraction, ImageFit};
@@ -210,7 +210,7 @@ impl StereoTracker {
                 "lost; its template was not found in this pair ({missed} of {REACQUIRE_PAIRS} pairs searched; then the object is initialised afresh)"
             );
             self.state = Some(state);
-            return lost_result(frame, reason);
+            return PairResult::lost(frame, reason);
         };
         let candidate = TrackerState {
             left: left_pose,

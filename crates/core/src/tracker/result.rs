@@ -201,10 +201,6 @@ pub enum TrackError {
     },
 }
 
-pub(super) fn lost_result(frame: u64, reason: String) -> PairResult {
-    PairResult::lost(frame, reason)
-}
-
 impl PairResult {
     /// Pair `frame`, lost for `reason`: no contour, disparity, z or
     /// uncertainty.
