@@ -19,7 +19,8 @@ pub const MAX_FILE_BYTES: u64 = 1 << 30;
 #[derive(Debug, Args)]
 pub struct MetaArgs {
     /// The image files (TIFF from FEI / Thermo Fisher, ZEISS or TESCAN
-    /// microscopes; other files give records with every field null).
+    /// microscopes, or saved by OpenFIBSEM with its JSON description;
+    /// other files give records with every field null).
     #[arg(required = true)]
     pub images: Vec<PathBuf>,
 }
@@ -29,8 +30,11 @@ pub struct MetaArgs {
 #[derive(Serialize)]
 struct Record<'a> {
     image: String,
-    /// `fei`, `zeiss` or `tescan`; null: no microscope metadata.
+    /// `fei`, `zeiss`, `tescan` or `openfibsem`; null: no microscope
+    /// metadata.
     vendor: Option<&'static str>,
+    /// `electron` or `ion`: the beam that took the image, where known.
+    beam: Option<&'static str>,
     pixel_width_m: Option<f64>,
     pixel_height_m: Option<f64>,
     stage_tilt_rad: Option<f64>,
@@ -45,6 +49,7 @@ impl<'a> Record<'a> {
         Self {
             image,
             vendor: meta.vendor.map(|v| v.name()),
+            beam: meta.beam.map(|b| b.name()),
             pixel_width_m: meta.pixel_width_m,
             pixel_height_m: meta.pixel_height_m,
             stage_tilt_rad: meta.stage_tilt_rad,

@@ -8,7 +8,7 @@ use std::io::Cursor;
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
-use semdepth_core::meta::{read_meta, ImageMeta, Vendor, TAG_CZ_SEM, TAG_FEI_HELIOS, TAG_TESCAN};
+use semdepth_core::meta::{read_meta, Beam, ImageMeta, Vendor, TAG_CZ_SEM, TAG_FEI_HELIOS, TAG_TESCAN};
 use tiff::encoder::{colortype, TiffEncoder};
 use tiff::tags::Tag;
 
@@ -21,6 +21,17 @@ const FEI_WD_M: f64 = 0.0165;
 fn fei_path() -> PathBuf {
     common::shared_dir().join("data/real/fibsem/needle_lamella_fei.tif")
 }
+
+/// The real OpenFIBSEM tilt pair (`fibsem_tilt/`) and what its README
+/// states: ion-beam images, 97.66 nm pixels, stage tilts 30 and 25 degrees.
+fn tilt_pair() -> [(PathBuf, f64); 2] {
+    let dir = common::shared_dir().join("data/real/fibsem_tilt");
+    [
+        (dir.join("undercut_stage30deg_ib.tif"), 0.5235865576931467),
+        (dir.join("undercut_stage25deg_ib.tif"), 0.43632024519054546),
+    ]
+}
+const TILT_PAIR_PIXEL_M: f64 = 9.765624999999999e-08;
 
 fn semdepth(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_semdepth"))
@@ -104,6 +115,44 @@ fn real_fei_file_gives_pixel_size_tilt_and_working_distance() {
 }
 
 #[test]
+fn real_openfibsem_files_give_the_ion_beams_values() {
+    for (path, tilt) in tilt_pair() {
+        let meta = read_meta(&std::fs::read(&path).unwrap());
+        assert_eq!(meta.vendor, Some(Vendor::OpenFibsem), "{}", path.display());
+        assert_eq!(meta.beam, Some(Beam::Ion));
+        close(meta.pixel_width_m, TILT_PAIR_PIXEL_M, "pixel width");
+        close(meta.pixel_height_m, TILT_PAIR_PIXEL_M, "pixel height");
+        close(meta.stage_tilt_rad, tilt, "stage tilt");
+        close(meta.working_distance_m, 0.0165, "working distance");
+        close(meta.high_voltage_v, 30_000.0, "high voltage");
+        assert_eq!(meta.magnification, None);
+        assert!(meta.warnings.is_empty(), "{:?}", meta.warnings);
+    }
+    // The FEI-tagged electron image beside them: the microscope's own tag.
+    let fei = common::shared_dir().join("data/real/fibsem_tilt/openfibsem_start_eb_fei.tif");
+    let meta = read_meta(&std::fs::read(fei).unwrap());
+    assert_eq!(
+        (meta.vendor, meta.beam),
+        (Some(Vendor::Fei), Some(Beam::Electron))
+    );
+}
+
+#[test]
+fn cli_meta_prints_the_openfibsem_values() {
+    let [(first, tilt), _] = tilt_pair();
+    let out = semdepth(&["meta", first.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout).expect("stdout is JSON");
+    let r = &json[0];
+    assert_eq!(r["vendor"], "openfibsem");
+    assert_eq!(r["beam"], "ion");
+    close(r["pixel_width_m"].as_f64(), TILT_PAIR_PIXEL_M, "pixel_width_m");
+    close(r["stage_tilt_rad"].as_f64(), tilt, "stage_tilt_rad");
+    close(r["working_distance_m"].as_f64(), 0.0165, "working_distance_m");
+    assert_eq!(r["warnings"], serde_json::json!([]));
+}
+
+#[test]
 fn cli_meta_prints_the_real_fei_values() {
     let path = fei_path();
     let out = semdepth(&["meta", path.to_str().unwrap()]);
@@ -119,6 +168,7 @@ fn cli_meta_prints_the_real_fei_values() {
     let r = &records[0];
     assert_eq!(r["image"], path.display().to_string());
     assert_eq!(r["vendor"], "fei");
+    assert_eq!(r["beam"], "ion");
     close(r["pixel_width_m"].as_f64(), FEI_PIXEL_M, "pixel_width_m");
     close(r["pixel_height_m"].as_f64(), FEI_PIXEL_M, "pixel_height_m");
     close(r["stage_tilt_rad"].as_f64(), FEI_TILT_RAD, "stage_tilt_rad");

@@ -164,7 +164,7 @@ pub struct PairMeta {
     pub stage_tilt_difference_rad: Option<f64>,
 }
 
-/// One image's pixel size and stage tilt.
+/// One image's pixel size, stage tilt and beam.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct ViewMeta {
     /// Width of one pixel at the specimen, metres.
@@ -173,6 +173,29 @@ pub struct ViewMeta {
     pub pixel_height_m: Option<f64>,
     /// Stage tilt, radians.
     pub stage_tilt_rad: Option<f64>,
+    /// The beam that took the image (from FEI's `[Beam] Beam` or
+    /// OpenFIBSEM's `beam_type`); null when the file does not say.
+    #[serde(default)]
+    pub beam: Option<Beam>,
+}
+
+/// The beam that took an image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Beam {
+    /// The electron beam (SEM).
+    Electron,
+    /// The focused ion beam (FIB).
+    Ion,
+}
+
+impl From<semdepth_core::meta::Beam> for Beam {
+    fn from(b: semdepth_core::meta::Beam) -> Self {
+        match b {
+            semdepth_core::meta::Beam::Electron => Beam::Electron,
+            semdepth_core::meta::Beam::Ion => Beam::Ion,
+        }
+    }
 }
 
 /// One object's measurement of a pair.
@@ -263,6 +286,7 @@ impl From<calib::ViewMeta> for ViewMeta {
             pixel_width_m: m.pixel_width_m,
             pixel_height_m: m.pixel_height_m,
             stage_tilt_rad: m.stage_tilt_rad,
+            beam: m.beam.map(Beam::from),
         }
     }
 }

@@ -3,6 +3,7 @@
 //! once per change of magnification.
 
 use super::{sin_cos_deg, Calibration, CalibrationSpec};
+use crate::meta::Beam;
 
 /// What a pair's two images say about how they were taken (see
 /// [`crate::meta`]), as far as depth needs it.
@@ -17,7 +18,7 @@ pub struct PairMeta {
     pub stage_tilt_difference_rad: Option<f64>,
 }
 
-/// One image's pixel size and stage tilt.
+/// One image's pixel size, stage tilt and beam.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct ViewMeta {
@@ -27,6 +28,8 @@ pub struct ViewMeta {
     pub pixel_height_m: Option<f64>,
     /// Stage tilt, radians.
     pub stage_tilt_rad: Option<f64>,
+    /// The beam that took the image, where known.
+    pub beam: Option<Beam>,
 }
 
 impl ViewMeta {
@@ -36,11 +39,15 @@ impl ViewMeta {
             pixel_width_m: meta.pixel_width_m,
             pixel_height_m: meta.pixel_height_m,
             stage_tilt_rad: meta.stage_tilt_rad,
+            beam: meta.beam,
         }
     }
 
     pub(super) fn is_empty(&self) -> bool {
-        self.pixel_width_m.is_none() && self.pixel_height_m.is_none() && self.stage_tilt_rad.is_none()
+        self.pixel_width_m.is_none()
+            && self.pixel_height_m.is_none()
+            && self.stage_tilt_rad.is_none()
+            && self.beam.is_none()
     }
 
     /// Length of one pixel along the disparity direction across a tilt axis
@@ -71,6 +78,21 @@ impl PairMeta {
             left,
             right,
             stage_tilt_difference_rad,
+        }
+    }
+
+    /// Why the stage tilt difference is not the angle between the views:
+    /// one image is the electron beam's and the other the ion beam's (the
+    /// two columns stand at an angle of their own). `None` when both
+    /// beams are the same or one is unknown.
+    pub fn mixed_beams(&self) -> Option<String> {
+        match (self.left.beam, self.right.beam) {
+            (Some(l), Some(r)) if l != r => Some(format!(
+                "the left image is the {} beam's and the right the {} beam's: their stage tilt difference is not the angle between the views",
+                l.name(),
+                r.name()
+            )),
+            _ => None,
         }
     }
 

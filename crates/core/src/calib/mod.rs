@@ -518,8 +518,11 @@ impl Calibration {
         let vergence_rad = match g.vergence_deg {
             Some(v) => v.to_radians(),
             None => {
+                let meta = meta.ok_or_else(none)?;
+                if let Some(why) = meta.mixed_beams() {
+                    return Err(why);
+                }
                 let dt = meta
-                    .ok_or_else(none)?
                     .stage_tilt_difference_rad
                     .ok_or("the images do not both carry a stage tilt")?;
                 if !(dt.is_finite() && dt != 0.0 && dt.abs() <= std::f64::consts::FRAC_PI_2) {

@@ -342,6 +342,7 @@ fn view(pixel_m: f64, tilt_rad: f64) -> ViewMeta {
         pixel_width_m: Some(pixel_m),
         pixel_height_m: Some(pixel_m),
         stage_tilt_rad: Some(tilt_rad),
+        beam: None,
     }
 }
 
@@ -404,6 +405,31 @@ fn missing_or_contradicting_metadata_gives_no_height_and_says_why() {
         view(1e-7, 0.1),
     );
     assert!(no_height(Some(&no_pixel)).contains("no pixel size"));
+    // An electron image beside an ion image: the columns' own angle is
+    // between the views, not the stage tilt difference.
+    let mixed = PairMeta::new(
+        ViewMeta {
+            beam: Some(crate::meta::Beam::Electron),
+            ..view(1e-7, 0.0)
+        },
+        ViewMeta {
+            beam: Some(crate::meta::Beam::Ion),
+            ..view(1e-7, 0.1)
+        },
+    );
+    assert!(no_height(Some(&mixed))
+        .contains("the left image is the electron beam's and the right the ion beam's"));
+    let both_ion = PairMeta::new(
+        ViewMeta {
+            beam: Some(crate::meta::Beam::Ion),
+            ..view(1e-7, 0.0)
+        },
+        ViewMeta {
+            beam: Some(crate::meta::Beam::Ion),
+            ..view(1e-7, 0.1)
+        },
+    );
+    assert!(cal.z_for_pair([3.0, 0.0], Some(&both_ion)).is_ok());
     // Non-square pixels: the length across the tilt axis (axis along y:
     // the width; along x: the height).
     let wide = PairMeta::new(
@@ -411,11 +437,13 @@ fn missing_or_contradicting_metadata_gives_no_height_and_says_why() {
             pixel_width_m: Some(2e-7),
             pixel_height_m: Some(1e-7),
             stage_tilt_rad: Some(0.0),
+            beam: None,
         },
         ViewMeta {
             pixel_width_m: Some(2e-7),
             pixel_height_m: Some(1e-7),
             stage_tilt_rad: Some(0.1),
+            beam: None,
         },
     );
     assert!((wide.pixel_size_um(90.0).unwrap() - 0.2).abs() < 1e-12);

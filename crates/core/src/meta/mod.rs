@@ -18,6 +18,12 @@
 //! - TESCAN: tag 50431, ini text with `[MAIN]` and `[SEM]` sections (`[SEM]`
 //!   first): `PixelSizeX` / `PixelSizeY` (metres), `StageTilt` (degrees),
 //!   `WD` (metres), `HV` (volts), `Magnification`.
+//! - OpenFIBSEM (fibsemOS, the lift-out automation's own format), when none
+//!   of the tags above is present: JSON in the ImageDescription (tag 270),
+//!   see [`openfibsem`].
+//!
+//! Which beam took the image (electron or ion) comes from FEI's `[Beam]
+//! Beam` (`EBeam`, `IBeam`) and OpenFIBSEM's `beam_type`.
 //!
 //! Reading never fails and never panics: whatever is missing or garbled is
 //! `None`, with a one-sentence warning naming the key. Tag text that is not
@@ -26,7 +32,11 @@
 //!
 //! - [`read_meta`]: bytes of any image file -> [`ImageMeta`].
 //! - [`parse_fei`], [`parse_zeiss`], [`parse_tescan`]: a vendor tag's text ->
-//!   [`ImageMeta`].
+//!   [`ImageMeta`]; [`parse_openfibsem`]: an ImageDescription's.
+
+pub mod openfibsem;
+
+pub use openfibsem::parse_openfibsem;
 
 use std::collections::HashMap;
 use std::io::Cursor;
@@ -42,13 +52,17 @@ pub const TAG_FEI_HELIOS: u16 = 34682;
 pub const TAG_CZ_SEM: u16 = 34118;
 /// TIFF tag of TESCAN microscopes (ini text).
 pub const TAG_TESCAN: u16 = 50431;
+/// TIFF ImageDescription, where OpenFIBSEM writes its JSON.
+pub const TAG_IMAGE_DESCRIPTION: u16 = 270;
 
-/// The vendor tags looked for, in this order; the first one present is used.
-const VENDOR_TAGS: [(u16, Vendor); 4] = [
+/// The vendor tags looked for, in this order; the first one present is used
+/// (the microscope's own before the automation's description).
+const VENDOR_TAGS: [(u16, Vendor); 5] = [
     (TAG_FEI_HELIOS, Vendor::Fei),
     (TAG_FEI_SFEG, Vendor::Fei),
     (TAG_CZ_SEM, Vendor::Zeiss),
     (TAG_TESCAN, Vendor::Tescan),
+    (TAG_IMAGE_DESCRIPTION, Vendor::OpenFibsem),
 ];
 
 /// Longest vendor tag text read, in bytes: real tags are a few kB, so more
@@ -69,6 +83,29 @@ pub enum Vendor {
     Zeiss,
     /// TESCAN (TIFF tag 50431).
     Tescan,
+    /// OpenFIBSEM / fibsemOS (JSON in the TIFF ImageDescription, tag 270).
+    OpenFibsem,
+}
+
+/// The beam that took an image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
+pub enum Beam {
+    /// The electron beam (SEM).
+    Electron,
+    /// The focused ion beam (FIB).
+    Ion,
+}
+
+impl Beam {
+    /// The snake_case name (`electron`, `ion`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Beam::Electron => "electron",
+            Beam::Ion => "ion",
+        }
+    }
 }
 
 impl Vendor {
@@ -78,6 +115,7 @@ impl Vendor {
             Vendor::Fei => "fei",
             Vendor::Zeiss => "zeiss",
             Vendor::Tescan => "tescan",
+            Vendor::OpenFibsem => "openfibsem",
         }
     }
 
@@ -87,6 +125,7 @@ impl Vendor {
             Vendor::Fei => "FEI",
             Vendor::Zeiss => "ZEISS",
             Vendor::Tescan => "TESCAN",
+            Vendor::OpenFibsem => "OpenFIBSEM",
         }
     }
 }
@@ -99,6 +138,8 @@ impl Vendor {
 pub struct ImageMeta {
     /// Whose metadata was found (`None`: none).
     pub vendor: Option<Vendor>,
+    /// The beam that took the image, where the metadata says.
+    pub beam: Option<Beam>,
     /// Width of one pixel at the specimen, metres.
     pub pixel_width_m: Option<f64>,
     /// Height of one pixel at the specimen, metres.
@@ -140,6 +181,11 @@ pub fn read_meta(bytes: &[u8]) -> ImageMeta {
                 Vendor::Fei => parse_fei(&text),
                 Vendor::Zeiss => parse_zeiss(&text),
                 Vendor::Tescan => parse_tescan(&text),
+                // Any other description is no metadata, nor worth a warning.
+                Vendor::OpenFibsem => match parse_openfibsem(&text) {
+                    Some(meta) => meta,
+                    None => return ImageMeta::default(),
+                },
             };
             meta.warnings.splice(0..0, found.warnings);
             meta
@@ -237,7 +283,7 @@ fn lines(text: &str) -> impl Iterator<Item = &str> {
 }
 
 /// `raw` shortened and stripped of control characters, for a warning.
-fn quote(raw: &str) -> String {
+pub(crate) fn quote(raw: &str) -> String {
     let mut out: String = raw
         .chars()
         .take(MAX_QUOTE_CHARS)
@@ -396,6 +442,11 @@ pub fn parse_fei(text: &str) -> ImageMeta {
     };
     let beam = named("Beam", "EBeam");
     let scan = named("Scan", "EScan");
+    meta.beam = match ini.get("Beam", "Beam") {
+        Some(b) if b.eq_ignore_ascii_case("EBeam") => Some(Beam::Electron),
+        Some(b) if b.eq_ignore_ascii_case("IBeam") => Some(Beam::Ion),
+        _ => None,
+    };
 
     // Pixel size: [Scan], then the named scan section, then [EScan].
     let mut scan_sections = vec!["Scan".to_string()];
