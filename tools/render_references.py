@@ -39,7 +39,7 @@ def main():
         scale = 768 / max(image.size)
         if scale < 1:
             image = image.resize((int(image.width * scale), int(image.height * scale)), Image.LANCZOS)
-        name = key.replace("autoliftout/", "").replace("/", "_").replace(".png", "") + ".jpg"
+        name = key.replace("autoliftout/", "").replace("/", "_").replace(".png", "").replace(".tif", "") + ".jpg"
         image.save(OUT / name, quality=70)
         print(OUT / name)
 

@@ -29,8 +29,8 @@
 use std::collections::HashMap;
 use std::path::PathBuf;
 
-use crate::reference::shared_dir;
-use semdepth_core::display::{render_png, Overlay};
+use crate::reference::{gaussian, grow, register, shared_dir, write_side_by_side};
+use semdepth_core::display::Overlay;
 use semdepth_core::geometry::{mask_iou, Point, Polygon};
 use semdepth_core::imageio::{read_file, DecodeLimits, GrayFrame};
 use semdepth_core::tracker::{PairResult, Status, StereoTracker, TrackError, TrackerParams};
@@ -320,100 +320,12 @@ pub fn object_positions(scans: &[GrayFrame], outline: &[Point]) -> Vec<Point> {
                         / others
                 })
                 .collect();
-            let d = register(&smoothed[k], &mean, w, &pixels);
+            let d = register(&smoothed[k], &mean, w, &pixels, [0.0, 0.0]);
             // `d` is where scan k's pixels lie in the mean: the object sits
             // at -d in scan k relative to the mean.
             [-d[0], -d[1]]
         })
         .collect()
-}
-
-/// The translation `d` that best maps `a` onto `b` over `pixels`:
-/// `b(p + d) = a(p)`.
-fn register(a: &[f64], b: &[f64], w: usize, pixels: &[(usize, usize)]) -> Point {
-    let sample = |img: &[f64], x: f64, y: f64| -> f64 {
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let (i, j) = (x0 as usize, y0 as usize);
-        let p = |ii: usize, jj: usize| img[jj * w + ii];
-        (1.0 - fy) * ((1.0 - fx) * p(i, j) + fx * p(i + 1, j))
-            + fy * ((1.0 - fx) * p(i, j + 1) + fx * p(i + 1, j + 1))
-    };
-    let mut d = [0.0f64; 2];
-    for _ in 0..50 {
-        let (mut hxx, mut hxy, mut hyy, mut bx, mut by) = (0.0, 0.0, 0.0, 0.0, 0.0);
-        for &(x, y) in pixels {
-            let (xb, yb) = (x as f64 + d[0], y as f64 + d[1]);
-            let gx = sample(b, xb + 0.5, yb) - sample(b, xb - 0.5, yb);
-            let gy = sample(b, xb, yb + 0.5) - sample(b, xb, yb - 0.5);
-            let e = sample(b, xb, yb) - a[y * w + x];
-            hxx += gx * gx;
-            hxy += gx * gy;
-            hyy += gy * gy;
-            bx += gx * e;
-            by += gy * e;
-        }
-        let det = hxx * hyy - hxy * hxy;
-        let step = [(hyy * bx - hxy * by) / det, (hxx * by - hxy * bx) / det];
-        d = [
-            (d[0] - step[0]).clamp(-2.0, 2.0),
-            (d[1] - step[1]).clamp(-2.0, 2.0),
-        ];
-        if step[0].hypot(step[1]) < 1e-5 {
-            break;
-        }
-    }
-    d
-}
-
-/// `mask` grown by `r` pixels (square neighbourhood).
-fn grow(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
-    let mut out = vec![false; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            if mask[y * w + x] {
-                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
-                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
-                        out[yy * w + xx] = true;
-                    }
-                }
-            }
-        }
-    }
-    out
-}
-
-fn gaussian(data: &[u16], w: usize, h: usize, sigma: f64) -> Vec<f64> {
-    let r = (3.0 * sigma).ceil() as i64;
-    let kernel: Vec<f64> = (-r..=r)
-        .map(|i| (-(i * i) as f64 / (2.0 * sigma * sigma)).exp())
-        .collect();
-    let sum: f64 = kernel.iter().sum();
-    let kernel: Vec<f64> = kernel.iter().map(|k| k / sum).collect();
-    let src: Vec<f64> = data.iter().map(|&v| v as f64).collect();
-    let mut tmp = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for (i, k) in kernel.iter().enumerate() {
-                let xx = (x as i64 + i as i64 - r).clamp(0, w as i64 - 1) as usize;
-                s += k * src[y * w + xx];
-            }
-            tmp[y * w + x] = s;
-        }
-    }
-    let mut out = vec![0.0; w * h];
-    for y in 0..h {
-        for x in 0..w {
-            let mut s = 0.0;
-            for (i, k) in kernel.iter().enumerate() {
-                let yy = (y as i64 + i as i64 - r).clamp(0, h as i64 - 1) as usize;
-                s += k * tmp[yy * w + x];
-            }
-            out[y * w + x] = s;
-        }
-    }
-    out
 }
 
 /// What one pair was, against the references.
@@ -572,11 +484,11 @@ fn write_overlay(
         [255, 0, 0]
     };
     let moved: Vec<Point> = reference.iter().map(|p| [p[0] + truth, p[1]]).collect();
-    let mut images = Vec::new();
-    for (frame, outline, view) in [
+    let views = [
         (left, reference, &result.left),
         (right, &moved[..], &result.right),
-    ] {
+    ]
+    .map(|(frame, outline, view)| {
         let mut overlays = vec![Overlay {
             contour: outline,
             colour: [0, 255, 0],
@@ -587,16 +499,14 @@ fn write_overlay(
                 colour,
             });
         }
-        let png = render_png(frame, Some(768), &overlays).expect("render");
-        images.push(image::load_from_memory(&png).expect("png").to_rgb8());
-    }
-    let (w, h) = (images[0].width(), images[0].height());
-    let mut both = image::RgbImage::new(2 * w + 8, h);
-    image::imageops::replace(&mut both, &images[0], 0, 0);
-    image::imageops::replace(&mut both, &images[1], i64::from(w) + 8, 0);
+        (frame, overlays)
+    });
     let name = format!("{}_{:?}_{k:02}.png", seq.name.replace(' ', "_"), naming).to_lowercase();
-    std::fs::create_dir_all(dir).expect("overlay folder");
-    both.save(PathBuf::from(dir).join(name)).expect("write overlay");
+    write_side_by_side(
+        dir,
+        &name,
+        views.each_ref().map(|(frame, overlays)| (*frame, &overlays[..])),
+    );
 }
 
 /// What the real sequences must not exceed, per sequence and naming:

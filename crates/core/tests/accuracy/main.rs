@@ -17,6 +17,7 @@ mod init_synth;
 mod liftout_real;
 mod session_real;
 mod session_synth;
+mod tilt_pair_real;
 mod tracker_real;
 mod tracker_synth;
 mod tracker_tilted;

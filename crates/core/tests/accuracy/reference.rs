@@ -4,6 +4,9 @@
 //! here rather than by the generator.
 #![allow(dead_code)]
 
+use semdepth_core::display::{render_png, Overlay};
+use semdepth_core::geometry::Point;
+use semdepth_core::imageio::GrayFrame;
 use std::path::PathBuf;
 
 /// `../shared` beside the repository.
@@ -257,4 +260,133 @@ pub fn tool_over_particle(
     particle.motion.start_px = Some([340.0, 250.0]);
     particle.motion.drift_px_per_frame = [0.3, 0.1];
     (Scene::new(&tool).unwrap(), Scene::new(&particle).unwrap())
+}
+
+/// The translation `d` that best maps `a` onto `b` over `pixels`:
+/// `b(p + d) = a(p)`, by Gauss-Newton on bilinear samples (Lucas-Kanade)
+/// from `start`, within 2 px of it. `pixels` must stay 3 px inside the
+/// image at every `d` tried.
+pub fn register(a: &[f64], b: &[f64], w: usize, pixels: &[(usize, usize)], start: Point) -> Point {
+    let sample = |img: &[f64], x: f64, y: f64| -> f64 {
+        let (x0, y0) = (x.floor(), y.floor());
+        let (fx, fy) = (x - x0, y - y0);
+        let (i, j) = (x0 as usize, y0 as usize);
+        let p = |ii: usize, jj: usize| img[jj * w + ii];
+        (1.0 - fy) * ((1.0 - fx) * p(i, j) + fx * p(i + 1, j))
+            + fy * ((1.0 - fx) * p(i, j + 1) + fx * p(i + 1, j + 1))
+    };
+    let mut d = start;
+    for _ in 0..50 {
+        let (mut hxx, mut hxy, mut hyy, mut bx, mut by) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for &(x, y) in pixels {
+            let (xb, yb) = (x as f64 + d[0], y as f64 + d[1]);
+            let gx = sample(b, xb + 0.5, yb) - sample(b, xb - 0.5, yb);
+            let gy = sample(b, xb, yb + 0.5) - sample(b, xb, yb - 0.5);
+            let e = sample(b, xb, yb) - a[y * w + x];
+            hxx += gx * gx;
+            hxy += gx * gy;
+            hyy += gy * gy;
+            bx += gx * e;
+            by += gy * e;
+        }
+        let det = hxx * hyy - hxy * hxy;
+        let step = [(hyy * bx - hxy * by) / det, (hxx * by - hxy * bx) / det];
+        d = [
+            (d[0] - step[0]).clamp(start[0] - 2.0, start[0] + 2.0),
+            (d[1] - step[1]).clamp(start[1] - 2.0, start[1] + 2.0),
+        ];
+        if step[0].hypot(step[1]) < 1e-5 {
+            break;
+        }
+    }
+    d
+}
+
+/// `mask` grown by `r` pixels (square neighbourhood).
+pub fn grow(mask: &[bool], w: usize, h: usize, r: usize) -> Vec<bool> {
+    let mut out = vec![false; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            if mask[y * w + x] {
+                for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                    for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                        out[yy * w + xx] = true;
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+/// `data` smoothed by a Gaussian of `sigma` pixels ([`crate::tilted::blur`]).
+pub fn gaussian(data: &[u16], w: usize, h: usize, sigma: f64) -> Vec<f64> {
+    crate::tilted::blur(
+        &data.iter().map(|&v| f64::from(v)).collect::<Vec<_>>(),
+        w,
+        h,
+        sigma,
+    )
+}
+
+/// The whole-pixel translation `d` within `range` (x, y: from `-range`
+/// to `range`) that maximises the normalised cross-correlation of `a` at
+/// `pixels` with `b` at `pixels + d`, and that correlation; offsets that
+/// take a pixel outside `b` are not tried.
+pub fn ncc_offset(
+    a: &[f64],
+    b: &[f64],
+    [w, h]: [usize; 2],
+    pixels: &[(usize, usize)],
+    range: [i64; 2],
+) -> ([i64; 2], f64) {
+    let n = pixels.len() as f64;
+    let mean_a = pixels.iter().map(|&(x, y)| a[y * w + x]).sum::<f64>() / n;
+    let var_a = pixels
+        .iter()
+        .map(|&(x, y)| (a[y * w + x] - mean_a).powi(2))
+        .sum::<f64>();
+    let mut best = ([0, 0], f64::NEG_INFINITY);
+    for dy in -range[1]..=range[1] {
+        for dx in -range[0]..=range[0] {
+            let inside = pixels.iter().all(|&(x, y)| {
+                let (xx, yy) = (x as i64 + dx, y as i64 + dy);
+                xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h
+            });
+            if !inside {
+                continue;
+            }
+            let at = |&(x, y): &(usize, usize)| b[(y as i64 + dy) as usize * w + (x as i64 + dx) as usize];
+            let mean_b = pixels.iter().map(at).sum::<f64>() / n;
+            let (mut cross, mut var_b) = (0.0, 0.0);
+            for p in pixels {
+                let (da, db) = (a[p.1 * w + p.0] - mean_a, at(p) - mean_b);
+                cross += da * db;
+                var_b += db * db;
+            }
+            let c = cross / (var_a * var_b).sqrt();
+            if c > best.1 {
+                best = ([dx, dy], c);
+            }
+        }
+    }
+    best
+}
+
+/// Writes two frames side by side (8 px apart, each drawn at most 768 px
+/// wide) with their overlays, as `dir/file`.
+pub fn write_side_by_side(dir: &str, file: &str, views: [(&GrayFrame, &[Overlay]); 2]) {
+    let images: Vec<image::RgbImage> = views
+        .iter()
+        .map(|(frame, overlays)| {
+            let png = render_png(frame, Some(768), overlays).expect("render");
+            image::load_from_memory(&png).expect("png").to_rgb8()
+        })
+        .collect();
+    let (w, h) = (images[0].width(), images[0].height());
+    let mut both = image::RgbImage::new(2 * w + 8, h);
+    image::imageops::replace(&mut both, &images[0], 0, 0);
+    image::imageops::replace(&mut both, &images[1], i64::from(w) + 8, 0);
+    std::fs::create_dir_all(dir).expect("overlay folder");
+    both.save(PathBuf::from(dir).join(file)).expect("write overlay");
 }

@@ -621,7 +621,7 @@ impl TiltedScene {
         let half_cover = (BINS_PER_PX * SUBROWS / 2) as u8;
         let mut frames = Vec::with_capacity(2);
         for (v, y) in yields.iter().enumerate() {
-            let blurred = gaussian(y, w, h, self.imaging.probe_sigma);
+            let blurred = blur(y, w, h, self.imaging.probe_sigma);
             let mut rng = Rng::new(self.seed.wrapping_mul(1_000_003) ^ (2 * k as u64 + v as u64));
             let scale = self.imaging.grey / self.imaging.dose;
             let mut data = Vec::with_capacity(w * h);
@@ -658,7 +658,7 @@ impl TiltedScene {
 }
 
 /// Separable Gaussian blur (edges clamped).
-fn gaussian(src: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
+pub fn blur(src: &[f64], w: usize, h: usize, sigma: f64) -> Vec<f64> {
     if sigma <= 0.0 {
         return src.to_vec();
     }
