@@ -509,6 +509,53 @@ fn write_overlay(
     );
 }
 
+/// The rule a withheld pair's reason names (its first clause; a run of
+/// uncertain pairs that ends in a loss is named by the pair's own rule).
+fn rule_of(reason: &str) -> &'static str {
+    const RULES: [(&str, &str); 12] = [
+        (
+            "the disparity's standard error is",
+            "standard error over its limit (max_disparity_std_px)",
+        ),
+        (
+            "fixes the object's position only to",
+            "position loose in its weakest direction (MAX_POSITION_STD_PX)",
+        ),
+        (
+            "information on the object's position in its weakest direction",
+            "weakest direction held by too little (MIN_HELD_SHARE)",
+        ),
+        (
+            "along its weakest direction from the prediction",
+            "slide to where the tip lost contrast (MIN_SLIDE_CONTRAST)",
+        ),
+        (
+            "its template was not found",
+            "lost: its template not found by the search",
+        ),
+        ("contrast collapsed", "contrast collapsed"),
+        (
+            "fixes no position along the disparity axis",
+            "occluded: what is seen fixes no position on the axis",
+        ),
+        (
+            "looks unlike the object's",
+            "occluded: moved far to a changed outline",
+        ),
+        ("left the object's edge", "contour over bare substrate (overhang)"),
+        (
+            "not found in the right image",
+            "first pair: not found in the right view",
+        ),
+        ("refused:", "first pair: hint refused"),
+        ("no valid contour position", "no valid contour position"),
+    ];
+    RULES
+        .iter()
+        .find(|(needle, _)| reason.contains(needle))
+        .map_or("other", |(_, rule)| rule)
+}
+
 /// What the real sequences must not exceed, per sequence and naming:
 /// confident wrong pairs, false alarms, pairs withheld. The aim is
 /// no confident wrong pair and at most 10% false alarms per sequence; these
@@ -541,9 +588,24 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
 fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     let params = TrackerParams::default();
     let mut report = Vec::new();
+    // Per rule: pairs withheld and false alarms, development and held out.
+    let mut by_rule: Vec<(&str, [usize; 4])> = Vec::new();
     for seq in sequences() {
         for naming in [Naming::Box, Naming::Point] {
-            let (_, c) = run(&seq, naming, &params);
+            let (judged, c) = run(&seq, naming, &params);
+            for j in judged.iter().filter(|j| j.status == Status::Lost) {
+                let rule = rule_of(j.reason.as_deref().unwrap_or(""));
+                let at = match by_rule.iter().position(|(r, _)| *r == rule) {
+                    Some(at) => at,
+                    None => {
+                        by_rule.push((rule, [0; 4]));
+                        by_rule.len() - 1
+                    }
+                };
+                let column = if seq.held_out { 2 } else { 0 };
+                by_rule[at].1[column] += 1;
+                by_rule[at].1[column + 1] += j.false_alarm as usize;
+            }
             report.push((seq.name, seq.held_out, naming, c));
         }
     }
@@ -562,6 +624,11 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
             rms(&c.errors),
             rms(&c.z_scores)
         );
+    }
+    eprintln!("\n| rule that withheld the pair | withheld | of them false alarms | withheld, held out | of them false alarms |");
+    eprintln!("|---|---|---|---|---|");
+    for (rule, [w, f, hw, hf]) in &by_rule {
+        eprintln!("| {rule} | {w} | {f} | {hw} | {hf} |");
     }
     for (name, _, naming, c) in &report {
         let &(_, _, [wrong, alarms, withheld]) = CEILINGS
