@@ -323,8 +323,8 @@ fn process_csv_has_the_documented_columns() {
     let header = csv_cells(lines.next().expect("header"));
     let expected = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,right_x,right_y,\
 right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,relative_disparity_axis_px,\
-angle_diff_rad,z_um,disparity_std_px,z_std_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,right_pixel_width_m,\
-right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
+angle_diff_rad,z_um,disparity_std_px,z_std_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,left_beam,\
+right_pixel_width_m,right_pixel_height_m,right_stage_tilt_rad,right_beam,stage_tilt_difference_rad,warnings";
     assert_eq!(header.join(","), expected);
     let rows: Vec<Vec<String>> = lines.map(csv_cells).collect();
     assert_eq!(rows.len(), 10);
@@ -349,6 +349,58 @@ right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
         assert_eq!(num("disparity_axis_px"), f(&json[k]["disparity_axis_px"]));
         assert_eq!(num("angle_diff_rad"), f(&json[k]["angle_diff_rad"]));
     }
+}
+
+/// The real FIB tilt pair (OpenFIBSEM files) in CSV: z from the files'
+/// pixel size and stage tilts, both views' beam named.
+#[test]
+fn process_csv_of_the_fib_tilt_pair_names_the_beam_and_fills_z() {
+    let dir = tempfile::tempdir().unwrap();
+    let cal = dir.path().join("tilt.json");
+    std::fs::write(
+        &cal,
+        r#"{"model": "geometric", "pixel_size": "from_images", "vergence": "from_stage_tilt", "tilt_axis_deg": 0}"#,
+    )
+    .unwrap();
+    let folder = crate::common::shared_dir().join("data/real/fibsem_tilt");
+    let out = semdepth(&[
+        "process",
+        path_str(&folder),
+        "--pairs",
+        "undercut_stage30deg_ib.tif:undercut_stage25deg_ib.tif",
+        "--calibration",
+        path_str(&cal),
+        "--roi",
+        "640",
+        "635",
+        "260",
+        "105",
+        "--format",
+        "csv",
+    ]);
+    assert_success(&out);
+    let text = String::from_utf8(out.stdout.clone()).unwrap();
+    let mut lines = text.lines();
+    let header = csv_cells(lines.next().expect("header"));
+    let row = csv_cells(lines.next().expect("one row"));
+    let cell = |name: &str| row[header.iter().position(|h| h == name).unwrap()].clone();
+    assert_eq!(
+        (cell("left_beam"), cell("right_beam")),
+        ("ion".to_string(), "ion".to_string())
+    );
+    assert_eq!(cell("status"), "initialised");
+    let (d_y, z): (f64, f64) = (
+        cell("disparity_y_px").parse().unwrap(),
+        cell("z_um").parse().unwrap(),
+    );
+    // Across a tilt axis along x: the axis component is -d_y; 97.66 nm
+    // pixels, tilts 30 and 25 degrees (the folder's README).
+    let dt = 0.43632024519054546 - 0.5235865576931467_f64;
+    let expected = -d_y * 0.09765625 / (2.0 * (dt / 2.0).sin());
+    assert!(
+        (z - expected).abs() <= 1e-6 * expected.abs(),
+        "z {z} against {expected}"
+    );
 }
 
 #[test]

@@ -7,7 +7,7 @@ use super::results::{ObjectResult, PairResult, Relative};
 pub const CSV_HEADER: &str = "frame,name,status,reason,left_x,left_y,left_angle_rad,left_contrast,\
 right_x,right_y,right_angle_rad,right_contrast,disparity_x_px,disparity_y_px,disparity_axis_px,\
 relative_disparity_axis_px,angle_diff_rad,z_um,disparity_std_px,z_std_um,left_pixel_width_m,left_pixel_height_m,left_stage_tilt_rad,\
-right_pixel_width_m,right_pixel_height_m,right_stage_tilt_rad,stage_tilt_difference_rad,warnings";
+left_beam,right_pixel_width_m,right_pixel_height_m,right_stage_tilt_rad,right_beam,stage_tilt_difference_rad,warnings";
 
 /// The CSV header of [`objects_csv_records`]: [`CSV_HEADER`] with the
 /// columns `object` and `relative_to` after `name`.
@@ -102,6 +102,10 @@ fn csv_cells(r: &PairResult, name: &str) -> Vec<String> {
         cells.push(num(view.and_then(|v| v.pixel_width_m)));
         cells.push(num(view.and_then(|v| v.pixel_height_m)));
         cells.push(num(view.and_then(|v| v.stage_tilt_rad)));
+        cells.push(
+            view.and_then(|v| v.beam)
+                .map_or(String::new(), |b| b.name().to_string()),
+        );
     }
     cells.push(num(meta.and_then(|m| m.stage_tilt_difference_rad)));
     cells.push(if r.warnings.is_empty() {

@@ -189,6 +189,16 @@ pub enum Beam {
     Ion,
 }
 
+impl Beam {
+    /// The wire name (`electron`, `ion`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Beam::Electron => "electron",
+            Beam::Ion => "ion",
+        }
+    }
+}
+
 impl From<semdepth_core::meta::Beam> for Beam {
     fn from(b: semdepth_core::meta::Beam) -> Self {
         match b {
