@@ -160,7 +160,7 @@ mod tests {
         let line = csv_record(&r, "a,b");
         let expected = format!(
             "3,\"a,b\",lost,\"contrast \"\"collapsed\"\", left\"{}",
-            ",".repeat(24)
+            ",".repeat(26)
         );
         assert_eq!(line, expected);
         // Two of the commas are inside quoted cells.
