@@ -407,28 +407,15 @@ fn missing_or_contradicting_metadata_gives_no_height_and_says_why() {
     assert!(no_height(Some(&no_pixel)).contains("no pixel size"));
     // An electron image beside an ion image: the columns' own angle is
     // between the views, not the stage tilt difference.
-    let mixed = PairMeta::new(
-        ViewMeta {
-            beam: Some(crate::meta::Beam::Electron),
-            ..view(1e-7, 0.0)
-        },
-        ViewMeta {
-            beam: Some(crate::meta::Beam::Ion),
-            ..view(1e-7, 0.1)
-        },
-    );
+    use crate::meta::Beam;
+    let by = |beam: Beam, tilt_rad: f64| ViewMeta {
+        beam: Some(beam),
+        ..view(1e-7, tilt_rad)
+    };
+    let mixed = PairMeta::new(by(Beam::Electron, 0.0), by(Beam::Ion, 0.1));
     assert!(no_height(Some(&mixed))
         .contains("the left image is the electron beam's and the right the ion beam's"));
-    let both_ion = PairMeta::new(
-        ViewMeta {
-            beam: Some(crate::meta::Beam::Ion),
-            ..view(1e-7, 0.0)
-        },
-        ViewMeta {
-            beam: Some(crate::meta::Beam::Ion),
-            ..view(1e-7, 0.1)
-        },
-    );
+    let both_ion = PairMeta::new(by(Beam::Ion, 0.0), by(Beam::Ion, 0.1));
     assert!(cal.z_for_pair([3.0, 0.0], Some(&both_ion)).is_ok());
     // Non-square pixels: the length across the tilt axis (axis along y:
     // the width; along x: the height).

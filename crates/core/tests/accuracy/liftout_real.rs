@@ -589,22 +589,17 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     let params = TrackerParams::default();
     let mut report = Vec::new();
     // Per rule: pairs withheld and false alarms, development and held out.
-    let mut by_rule: Vec<(&str, [usize; 4])> = Vec::new();
+    let mut by_rule: std::collections::BTreeMap<&str, [usize; 4]> = Default::default();
     for seq in sequences() {
         for naming in [Naming::Box, Naming::Point] {
             let (judged, c) = run(&seq, naming, &params);
             for j in judged.iter().filter(|j| j.status == Status::Lost) {
-                let rule = rule_of(j.reason.as_deref().unwrap_or(""));
-                let at = match by_rule.iter().position(|(r, _)| *r == rule) {
-                    Some(at) => at,
-                    None => {
-                        by_rule.push((rule, [0; 4]));
-                        by_rule.len() - 1
-                    }
-                };
+                let counts = by_rule
+                    .entry(rule_of(j.reason.as_deref().unwrap_or("")))
+                    .or_default();
                 let column = if seq.held_out { 2 } else { 0 };
-                by_rule[at].1[column] += 1;
-                by_rule[at].1[column + 1] += j.false_alarm as usize;
+                counts[column] += 1;
+                counts[column + 1] += j.false_alarm as usize;
             }
             report.push((seq.name, seq.held_out, naming, c));
         }

@@ -346,14 +346,19 @@ pub fn ncc_offset(
         .iter()
         .map(|&(x, y)| (a[y * w + x] - mean_a).powi(2))
         .sum::<f64>();
+    // The offsets that keep every pixel inside `b`: those that keep the
+    // pixels' bounding box inside.
+    let (x0, x1) = pixels
+        .iter()
+        .fold((usize::MAX, 0), |(lo, hi), &(x, _)| (lo.min(x), hi.max(x)));
+    let (y0, y1) = pixels
+        .iter()
+        .fold((usize::MAX, 0), |(lo, hi), &(_, y)| (lo.min(y), hi.max(y)));
+    let fits = |lo: usize, hi: usize, d: i64, len: usize| lo as i64 + d >= 0 && hi as i64 + d < len as i64;
     let mut best = ([0, 0], f64::NEG_INFINITY);
     for dy in -range[1]..=range[1] {
         for dx in -range[0]..=range[0] {
-            let inside = pixels.iter().all(|&(x, y)| {
-                let (xx, yy) = (x as i64 + dx, y as i64 + dy);
-                xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h
-            });
-            if !inside {
+            if !(fits(x0, x1, dx, w) && fits(y0, y1, dy, h)) {
                 continue;
             }
             let at = |&(x, y): &(usize, usize)| b[(y as i64 + dy) as usize * w + (x as i64 + dx) as usize];

@@ -89,19 +89,18 @@ fn pair() -> DecodedPair {
     .expect("decodes")
 }
 
-/// The reference disparity of the region `mask` (see the module docs).
-fn reference_disparity(left: &GrayFrame, right: &GrayFrame, mask: &[bool]) -> Point {
-    let (w, h) = (left.width as usize, left.height as usize);
+/// The reference disparity of the region `mask` (see the module docs), on
+/// the two views smoothed (`a`, `b`: [`gaussian`], sigma 1.5), `w` x `h`.
+fn reference_disparity([a, b]: [&[f64]; 2], [w, h]: [usize; 2], mask: &[bool]) -> Point {
     let grown = grow(mask, w, h, 8);
     let pixels: Vec<(usize, usize)> = (0..w * h).filter(|&i| grown[i]).map(|i| (i % w, i / w)).collect();
-    let (a, b) = (gaussian(&left.data, w, h, 1.5), gaussian(&right.data, w, h, 1.5));
-    let ([dx, dy], c) = ncc_offset(&a, &b, [w, h], &pixels, [12, 90]);
+    let ([dx, dy], c) = ncc_offset(a, b, [w, h], &pixels, [12, 90]);
     eprintln!("reference: whole-pixel offset ({dx}, {dy}), correlation {c:.3}");
     assert!(
         c > 0.7,
         "the reference registration found no clear match (correlation {c:.2})"
     );
-    register(&a, &b, w, &pixels, [dx as f64, dy as f64])
+    register(a, b, w, &pixels, [dx as f64, dy as f64])
 }
 
 /// Both views with the reference outline (green, left view) and the
@@ -151,6 +150,8 @@ fn the_fib_tilt_pair_gives_z_from_its_files() {
     }))
     .expect("a geometric calibration from the images");
     let dt = TILTS_RAD[1] - TILTS_RAD[0];
+    let size = [w as usize, h as usize];
+    let smoothed = [left, right].map(|f| gaussian(&f.data, size[0], size[1], 1.5));
     let mut failures = Vec::new();
     let outlines = outlines();
     for (named, expected) in NAMED.into_iter().zip(EXPECTED_IOU) {
@@ -160,7 +161,7 @@ fn the_fib_tilt_pair_gives_z_from_its_files() {
         );
         let outline = &outlines[&key];
         let mask = Polygon::new(outline.clone()).rasterize(w, h);
-        let reference = reference_disparity(left, right, &mask);
+        let reference = reference_disparity([&smoothed[0], &smoothed[1]], size, &mask);
         for ((how, roi, point), expected) in
             [("box", Some(named.roi), None), ("point", None, Some(named.point))]
                 .into_iter()
