@@ -59,6 +59,8 @@ pub enum Source {
     /// A component above (`brighter`) or below (`darker`) a grey level
     /// (0..=1 of full scale).
     Threshold { polarity: Polarity, level: f32 },
+    /// The region a person outlined (the `outline` hint).
+    Outline,
 }
 
 /// The energy terms behind a candidate's score, in full-resolution pixels.
@@ -94,6 +96,9 @@ pub(super) struct WorkArea<'a> {
     pub domain: [u32; 4],
     /// A working pixel the object must cover (the point hint).
     pub point: Option<[u32; 2]>,
+    /// Working pixels the object must not cover (the `exclude` hint; those
+    /// outside the working image left out).
+    pub exclude: Vec<[u32; 2]>,
     /// Object polarity allowed.
     pub polarity: Polarity,
     /// Area range in working pixels.
@@ -172,6 +177,16 @@ impl Candidate {
     pub fn area(&self) -> usize {
         self.mask.iter().filter(|&&m| m).count()
     }
+
+    /// Whether the working pixel `[x, y]` is inside.
+    pub fn covers(&self, [x, y]: [u32; 2]) -> bool {
+        let ([x0, y0], w) = (self.origin, self.width);
+        x >= x0
+            && y >= y0
+            && x - x0 < w
+            && y - y0 < self.height
+            && self.mask[((y - y0) * w + (x - x0)) as usize]
+    }
 }
 
 /// Why candidates were turned down, for the error when none is left.
@@ -187,6 +202,8 @@ pub(super) struct Rejections {
     pub polarity: usize,
     /// Regions that do not cover the point.
     pub point: usize,
+    /// Regions that cover a point that is not the object.
+    pub excluded: usize,
 }
 
 impl WorkArea<'_> {
@@ -425,6 +442,10 @@ impl WorkArea<'_> {
         }
         if self.spans(candidate.bbox()) {
             rejected.spanning += 1;
+            return None;
+        }
+        if self.exclude.iter().any(|&p| candidate.covers(p)) {
+            rejected.excluded += 1;
             return None;
         }
         let score = self.score(&candidate)?;
@@ -1179,6 +1200,7 @@ mod tests {
             image_sides: [true; 4],
             domain: [0, 0, n, n],
             point: None,
+            exclude: Vec::new(),
             polarity: Polarity::Any,
             min_area: 0.0,
             max_area: f64::INFINITY,

@@ -38,6 +38,7 @@ mod candidates;
 mod edge_fit;
 mod edges;
 mod morphology;
+mod outlined;
 mod prompted;
 mod rim;
 
@@ -107,6 +108,17 @@ pub const MAX_HINT_COORDINATE: i64 = 1 << 31;
 /// Smallest width and height of a `roi` hint, pixels.
 pub const MIN_ROI_SIDE: i64 = 16;
 
+/// Most vertices of an `outline` hint (a lasso sampled at every pointer
+/// move of a few seconds' drawing stays well below).
+pub const MAX_OUTLINE_VERTICES: usize = 4096;
+
+/// Smallest area of an `outline` hint inside the image, pixels (that of
+/// the smallest `roi`).
+pub const MIN_OUTLINE_AREA_PX: f64 = (MIN_ROI_SIDE * MIN_ROI_SIDE) as f64;
+
+/// Most `exclude` points.
+pub const MAX_EXCLUDE_POINTS: usize = 64;
+
 /// Parameters of the initialisation. Every field has a default that works
 /// without tuning on 640x480 to 4096x4096 SEM frames; `None` means "derive
 /// from the image".
@@ -147,6 +159,18 @@ pub struct InitParams {
     /// Hint: is the object brighter or darker than its surroundings?
     /// Default `any`.
     pub polarity: Polarity,
+    /// Hint: the object's outline as a person drew it (a lasso), vertices
+    /// `[x, y]` in pixels, 3 to [`MAX_OUTLINE_VERTICES`], not crossing
+    /// itself. The most direct hint: the object is the region it encloses,
+    /// moved onto the object's edges (see [`outlined`]); a part drawn past
+    /// the image border says the object crosses it there. Its `point`, if
+    /// given, must lie inside it.
+    pub outline: Option<Vec<[f64; 2]>>,
+    /// Hint: points `[x, y]` (pixels) on regions that are not the object
+    /// ("not this"), at most [`MAX_EXCLUDE_POINTS`]: no region that covers
+    /// one is taken. Each must lie inside the image, and outside the
+    /// `outline`.
+    pub exclude: Vec<[f64; 2]>,
     /// Vertex spacing of the returned contour in full-resolution pixels
     /// (default 2.0; range 0.5..=50).
     pub contour_spacing_px: f64,
@@ -165,6 +189,8 @@ impl Default for InitParams {
             roi: None,
             point: None,
             polarity: Polarity::Any,
+            outline: None,
+            exclude: Vec::new(),
             contour_spacing_px: 2.0,
         }
     }
@@ -415,6 +441,43 @@ impl InitParams {
                 );
             }
         }
+        let finite = |[x, y]: [f64; 2]| {
+            x.is_finite() && y.is_finite() && x.abs() <= MAX_HINT_COORDINATE as f64 && y.abs() <= MAX_HINT_COORDINATE as f64
+        };
+        if let Some(outline) = &self.outline {
+            if !(3..=MAX_OUTLINE_VERTICES).contains(&outline.len()) {
+                return hint(
+                    "outline",
+                    format!("{} vertices (expected 3..={MAX_OUTLINE_VERTICES})", outline.len()),
+                );
+            }
+            if let Some(k) = outline.iter().position(|&p| !finite(p)) {
+                let [x, y] = outline[k];
+                return hint(
+                    "outline",
+                    format!("vertex {k} [{x}, {y}] (expected two finite pixel coordinates)"),
+                );
+            }
+            if !Polygon::new(outline.clone()).is_simple() {
+                return hint(
+                    "outline",
+                    "crosses itself (expected an outline drawn once round the object)".into(),
+                );
+            }
+        }
+        if self.exclude.len() > MAX_EXCLUDE_POINTS {
+            return hint(
+                "exclude",
+                format!("{} points (expected at most {MAX_EXCLUDE_POINTS})", self.exclude.len()),
+            );
+        }
+        if let Some(k) = self.exclude.iter().position(|&p| !finite(p)) {
+            let [x, y] = self.exclude[k];
+            return hint(
+                "exclude",
+                format!("point {k} [{x}, {y}] (expected two finite pixel coordinates)"),
+            );
+        }
         if !(self.contour_spacing_px.is_finite() && (0.5..=50.0).contains(&self.contour_spacing_px)) {
             return bad(format!(
                 "contour_spacing_px {} (expected 0.5..=50)",
@@ -437,13 +500,15 @@ pub struct Hints {
     pub point: Option<[f64; 2]>,
     /// The polarity.
     pub polarity: Polarity,
+    /// True when `exclude` points were given.
+    pub has_exclude: bool,
 }
 
 impl Hints {
-    /// True when any hint narrows the search (a `roi`, a `point`, or a
-    /// polarity other than `any`).
+    /// True when any hint narrows the search (a `roi`, a `point`, a
+    /// polarity other than `any`, or points that are not the object).
     pub fn given(&self) -> bool {
-        self.has_roi || self.point.is_some() || self.polarity != Polarity::Any
+        self.has_roi || self.point.is_some() || self.polarity != Polarity::Any || self.has_exclude
     }
 }
 
@@ -498,12 +563,65 @@ impl InitParams {
                 ));
             }
         }
+        let (lx, ly) = (width as f64 - 0.5, height as f64 - 0.5);
+        let in_image = |[px, py]: [f64; 2]| px >= -0.5 && px <= lx && py >= -0.5 && py <= ly;
+        if let Some(k) = self.exclude.iter().position(|&p| !in_image(p)) {
+            let [px, py] = self.exclude[k];
+            return Err(hint(
+                "exclude",
+                format!("point {k} [{px}, {py}] lies outside the {width}x{height} image (expected -0.5 <= x <= {lx} and -0.5 <= y <= {ly})"),
+            ));
+        }
+        if let Some(outline) = &self.outline {
+            let drawn = Polygon::new(outline.clone());
+            let inside = drawn.clipped_to_box([-0.5, -0.5, lx, ly]).area();
+            if inside < MIN_OUTLINE_AREA_PX {
+                return Err(hint(
+                    "outline",
+                    format!("encloses {inside:.0} px of the {width}x{height} image (expected at least {MIN_OUTLINE_AREA_PX:.0})"),
+                ));
+            }
+            if let Some([px, py]) = self.point.filter(|&p| !drawn.contains(p)) {
+                return Err(hint(
+                    "point",
+                    format!("[{px}, {py}] lies outside the outline (expected a point on the object it encloses)"),
+                ));
+            }
+            if let Some(k) = self.exclude.iter().position(|&p| drawn.contains(p)) {
+                let [px, py] = self.exclude[k];
+                return Err(hint(
+                    "exclude",
+                    format!("point {k} [{px}, {py}] lies inside the outline (expected points on what is not the object)"),
+                ));
+            }
+        }
         Ok(Hints {
             roi,
             has_roi: self.roi.is_some(),
             point: self.point,
             polarity: self.polarity,
+            has_exclude: !self.exclude.is_empty(),
         })
+    }
+}
+
+impl InitParams {
+    /// Where the hints say the object lies in a `width` x `height` image,
+    /// as `[x0, y0, x1, y1]` ([`roi_domain`] of the `roi`, else of the
+    /// `outline`'s bounding box); `None` without either.
+    pub fn hinted_domain(&self, width: u32, height: u32) -> Option<[f64; 4]> {
+        let roi = self.roi.or_else(|| {
+            let [x0, y0, x1, y1] = Polygon::new(self.outline.clone()?).bounds();
+            let (x, y) = (x0.floor() as i64, y0.floor() as i64);
+            Some([x, y, x1.ceil() as i64 + 1 - x, y1.ceil() as i64 + 1 - y])
+        })?;
+        roi_domain(roi, width, height)
+    }
+
+    /// True when a hint names one region: a `roi`, a `point` or an
+    /// `outline`.
+    pub fn names_region(&self) -> bool {
+        self.roi.is_some() || self.point.is_some() || self.outline.is_some()
     }
 }
 
@@ -529,7 +647,11 @@ pub fn roi_domain([x, y, w, h]: [i64; 4], width: u32, height: u32) -> Option<[f6
 /// tool entering from the image border).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
-    let found = grown_over_rim(frame, find_object(frame, params)?);
+    let found = match &params.outline {
+        Some(outline) => outlined::outlined(frame, params, &params.hints_for(frame.width, frame.height)?, outline)?,
+        None => find_object(frame, params)?,
+    };
+    let found = grown_over_rim(frame, found);
     // The outline on the object's edge to a fraction of a pixel, where the
     // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
     Ok(match fitted_to_edge(frame, &found.contour) {
@@ -603,7 +725,9 @@ fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, Ini
     let stage = edge_stage(frame, params, &hints)?;
     let found = |incumbent| prompted::find(frame, params, &hints, &stage, incumbent);
     let paper = match largest_region(params, &stage) {
-        Ok((mut paper, border, radius)) if paper_fits_box(&paper, &hints) => {
+        Ok((mut paper, border, radius))
+            if paper_fits_box(&paper, &hints) && !params.exclude.iter().any(|&p| paper.contour.contains(p)) =>
+        {
             return Ok(match found(Some((&border, radius))) {
                 Ok(Outcome::Found(better)) => better,
                 Ok(Outcome::Stands { score, runners_up }) => {
@@ -651,6 +775,9 @@ fn hint_matches_nothing(hints: &Hints, paper: &InitResult, candidates: &InitErro
     }
     if hints.polarity != Polarity::Any {
         hint.push(format!("polarity {}", hints.polarity.name()));
+    }
+    if hints.has_exclude {
+        hint.push("points that are not the object".into());
     }
     let [x0, y0, x1, y1] = paper.bbox;
     let [cx, cy] = paper.centroid;
@@ -1108,6 +1235,131 @@ mod tests {
         let iou = mask_iou(&truth, &found);
         assert!(iou > 0.97, "IoU {iou}");
         assert!((r.area_px - std::f64::consts::PI * 2500.0).abs() < 0.04 * std::f64::consts::PI * 2500.0);
+    }
+
+    /// Two bright discs: radius 60 at (120, 150) and 25 at (310, 150).
+    fn two_discs() -> GrayFrame {
+        let mut f = disc_frame(400, 300, [120.0, 150.0], 60.0, 60, 180);
+        let small = disc_frame(400, 300, [310.0, 150.0], 25.0, 60, 180);
+        for (d, s) in f.data.iter_mut().zip(&small.data) {
+            *d = (*d).max(*s);
+        }
+        f
+    }
+
+    #[test]
+    fn an_outline_names_the_region_it_encloses_moved_onto_its_edge() {
+        let f = two_discs();
+        // Drawn loosely, 2 px outside the small disc's edge, with 12 clicks.
+        let drawn = Polygon::circle([310.0, 150.0], 27.0, 12).points;
+        let params = InitParams {
+            outline: Some(drawn),
+            ..InitParams::default()
+        };
+        let r = initialise(&f, &params).unwrap();
+        assert_eq!(r.source, Source::Outline);
+        assert!(r.border.is_empty(), "{:?}", r.border);
+        assert!(r.score.is_some_and(|s| s.contrast > 0.2), "{:?}", r.score);
+        let truth = Polygon::circle([310.0, 150.0], 25.0, 720).rasterize(400, 300);
+        let iou = mask_iou(&truth, &r.contour.rasterize(400, 300));
+        assert!(iou > 0.93, "IoU {iou}");
+        // Of the opposite polarity it names nothing.
+        let darker = InitParams {
+            polarity: Polarity::Darker,
+            ..params
+        };
+        let e = initialise(&f, &darker).unwrap_err();
+        assert!(
+            matches!(&e, InitError::HintMatchesNothing { found, .. } if found.contains("brighter")),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn an_outline_drawn_past_the_border_names_an_object_cut_by_it() {
+        let f = disc_frame(200, 200, [10.0, 100.0], 50.0, 40, 200);
+        let drawn = vec![[-30.0, 40.0], [70.0, 45.0], [70.0, 155.0], [-30.0, 160.0]];
+        let params = InitParams {
+            outline: Some(drawn),
+            ..InitParams::default()
+        };
+        let r = initialise(&f, &params).unwrap();
+        assert_eq!(r.border, vec!["left".to_string()]);
+        assert!(r.contour.points.iter().all(|p| p[0] >= -0.5), "clipped to the image");
+    }
+
+    #[test]
+    fn a_point_that_is_not_the_object_turns_its_region_down() {
+        let f = two_discs();
+        let not_big = InitParams {
+            exclude: vec![[120.0, 150.0]],
+            ..InitParams::default()
+        };
+        let r = initialise(&f, &not_big).unwrap();
+        assert!((r.centroid[0] - 310.0).abs() < 1.0, "{:?}", r.centroid);
+        let neither = InitParams {
+            exclude: vec![[120.0, 150.0], [310.0, 150.0]],
+            ..InitParams::default()
+        };
+        let e = initialise(&f, &neither).unwrap_err();
+        assert!(e.to_string().contains("cover a point that is not the object"), "{e}");
+    }
+
+    #[test]
+    fn bad_outlines_and_exclusions_are_named() {
+        let f = two_discs();
+        let square = vec![[290.0, 130.0], [330.0, 130.0], [330.0, 170.0], [290.0, 170.0]];
+        let cases: Vec<(InitParams, &str, &str)> = vec![
+            (
+                InitParams { outline: Some(vec![[0.0, 0.0], [10.0, 0.0]]), ..InitParams::default() },
+                "outline",
+                "2 vertices (expected 3..=4096)",
+            ),
+            (
+                InitParams { outline: Some(vec![[0.0, 0.0], [40.0, 40.0], [40.0, 0.0], [0.0, 40.0]]), ..InitParams::default() },
+                "outline",
+                "crosses itself",
+            ),
+            (
+                InitParams { outline: Some(vec![[0.0, f64::NAN], [40.0, 0.0], [0.0, 40.0]]), ..InitParams::default() },
+                "outline",
+                "vertex 0",
+            ),
+            (
+                InitParams { outline: Some(vec![[500.0, 0.0], [600.0, 0.0], [600.0, 100.0]]), ..InitParams::default() },
+                "outline",
+                "encloses 0 px of the 400x300 image",
+            ),
+            (
+                InitParams { outline: Some(square.clone()), point: Some([100.0, 100.0]), ..InitParams::default() },
+                "point",
+                "outside the outline",
+            ),
+            (
+                InitParams { outline: Some(square), exclude: vec![[310.0, 150.0]], ..InitParams::default() },
+                "exclude",
+                "inside the outline",
+            ),
+            (
+                InitParams { exclude: vec![[-10.0, 5.0]], ..InitParams::default() },
+                "exclude",
+                "outside the 400x300 image",
+            ),
+            (
+                InitParams { exclude: vec![[1.0, 1.0]; 65], ..InitParams::default() },
+                "exclude",
+                "65 points (expected at most 64)",
+            ),
+        ];
+        for (params, field, needle) in cases {
+            match initialise(&f, &params) {
+                Err(InitError::InvalidHint { field: f, message }) => {
+                    assert_eq!(f, field, "{message}");
+                    assert!(message.contains(needle), "{message} lacks {needle:?}");
+                }
+                other => panic!("{field} {needle:?}: {other:?}"),
+            }
+        }
     }
 
     #[test]

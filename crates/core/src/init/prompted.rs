@@ -316,6 +316,16 @@ fn work_area<'a>(
                 (((py + 0.5 - area[1] as f64) / s).floor().max(0.0) as u32).min(h - 1),
             ]
         }),
+        exclude: params
+            .exclude
+            .iter()
+            .filter_map(|&[px, py]| {
+                let s = scale as f64;
+                let x = ((px + 0.5 - area[0] as f64) / s).floor();
+                let y = ((py + 0.5 - area[1] as f64) / s).floor();
+                (x >= 0.0 && y >= 0.0 && x < w as f64 && y < h as f64).then_some([x as u32, y as u32])
+            })
+            .collect(),
         polarity: hints.polarity,
         min_area: min_area / px_per_work,
         max_area: max_area / px_per_work,
@@ -419,7 +429,7 @@ fn no_candidate(
 ) -> InitError {
     // Background regions that span the frame are always turned down; they
     // say why only when nothing else was found.
-    let hinted = rejected.polarity + rejected.point;
+    let hinted = rejected.polarity + rejected.point + rejected.excluded;
     if hinted == 0 && rejected.size > 0 {
         return InitError::NothingInSizeRange {
             min_area_px: min_area,
@@ -432,8 +442,8 @@ fn no_candidate(
     }
     InitError::NoPlausibleRegion {
         message: format!(
-            "{} regions span the frame or fill the box, {} have the wrong polarity or no contrast, {} miss the point, {} are outside the size range {min_area:.0}..={max_area:.0} px",
-            rejected.spanning, rejected.polarity, rejected.point, rejected.size
+            "{} regions span the frame or fill the box, {} have the wrong polarity or no contrast, {} miss the point, {} cover a point that is not the object, {} are outside the size range {min_area:.0}..={max_area:.0} px",
+            rejected.spanning, rejected.polarity, rejected.point, rejected.excluded, rejected.size
         ),
     }
 }

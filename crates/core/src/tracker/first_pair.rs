@@ -424,12 +424,8 @@ impl StereoTracker {
         // edge of the last pixels' boxes, so that the region takes them in.
         let image = PixelRect::full(frame).extent();
         let on_border = RigidTemplate::ON_BORDER_PX;
-        // A roi says where the object lies: the fit stays there.
-        let within = self
-            .params
-            .init
-            .roi
-            .and_then(|roi| crate::init::roi_domain(roi, frame.width, frame.height));
+        // A roi or an outline says where the object lies: the fit stays there.
+        let within = self.params.init.hinted_domain(frame.width, frame.height);
         let fitted = fit_free_within(
             &sums,
             &contour.snapped_to_box(image, on_border),
@@ -446,7 +442,7 @@ impl StereoTracker {
         // region has left for what the two-region model prefers (the real
         // lamella's bright front face without its top face, whose grey is
         // the background's: IoU 0.61), and the initial outline stays.
-        let hinted = self.params.init.roi.is_some() || self.params.init.point.is_some();
+        let hinted = self.params.init.names_region();
         let fitted = match fitted.polygon {
             f if hinted && polygon_iou(&f, contour) < FREE_FIT_MIN_IOU => {
                 let start = match within {

@@ -51,6 +51,28 @@ const WRONG_PX: f64 = 0.5;
 pub enum Naming {
     Box,
     Point,
+    /// A lasso drawn round the object ([`lasso`]).
+    Outline,
+}
+
+/// How far outside the object's edge the lasso of [`Naming::Outline`] is
+/// drawn, pixels.
+pub const LASSO_SLACK_PX: f64 = 3.0;
+
+/// Vertices of the lasso of [`Naming::Outline`].
+pub const LASSO_VERTICES: usize = 24;
+
+/// A loose lasso round the object a person might draw: its reference
+/// outline (by hand, [`outlines`]) at [`LASSO_VERTICES`] evenly spaced
+/// vertices, each moved [`LASSO_SLACK_PX`] outwards (past the image
+/// border where the object crosses it).
+pub fn lasso(reference: &[Point]) -> Vec<Point> {
+    let coarse = Polygon::new(reference.to_vec()).resampled(LASSO_VERTICES);
+    let (a, b) = (
+        coarse.offset_along_normals(LASSO_SLACK_PX),
+        coarse.offset_along_normals(-LASSO_SLACK_PX),
+    );
+    if a.area() > b.area() { a.points } else { b.points }
 }
 
 /// One object through one real sequence.
@@ -397,6 +419,10 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
     match naming {
         Naming::Box => params.init.roi = Some(seq.roi),
         Naming::Point => params.init.point = Some(seq.point),
+        Naming::Outline => {
+            let key = (seq.outlines[0].clone(), seq.object.to_string());
+            params.init.outline = Some(lasso(&outlines[&key]));
+        }
     }
     let mut tracker = StereoTracker::new(params);
     // The static scans' object positions, from all scans of the scene.
@@ -579,7 +605,51 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("landing eb needle", Naming::Point, [0, 0, 1]),
     ("static scans lamella", Naming::Box, [2, 0, 7]),
     ("static scans lamella", Naming::Point, [0, 0, 8]),
+    ("landing ib needle, brightness", Naming::Outline, [0, 0, 0]),
+    ("landing eb needle, brightness", Naming::Outline, [0, 0, 0]),
+    ("contact_1 needle from 3", Naming::Outline, [0, 2, 3]),
+    ("contact_1 needle", Naming::Outline, [0, 3, 6]),
+    ("landing ib needle", Naming::Outline, [0, 1, 1]),
+    // Pair 8: -1.71 px at a standard error of 0.50 (the needle's x is fixed
+    // by its tip's short edge alone under the scans' heavy noise; the box
+    // and the point withhold these pairs on their standard error).
+    ("static scans needle", Naming::Outline, [1, 0, 0]),
+    ("landing eb needle", Naming::Outline, [0, 0, 1]),
+    // The lamella's ends barely differ from the needle and the post beside
+    // them: the right view's search slides it onto the needle, 90 px off,
+    // and every pair is withheld ("the contour left the right image").
+    ("static scans lamella", Naming::Outline, [0, 0, 9]),
 ];
+
+/// Least IoU of the initialisation's outline with the hand-drawn reference
+/// when the object is named by a lasso ([`lasso`]), on each sequence's
+/// first frame: the issue's 0.9.
+const LASSO_IOU: f64 = 0.9;
+
+/// Issue #64 item 5: a lasso drawn 3 px outside the object (24 vertices)
+/// names it on the first frame of every real sequence: the initialisation's
+/// outline against the hand-drawn reference, at least [`LASSO_IOU`]. The
+/// box around the static scans' lamella takes the strip beside it (IoU
+/// 0.03).
+#[test]
+fn a_lasso_names_the_object_on_every_real_sequence() {
+    let outlines = outlines();
+    for seq in sequences().into_iter().filter(|s| s.grey.is_empty()) {
+        let (name, min_iou) = (seq.name, LASSO_IOU);
+        let left = load(&seq.frames[0]);
+        let reference = &outlines[&(seq.outlines[0].clone(), seq.object.to_string())];
+        let mut params = TrackerParams::default();
+        params.init.outline = Some(lasso(reference));
+        let found = semdepth_core::init::initialise(&left, &params.init).expect("the lasso names a region");
+        let (w, h) = (left.width, left.height);
+        let iou = mask_iou(
+            &found.contour.rasterize(w, h),
+            &Polygon::new(reference.clone()).rasterize(w, h),
+        );
+        eprintln!("{name}: the lasso's outline, IoU {iou:.3} (least {min_iou})");
+        assert!(iou >= min_iou, "{name}: IoU {iou:.3} (least {min_iou})");
+    }
+}
 
 /// Tracks every sequence named by a box and by a point, prints the table
 /// of docs/real/README.md (development and held-out sequences marked) and
@@ -591,7 +661,7 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     // Per rule: pairs withheld and false alarms, development and held out.
     let mut by_rule: std::collections::BTreeMap<&str, [usize; 4]> = Default::default();
     for seq in sequences() {
-        for naming in [Naming::Box, Naming::Point] {
+        for naming in [Naming::Box, Naming::Point, Naming::Outline] {
             let (judged, c) = run(&seq, naming, &params);
             for j in judged.iter().filter(|j| j.status == Status::Lost) {
                 let counts = by_rule
