@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::{exactly, CliError};
+use super::{exactly, pairs, CliError};
 use crate::service::api::Polarity;
 use semdepth_core::imageio::{read_file, DecodeLimits};
 use semdepth_core::init::{initialise, InitDiagnostics, InitParams, Score, Source};
@@ -31,6 +31,16 @@ pub struct InitArgs {
     /// Hint: a point on the object, X Y in pixels (spaces or commas).
     #[arg(long, num_args = 1..=2, value_delimiter = ',', value_names = ["X", "Y"], allow_negative_numbers = true)]
     pub point: Option<Vec<f64>>,
+    /// Hint: the object's outline as drawn round it (a lasso), X,Y pairs in
+    /// pixels, at least 3, commas between them (`--outline=-10,40,..` when
+    /// X is negative: a part drawn past the border says the object crosses
+    /// it there).
+    #[arg(long, num_args = 1.., value_delimiter = ',', value_name = "X,Y,...", allow_negative_numbers = true)]
+    pub outline: Option<Vec<f64>>,
+    /// Hint: a point on something that is not the object, X,Y in pixels;
+    /// repeat for more (at most 64).
+    #[arg(long, num_args = 1..=2, value_delimiter = ',', value_names = ["X", "Y"], allow_negative_numbers = true, action = clap::ArgAction::Append)]
+    pub exclude: Vec<f64>,
     /// Hint: the object is brighter or darker than its surroundings.
     #[arg(long, value_enum, default_value_t = Polarity::Any)]
     pub polarity: Polarity,
@@ -80,6 +90,12 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         roi: args.roi.as_deref().map(|r| exactly("roi", r)).transpose()?,
         point: args.point.as_deref().map(|p| exactly("point", p)).transpose()?,
         polarity: args.polarity.into(),
+        outline: args
+            .outline
+            .as_deref()
+            .map(|o| pairs("outline", o, 3))
+            .transpose()?,
+        exclude: pairs("exclude", &args.exclude, 0)?,
         contour_spacing_px: args.contour_spacing,
     };
     let result = initialise(&frame, &params).map_err(|e| match e {
@@ -193,6 +209,7 @@ fn source_json(s: Source) -> serde_json::Value {
             "polarity": Polarity::from(polarity),
             "level": level,
         }),
+        Source::Outline => serde_json::json!({"kind": "outline"}),
     }
 }
 

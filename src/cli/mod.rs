@@ -129,6 +129,18 @@ pub(crate) fn exactly<const N: usize, T: Copy>(name: &str, values: &[T]) -> Resu
     })
 }
 
+/// `values` as `[x, y]` pairs for the hint `--{name}` (an outline's
+/// vertices, points that are not the object): an even count of at least
+/// `2 * min_pairs` numbers.
+pub(crate) fn pairs(name: &str, values: &[f64], min_pairs: usize) -> Result<Vec<[f64; 2]>, CliError> {
+    crate::service::api::params::xy_pairs(values, min_pairs).ok_or_else(|| {
+        CliError::input(format!(
+            "error[invalid_hint]: --{name} takes X,Y pairs, at least {min_pairs} (got {} numbers)",
+            values.len()
+        ))
+    })
+}
+
 /// The generator's scene conditions as a command-line value.
 #[cfg(feature = "synth")]
 pub(crate) fn preset_value() -> impl clap::builder::TypedValueParser<Value = semdepth_core::synth::Preset> {

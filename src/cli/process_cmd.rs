@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use clap::{Args, ValueEnum};
 
-use super::{exactly, hint_error, CliError};
+use super::{exactly, hint_error, pairs, CliError};
 use crate::service::api::csv::{csv_record, objects_csv_records, CSV_HEADER, OBJECTS_CSV_HEADER};
 use crate::service::api::{self, read_calibration, ObjectResult, PairResult, Polarity, Relative, Status};
 use semdepth_core::calib::{same_tilt_axis, Calibration};
@@ -84,18 +84,30 @@ pub struct ProcessArgs {
     /// [default: the params file's init.point].
     #[arg(long, num_args = 1..=2, value_delimiter = ',', value_names = ["X", "Y"], allow_negative_numbers = true)]
     pub point: Option<Vec<f64>>,
+    /// Hint: the object's outline as drawn round it (a lasso), X,Y pairs in
+    /// pixels, at least 3, commas between them (`--outline=-10,40,..` when
+    /// X is negative: a part drawn past the border says the object crosses
+    /// it there) [default: the params file's init.outline].
+    #[arg(long, num_args = 1.., value_delimiter = ',', value_name = "X,Y,...", allow_negative_numbers = true)]
+    pub outline: Option<Vec<f64>>,
+    /// Hint: a point on something that is not the object, X,Y in pixels;
+    /// repeat for more (at most 64)
+    /// [default: the params file's init.exclude].
+    #[arg(long, num_args = 1..=2, value_delimiter = ',', value_names = ["X", "Y"], allow_negative_numbers = true, action = clap::ArgAction::Append)]
+    pub exclude: Vec<f64>,
     /// Hint: the object is brighter or darker than its surroundings
     /// [default: the params file's init.polarity, else any].
     #[arg(long, value_enum)]
     pub polarity: Option<Polarity>,
     /// An object to track, with its hints: NAME, then `:KEY=VALUE` for
-    /// each hint, KEY one of roi (X,Y,W,H), point (X,Y), polarity
-    /// (brighter, darker, any), min_area, max_area; e.g.
+    /// each hint, KEY one of roi (X,Y,W,H), point (X,Y), outline
+    /// (X,Y,X,Y,X,Y,...), exclude (X,Y; repeatable), polarity (brighter,
+    /// darker, any), min_area, max_area; e.g.
     /// `--object needle:roi=0,100,300,80 --object lamella:point=520,300:polarity=darker`.
     /// Repeat for up to 16 objects; each pair then gives every object's
     /// measurement and the height of each relative to each other. The
     /// other flags and the params file apply to all objects; --roi,
-    /// --point and --polarity do not go with --object.
+    /// --point, --outline, --exclude and --polarity do not go with --object.
     #[arg(long = "object", value_name = "NAME[:KEY=VALUE...]")]
     pub objects: Vec<String>,
     /// Leave out the contour points.
@@ -319,6 +331,12 @@ impl ProcessArgs {
         if let Some(p) = &self.point {
             params.init.point = Some(exactly("point", p)?);
         }
+        if let Some(o) = &self.outline {
+            params.init.outline = Some(pairs("outline", o, 3)?);
+        }
+        if !self.exclude.is_empty() {
+            params.init.exclude = pairs("exclude", &self.exclude, 1)?;
+        }
         if let Some(p) = self.polarity {
             params.init.polarity = p.into();
         }
@@ -347,6 +365,8 @@ impl ProcessArgs {
         let flag = match field {
             "roi" => self.roi.is_some(),
             "point" => self.point.is_some(),
+            "outline" => self.outline.is_some(),
+            "exclude" => !self.exclude.is_empty(),
             _ => false,
         };
         match &self.params {
@@ -366,17 +386,34 @@ pub fn parse_object(spec: &str, base: &TrackerParams) -> Result<SessionObject, C
     let mut params = base.clone();
     params.init.roi = None;
     params.init.point = None;
+    params.init.outline = None;
+    params.init.exclude = Vec::new();
     params.init.polarity = Polarity::Any.into();
     for part in parts {
         let (key, value) = part
             .split_once('=')
             .ok_or_else(|| bad(format!("{part:?} is not KEY=VALUE")))?;
+        let parsed = || -> Option<Vec<f64>> {
+            let v: Vec<f64> = value
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .ok()?;
+            v.iter().all(|x| x.is_finite()).then_some(v)
+        };
         let numbers = |n: usize| -> Result<Vec<f64>, CliError> {
-            let v: Result<Vec<f64>, _> = value.split(',').map(|x| x.trim().parse::<f64>()).collect();
-            match v {
-                Ok(v) if v.len() == n && v.iter().all(|x| x.is_finite()) => Ok(v),
+            match parsed() {
+                Some(v) if v.len() == n => Ok(v),
                 _ => Err(bad(format!(
                     "{key}={value:?} (expected {n} comma-separated numbers)"
+                ))),
+            }
+        };
+        let xy_pairs = |least: usize| -> Result<Vec<[f64; 2]>, CliError> {
+            match parsed().and_then(|v| crate::service::api::params::xy_pairs(&v, least)) {
+                Some(pairs) => Ok(pairs),
+                None => Err(bad(format!(
+                    "{key}={value:?} (expected at least {least} comma-separated X,Y pairs)"
                 ))),
             }
         };
@@ -392,6 +429,9 @@ pub fn parse_object(spec: &str, base: &TrackerParams) -> Result<SessionObject, C
                 let v = numbers(2)?;
                 params.init.point = Some([v[0], v[1]]);
             }
+            "outline" => params.init.outline = Some(xy_pairs(3)?),
+            // Repeatable: each adds its points.
+            "exclude" => params.init.exclude.extend(xy_pairs(1)?),
             "polarity" => {
                 params.init.polarity = <Polarity as clap::ValueEnum>::from_str(value, true)
                     .map_err(|_| bad(format!("polarity={value:?} (expected brighter, darker or any)")))?
@@ -401,7 +441,7 @@ pub fn parse_object(spec: &str, base: &TrackerParams) -> Result<SessionObject, C
             "max_area" => params.init.max_area_px = Some(numbers(1)?[0]),
             other => {
                 return Err(bad(format!(
-                    "unknown key {other:?} (expected roi, point, polarity, min_area or max_area)"
+                    "unknown key {other:?} (expected roi, point, outline, exclude, polarity, min_area or max_area)"
                 )))
             }
         }
@@ -432,9 +472,14 @@ pub fn run(args: ProcessArgs) -> Result<(), CliError> {
     let params = args.tracker_params(calibration.as_ref())?;
     let named = !args.objects.is_empty();
     let mut session = if named {
-        if args.roi.is_some() || args.point.is_some() || args.polarity.is_some() {
+        if args.roi.is_some()
+            || args.point.is_some()
+            || args.outline.is_some()
+            || !args.exclude.is_empty()
+            || args.polarity.is_some()
+        {
             return Err(CliError::input(
-                "error[conflicting_hints]: --roi, --point and --polarity name one object; with --object, give the hints inside it (--object NAME:roi=X,Y,W,H)",
+                "error[conflicting_hints]: --roi, --point, --outline, --exclude and --polarity name one object; with --object, give the hints inside it (--object NAME:roi=X,Y,W,H)",
             ));
         }
         let objects = args

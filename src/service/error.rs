@@ -454,8 +454,9 @@ async fn json_object_body<S: Send + Sync>(
 }
 
 /// The request-body fields whose values are arrays: of numbers (`roi`,
-/// `point`) or of objects (`objects`, `samples`).
-const ARRAY_FIELDS: [&str; 4] = ["roi", "point", "objects", "samples"];
+/// `point`), of `[x, y]` pairs (`outline`, `exclude`) or of objects
+/// (`objects`, `samples`).
+const ARRAY_FIELDS: [&str; 6] = ["roi", "point", "outline", "exclude", "objects", "samples"];
 
 /// The path of the first array in `object` where the API takes no array.
 /// serde reads a struct from an array of its fields in order, so without
@@ -476,9 +477,15 @@ fn misplaced_array(object: &JsonObject, path: &str) -> Option<String> {
             }
             Value::Array(items) if ARRAY_FIELDS.contains(&key.as_str()) => {
                 let of_objects = matches!(key.as_str(), "objects" | "samples");
+                let of_pairs = matches!(key.as_str(), "outline" | "exclude");
                 for (i, item) in items.iter().enumerate() {
                     let at = format!("{here}[{i}]");
                     match item {
+                        Value::Array(pair) if of_pairs => {
+                            if let Some(j) = pair.iter().position(|v| v.is_array() || v.is_object()) {
+                                return Some(format!("{at}[{j}]"));
+                            }
+                        }
                         Value::Array(_) => return Some(at),
                         Value::Object(inner) if of_objects => {
                             if let Some(p) = misplaced_array(inner, &at) {

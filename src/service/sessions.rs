@@ -666,6 +666,20 @@ pub struct DepthQuery {
         pattern = r"^ *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *, *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *$"
     )]
     pub point: Option<String>,
+    /// Hint: the object's outline as drawn round it, `x,y,x,y,x,y,...`
+    /// (pixels, at least three vertices; a session's `init.outline`).
+    #[param(
+        example = "100,80,300,80,300,240,100,240",
+        pattern = r"^ *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *(, *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *){5,}$"
+    )]
+    pub outline: Option<String>,
+    /// Hint: points on what is not the object, `x,y,x,y,...` (pixels, at
+    /// most 64 points; a session's `init.exclude`).
+    #[param(
+        example = "40,300",
+        pattern = r"^ *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *(, *[+-]?([0-9]+(\.[0-9]*)?|\.[0-9]+)([eE][+-]?[0-9]+)? *)+$"
+    )]
+    pub exclude: Option<String>,
     /// Hint: `brighter`, `darker` or `any` (default; a session's `init.polarity`).
     #[param(value_type = Option<ApiPolarity>)]
     pub polarity: Option<String>,
@@ -694,6 +708,22 @@ impl DepthQuery {
                 )
             })?);
         }
+        if let Some(text) = &self.outline {
+            init.outline = Some(xy_pairs(text, 3).ok_or_else(|| {
+                ApiError::bad_request(
+                    "invalid_query",
+                    format!("invalid outline {text:?} (expected at least three x,y vertices in pixels, e.g. outline=100,80,300,80,300,240)"),
+                )
+            })?);
+        }
+        if let Some(text) = &self.exclude {
+            init.exclude = xy_pairs(text, 1).ok_or_else(|| {
+                ApiError::bad_request(
+                    "invalid_query",
+                    format!("invalid exclude {text:?} (expected x,y points in pixels, e.g. exclude=40,300)"),
+                )
+            })?;
+        }
         if let Some(text) = &self.polarity {
             let all = [Polarity::Brighter, Polarity::Darker, Polarity::Any];
             init.polarity = all.into_iter().find(|p| p.name() == text).ok_or_else(|| {
@@ -717,6 +747,16 @@ fn numbers<T: std::str::FromStr, const N: usize>(text: &str) -> Option<[T; N]> {
     values.try_into().ok()
 }
 
+/// At least `least` comma-separated `x,y` pairs of numbers (the pattern
+/// the query parameters document).
+fn xy_pairs(text: &str, least: usize) -> Option<Vec<[f64; 2]>> {
+    let values: Vec<f64> = text
+        .split(',')
+        .map(|v| v.trim_matches(' ').parse().ok())
+        .collect::<Option<_>>()?;
+    super::api::params::xy_pairs(&values, least)
+}
+
 /// Initialise and measure one pair without a session.
 #[utoipa::path(
     post,
@@ -733,7 +773,7 @@ fn numbers<T: std::str::FromStr, const N: usize>(text: &str) -> Option<[T; N]> {
         (status = 408, description = "The upload took too long", body = ErrorBody),
         (status = 413, description = "Body or image beyond the limits", body = ErrorBody),
         (status = 415, description = "Not multipart/form-data", body = ErrorBody),
-        (status = 422, description = "Invalid hint (`invalid_hint`): roi under 16 px a side or outside the image, point not finite or outside the image or the roi; or a point or polarity that matches no region (`hint_matches_nothing`)", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): roi under 16 px a side or outside the image, point not finite or outside the image or the roi, an outline that crosses itself or encloses too little of the image, a point that is not the object inside the outline; or hints that match no region (`hint_matches_nothing`)", body = ErrorBody),
         (status = 503, description = "The server is shutting down, or `busy`: the memory for work in flight (--max-inflight-mib) is in use; retry after the `Retry-After` seconds", body = ErrorBody),
     )
 )]

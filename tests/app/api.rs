@@ -463,8 +463,9 @@ fn assert_on_disc(r: &Value, frame: u64, status: &str, disc: [f64; 3], motion: [
 /// `polarity` no region has (both discs are bright) is 422
 /// `hint_matches_nothing` on the first pair, naming the hint and what was
 /// found instead; the pair is not counted and the session stays, so new
-/// hints take the next pair. Two objects whose hints resolve to one disc
-/// are 422 `objects_share_a_region`, naming both.
+/// hints take the next pair (a point, a lasso round the smaller disc, a
+/// point on the larger that is not the object). Two objects whose hints
+/// resolve to one disc are 422 `objects_share_a_region`, naming both.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
     let dir = tempfile::tempdir().unwrap();
@@ -537,6 +538,48 @@ async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
     let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
     assert_eq!(status, 200, "{r}");
     assert_on_disc(&r, 0, "initialised", discs::DISC_A, [0.0, 0.0]);
+
+    // A lasso round disc B names it, though A is larger; so does a point
+    // on A that says "not this".
+    let [bx, by, br] = discs::DISC_B;
+    let lasso: Vec<[f64; 2]> = (0..10)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 10.0;
+            [bx + (br + 4.0) * a.cos(), by + (br + 4.0) * a.sin()]
+        })
+        .collect();
+    reinit(sid.clone(), json!({"outline": lasso})).await;
+    let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
+    assert_eq!(status, 200, "{r}");
+    assert_on_disc(&r, 1, "initialised", discs::DISC_B, [0.0, 0.0]);
+    let (_, s) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(s["init"]["outline"].as_array().map(Vec::len), Some(10), "{s}");
+    reinit(
+        sid.clone(),
+        json!({"exclude": [[discs::DISC_A[0], discs::DISC_A[1]]]}),
+    )
+    .await;
+    let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
+    assert_eq!(status, 200, "{r}");
+    assert_on_disc(&r, 2, "initialised", discs::DISC_B, [0.0, 0.0]);
+    let (_, s) = json_of(
+        http.get(format!("{base}/v1/sessions/{sid}"))
+            .send()
+            .await
+            .unwrap(),
+    )
+    .await;
+    assert_eq!(
+        s["init"]["outline"],
+        Value::Null,
+        "a new hint replaces the set: {s}"
+    );
 
     // Two objects, a box around disc A and a point on it: one region.
     let sid = session(json!({"objects": [

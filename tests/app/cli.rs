@@ -192,7 +192,40 @@ fn init_hints_pick_the_object_and_bad_hints_exit_2() {
         found["centroid"]
     );
 
+    // A lasso round B (a square 6 px outside it), and a point on A that
+    // is not the object: each names B, not the larger A.
+    let lasso = format!(
+        "--outline={},{},{},{},{},{},{},{}",
+        bx - 30.0,
+        by - 30.0,
+        bx + 30.0,
+        by - 30.0,
+        bx + 30.0,
+        by + 30.0,
+        bx - 30.0,
+        by + 30.0
+    );
+    let not_a = format!("{},{}", discs::DISC_A[0], discs::DISC_A[1]);
+    for hint in [vec![lasso.as_str()], vec!["--exclude", not_a.as_str()]] {
+        let mut args = vec!["init", image, "--no-contour"];
+        args.extend(hint.iter().copied());
+        let found = stdout_json(&semdepth(&args));
+        let d = discs::distance(&found["centroid"], bx, by);
+        assert!(
+            d < 1.5,
+            "{hint:?}: centroid {} is {d:.2} px from B",
+            found["centroid"]
+        );
+    }
+
     // Bad hints: exit 2 naming the flag and what was wrong.
+    let out = semdepth(&["init", image, "--outline", "10,10,60,60,60,10,10,60"]);
+    assert_input_error(&out, &["invalid_hint", "--outline", "crosses itself"]);
+    let out = semdepth(&["init", image, "--outline", "10,10,60,60,60"]);
+    assert_input_error(&out, &["invalid_hint", "--outline", "X,Y pairs"]);
+    let on_b = format!("{bx},{by}");
+    let out = semdepth(&["init", image, "--exclude", &on_b, &lasso]);
+    assert_input_error(&out, &["invalid_hint", "--exclude", "inside the outline"]);
     let out = semdepth(&["init", image, "--roi", "400", "10", "50", "50"]);
     assert_input_error(&out, &["invalid_hint", "--roi", "outside the 320x240 image"]);
     let out = semdepth(&["init", image, "--roi", "-100", "-100", "50", "50"]);

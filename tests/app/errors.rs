@@ -464,6 +464,21 @@ async fn bad_hints_get_4xx_naming_the_field() {
     expect_error_naming(r, 422, "invalid_hint", &["init.roi", "8x70", ">= 16"]).await;
     let r = create(json!({"point": [1e300, 5.0]})).await.unwrap();
     expect_error_naming(r, 422, "invalid_hint", &["init.point", "finite"]).await;
+    let bow_tie = json!([[0, 0], [40, 40], [40, 0], [0, 40]]);
+    let r = create(json!({"outline": bow_tie})).await.unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.outline", "crosses itself"]).await;
+    let r = create(json!({"outline": [[0, 0], [10, 0]]})).await.unwrap();
+    expect_error_naming(
+        r,
+        422,
+        "invalid_hint",
+        &["init.outline", "2 vertices", "3..=4096"],
+    )
+    .await;
+    let r = create(json!({"exclude": vec![[1.0, 1.0]; 65]})).await.unwrap();
+    expect_error_naming(r, 422, "invalid_hint", &["init.exclude", "65 points"]).await;
+    let r = create(json!({"outline": [[0, 0], [10, 0], [5]]})).await.unwrap();
+    expect_error_naming(r, 400, "invalid_json", &["init.outline"]).await;
     let r = http
         .post(format!("{base}/v1/sessions"))
         .json(&json!({"tracker": {"init": {"roi": [0, 0, 4, 4]}}}))

@@ -330,7 +330,10 @@ impl Polygon {
             return n == 3;
         }
         let [x0, y0, x1, y1] = self.bounds();
-        let cell = (2.0 * self.length() / n as f64).max(1e-9);
+        // At most about 4n cells, however far apart a few vertices lie.
+        let cell = (2.0 * self.length() / n as f64)
+            .max(((x1 - x0) * (y1 - y0) / (4 * n) as f64).sqrt())
+            .max(1e-9);
         let cols = (((x1 - x0) / cell).floor() as usize + 1).min(4096);
         let rows = (((y1 - y0) / cell).floor() as usize + 1).min(4096);
         let cell_x = |x: f64| (((x - x0) / cell).floor().max(0.0) as usize).min(cols - 1);

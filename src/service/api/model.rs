@@ -284,6 +284,14 @@ pub struct ObjectCreate {
     #[serde(default)]
     #[schema(value_type = Option<Vec<f64>>, min_items = 2, max_items = 2)]
     pub point: Option<[f64; 2]>,
+    /// The object's outline as a person drew it (see `init.outline`).
+    #[serde(default)]
+    #[schema(value_type = Option<Vec<Vec<f64>>>, max_items = 4096, min_items = 3)]
+    pub outline: Option<Vec<[f64; 2]>>,
+    /// Points on what is not the object (see `init.exclude`).
+    #[serde(default)]
+    #[schema(value_type = Vec<Vec<f64>>, max_items = 64)]
+    pub exclude: Vec<[f64; 2]>,
     /// The object against its surroundings; default `any`.
     #[serde(default)]
     pub polarity: Option<Polarity>,
@@ -303,6 +311,8 @@ impl ObjectCreate {
         let mut params = base.clone();
         params.init.roi = self.roi;
         params.init.point = self.point;
+        params.init.outline = self.outline.clone();
+        params.init.exclude = self.exclude.clone();
         params.init.polarity = self.polarity.unwrap_or_default().into();
         params.init.min_area_px = self.min_area_px;
         params.init.max_area_px = self.max_area_px;
@@ -321,6 +331,14 @@ pub struct ObjectView {
     pub roi: Option<[i64; 4]>,
     /// See `roi`.
     pub point: Option<[f64; 2]>,
+    /// See `roi`.
+    #[serde(default)]
+    #[schema(value_type = Option<Vec<Vec<f64>>>)]
+    pub outline: Option<Vec<[f64; 2]>>,
+    /// See `roi`.
+    #[serde(default)]
+    #[schema(value_type = Vec<Vec<f64>>)]
+    pub exclude: Vec<[f64; 2]>,
     /// See `roi`.
     pub polarity: Polarity,
     /// See `roi`.
@@ -342,6 +360,8 @@ impl ObjectView {
             state,
             roi: init.roi,
             point: init.point,
+            outline: init.outline.clone(),
+            exclude: init.exclude.clone(),
             polarity: init.polarity.into(),
             min_area_px: init.min_area_px,
             max_area_px: init.max_area_px,
@@ -385,7 +405,15 @@ pub struct SessionPatch {
 
 /// The `init` fields that name the object: `POST /v1/sessions/{id}/reinit`
 /// replaces them as a set.
-pub const HINT_FIELDS: [&str; 5] = ["roi", "point", "polarity", "min_area_px", "max_area_px"];
+pub const HINT_FIELDS: [&str; 7] = [
+    "roi",
+    "point",
+    "outline",
+    "exclude",
+    "polarity",
+    "min_area_px",
+    "max_area_px",
+];
 
 /// Body of `POST /v1/sessions/{id}/reinit`: new hints for the next
 /// initialisation.
@@ -393,8 +421,8 @@ pub const HINT_FIELDS: [&str; 5] = ["roi", "point", "polarity", "min_area_px", "
 #[serde(deny_unknown_fields)]
 #[schema(example = json!({"init": {"roi": [120, 80, 200, 160], "polarity": "brighter"}}))]
 pub struct SessionReinit {
-    /// The hints `roi`, `point`, `polarity`, `min_area_px` and `max_area_px`
-    /// replace the session's as a set (a new hint names a new object, so
+    /// The hints `roi`, `point`, `outline`, `exclude`, `polarity`,
+    /// `min_area_px` and `max_area_px` replace the session's as a set (a new hint names a new object, so
     /// those left out are cleared); other initialisation parameters given
     /// here replace the session's, those left out keep it.
     #[serde(default)]
@@ -419,6 +447,8 @@ impl SessionReinit {
             Err(e) => Err(e),
         };
         let mut merged = object(&InitParams::from(current.clone()))?;
+        // The hints go as a set: those left out are cleared.
+        merged.retain(|key, _| !HINT_FIELDS.contains(&key.as_str()));
         for (key, value) in object(&self.init)? {
             if HINT_FIELDS.contains(&key.as_str()) || given.is_some_and(|g| g.contains_key(&key)) {
                 merged.insert(key, value);

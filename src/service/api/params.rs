@@ -139,9 +139,28 @@ pub struct InitParams {
     /// Hint: is the object brighter or darker than its surroundings?
     /// Default `any`.
     pub polarity: Polarity,
+    /// Hint: the object's outline as a person drew it (a lasso): vertices
+    /// `[x, y]` in pixels, 3 to 4096, not crossing itself, at least 256 px
+    /// of it inside the image. The object is the region it encloses, moved
+    /// onto the object's edges; a part drawn past the image border says the
+    /// object crosses it there. A `point` must lie inside it.
+    #[schema(value_type = Option<Vec<Vec<f64>>>, max_items = 4096, min_items = 3)]
+    pub outline: Option<Vec<[f64; 2]>>,
+    /// Hint: points `[x, y]` (pixels) on what is not the object ("not
+    /// this"), at most 64, inside the image and outside the `outline`: no
+    /// region that covers one is taken.
+    #[schema(value_type = Vec<Vec<f64>>, max_items = 64)]
+    pub exclude: Vec<[f64; 2]>,
     /// Vertex spacing of the initial outline, pixels. Default 2; 0.5..=50.
     #[schema(minimum = 0.5, maximum = 50.0)]
     pub contour_spacing_px: f64,
+}
+
+/// `values` as `[x, y]` pairs (an `outline`'s vertices, `exclude` points):
+/// `None` unless an even count of at least `2 * least` numbers.
+pub fn xy_pairs(values: &[f64], least: usize) -> Option<Vec<[f64; 2]>> {
+    (values.len().is_multiple_of(2) && values.len() >= 2 * least)
+        .then(|| values.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
 }
 
 impl Default for InitParams {
@@ -367,6 +386,8 @@ impl From<init::InitParams> for InitParams {
             roi: p.roi,
             point: p.point,
             polarity: p.polarity.into(),
+            outline: p.outline,
+            exclude: p.exclude,
             contour_spacing_px: p.contour_spacing_px,
         }
     }
@@ -385,6 +406,8 @@ impl From<InitParams> for init::InitParams {
             roi: p.roi,
             point: p.point,
             polarity: p.polarity.into(),
+            outline: p.outline,
+            exclude: p.exclude,
             contour_spacing_px: p.contour_spacing_px,
         }
     }

@@ -442,7 +442,10 @@ impl InitParams {
             }
         }
         let finite = |[x, y]: [f64; 2]| {
-            x.is_finite() && y.is_finite() && x.abs() <= MAX_HINT_COORDINATE as f64 && y.abs() <= MAX_HINT_COORDINATE as f64
+            x.is_finite()
+                && y.is_finite()
+                && x.abs() <= MAX_HINT_COORDINATE as f64
+                && y.abs() <= MAX_HINT_COORDINATE as f64
         };
         if let Some(outline) = &self.outline {
             if !(3..=MAX_OUTLINE_VERTICES).contains(&outline.len()) {
@@ -468,7 +471,10 @@ impl InitParams {
         if self.exclude.len() > MAX_EXCLUDE_POINTS {
             return hint(
                 "exclude",
-                format!("{} points (expected at most {MAX_EXCLUDE_POINTS})", self.exclude.len()),
+                format!(
+                    "{} points (expected at most {MAX_EXCLUDE_POINTS})",
+                    self.exclude.len()
+                ),
             );
         }
         if let Some(k) = self.exclude.iter().position(|&p| !finite(p)) {
@@ -584,7 +590,9 @@ impl InitParams {
             if let Some([px, py]) = self.point.filter(|&p| !drawn.contains(p)) {
                 return Err(hint(
                     "point",
-                    format!("[{px}, {py}] lies outside the outline (expected a point on the object it encloses)"),
+                    format!(
+                        "[{px}, {py}] lies outside the outline (expected a point on the object it encloses)"
+                    ),
                 ));
             }
             if let Some(k) = self.exclude.iter().position(|&p| drawn.contains(p)) {
@@ -648,7 +656,12 @@ pub fn roi_domain([x, y, w, h]: [i64; 4], width: u32, height: u32) -> Option<[f6
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
     let found = match &params.outline {
-        Some(outline) => outlined::outlined(frame, params, &params.hints_for(frame.width, frame.height)?, outline)?,
+        Some(outline) => outlined::outlined(
+            frame,
+            params,
+            &params.hints_for(frame.width, frame.height)?,
+            outline,
+        )?,
         None => find_object(frame, params)?,
     };
     let found = grown_over_rim(frame, found);
@@ -726,7 +739,8 @@ fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, Ini
     let found = |incumbent| prompted::find(frame, params, &hints, &stage, incumbent);
     let paper = match largest_region(params, &stage) {
         Ok((mut paper, border, radius))
-            if paper_fits_box(&paper, &hints) && !params.exclude.iter().any(|&p| paper.contour.contains(p)) =>
+            if paper_fits_box(&paper, &hints)
+                && !params.exclude.iter().any(|&p| paper.contour.contains(p)) =>
         {
             return Ok(match found(Some((&border, radius))) {
                 Ok(Outcome::Found(better)) => better,
@@ -1285,7 +1299,10 @@ mod tests {
         };
         let r = initialise(&f, &params).unwrap();
         assert_eq!(r.border, vec!["left".to_string()]);
-        assert!(r.contour.points.iter().all(|p| p[0] >= -0.5), "clipped to the image");
+        assert!(
+            r.contour.points.iter().all(|p| p[0] >= -0.5),
+            "clipped to the image"
+        );
     }
 
     #[test]
@@ -1302,7 +1319,10 @@ mod tests {
             ..InitParams::default()
         };
         let e = initialise(&f, &neither).unwrap_err();
-        assert!(e.to_string().contains("cover a point that is not the object"), "{e}");
+        assert!(
+            e.to_string().contains("cover a point that is not the object"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -1311,42 +1331,68 @@ mod tests {
         let square = vec![[290.0, 130.0], [330.0, 130.0], [330.0, 170.0], [290.0, 170.0]];
         let cases: Vec<(InitParams, &str, &str)> = vec![
             (
-                InitParams { outline: Some(vec![[0.0, 0.0], [10.0, 0.0]]), ..InitParams::default() },
+                InitParams {
+                    outline: Some(vec![[0.0, 0.0], [10.0, 0.0]]),
+                    ..InitParams::default()
+                },
                 "outline",
                 "2 vertices (expected 3..=4096)",
             ),
             (
-                InitParams { outline: Some(vec![[0.0, 0.0], [40.0, 40.0], [40.0, 0.0], [0.0, 40.0]]), ..InitParams::default() },
+                InitParams {
+                    outline: Some(vec![[0.0, 0.0], [40.0, 40.0], [40.0, 0.0], [0.0, 40.0]]),
+                    ..InitParams::default()
+                },
                 "outline",
                 "crosses itself",
             ),
             (
-                InitParams { outline: Some(vec![[0.0, f64::NAN], [40.0, 0.0], [0.0, 40.0]]), ..InitParams::default() },
+                InitParams {
+                    outline: Some(vec![[0.0, f64::NAN], [40.0, 0.0], [0.0, 40.0]]),
+                    ..InitParams::default()
+                },
                 "outline",
                 "vertex 0",
             ),
             (
-                InitParams { outline: Some(vec![[500.0, 0.0], [600.0, 0.0], [600.0, 100.0]]), ..InitParams::default() },
+                InitParams {
+                    outline: Some(vec![[500.0, 0.0], [600.0, 0.0], [600.0, 100.0]]),
+                    ..InitParams::default()
+                },
                 "outline",
                 "encloses 0 px of the 400x300 image",
             ),
             (
-                InitParams { outline: Some(square.clone()), point: Some([100.0, 100.0]), ..InitParams::default() },
+                InitParams {
+                    outline: Some(square.clone()),
+                    point: Some([100.0, 100.0]),
+                    ..InitParams::default()
+                },
                 "point",
                 "outside the outline",
             ),
             (
-                InitParams { outline: Some(square), exclude: vec![[310.0, 150.0]], ..InitParams::default() },
+                InitParams {
+                    outline: Some(square),
+                    exclude: vec![[310.0, 150.0]],
+                    ..InitParams::default()
+                },
                 "exclude",
                 "inside the outline",
             ),
             (
-                InitParams { exclude: vec![[-10.0, 5.0]], ..InitParams::default() },
+                InitParams {
+                    exclude: vec![[-10.0, 5.0]],
+                    ..InitParams::default()
+                },
                 "exclude",
                 "outside the 400x300 image",
             ),
             (
-                InitParams { exclude: vec![[1.0, 1.0]; 65], ..InitParams::default() },
+                InitParams {
+                    exclude: vec![[1.0, 1.0]; 65],
+                    ..InitParams::default()
+                },
                 "exclude",
                 "65 points (expected at most 64)",
             ),

@@ -107,7 +107,11 @@ fn score(frame: &GrayFrame, contour: &Polygon, inside: bool) -> Option<Score> {
     let outline_px = if inside {
         length
     } else {
-        contour.edges().filter(|(a, b)| !(on_border(*a) && on_border(*b))).map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1])).sum()
+        contour
+            .edges()
+            .filter(|(a, b)| !(on_border(*a) && on_border(*b)))
+            .map(|(a, b)| (b[0] - a[0]).hypot(b[1] - a[1]))
+            .sum()
     };
     Some(Score {
         score: data / outline_px.max(1.0),

@@ -72,7 +72,11 @@ pub fn lasso(reference: &[Point]) -> Vec<Point> {
         coarse.offset_along_normals(LASSO_SLACK_PX),
         coarse.offset_along_normals(-LASSO_SLACK_PX),
     );
-    if a.area() > b.area() { a.points } else { b.points }
+    if a.area() > b.area() {
+        a.points
+    } else {
+        b.points
+    }
 }
 
 /// One object through one real sequence.
