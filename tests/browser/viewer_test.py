@@ -267,6 +267,51 @@ def run_viewer(browser, server, pairs, objects, width_a, at, shots):
           "the overlay moved to the object in the box")
     page.screenshot(path=str(shots / "04-reinitialised.png"), full_page=True)
 
+    # 3b. A lasso drawn round the first object (10 px outside its outline)
+    # names it; "not this" clicked on it then names the other.
+    def lasso_round(polygon, k, grow=10.0):
+        cx = sum(x for x, _ in polygon) / len(polygon)
+        cy = sum(y for _, y in polygon) / len(polygon)
+        out = []
+        for i in range(0, len(polygon), max(1, len(polygon) // k)):
+            x, y = polygon[i]
+            r = ((x - cx) ** 2 + (y - cy) ** 2) ** 0.5 or 1.0
+            out.append((x + (x - cx) / r * grow, y + (y - cy) / r * grow))
+        return out
+
+    def streamed_on(name, what):
+        r = stream(server.base, sid, [encode_pair(0, *pairs[STREAMED], encoding="png")])[0]
+        cx, cy = r["left"]["centroid"]
+        t = objects[name][STREAMED]["centroid"]
+        err = ((cx - t[0]) ** 2 + (cy - t[1]) ** 2) ** 0.5
+        check(r["status"] == "initialised" and err < CENTROID_TOL_PX,
+              f"{what}: the next pair initialises on object {name} ({r['status']}, {err:.2f} px from its true centroid)")
+
+    page.check("#tool-lasso")
+    drawn = lasso_round(objects[found][STREAMED]["polygon"], 24)
+    page.mouse.move(*to_screen(*drawn[0]))
+    page.mouse.down()
+    for x, y in drawn[1:]:
+        page.mouse.move(*to_screen(x, y), steps=2)
+    page.mouse.up()
+    page.wait_for_selector("#message:has-text('The next pair initialises with outline')")
+    outline = api.get_session(sid)["init"]["outline"]
+    check(outline is not None and len(outline) >= 20, f"the session's hint is the lasso drawn ({len(outline or [])} vertices)")
+    check(page.get_attribute("#lasso-left", "visibility") == "visible", "the lasso is drawn over the left view")
+    page.screenshot(path=str(shots / "04b-lasso.png"), full_page=True)
+    streamed_on(found, "a lasso")
+    page.check("#tool-exclude")
+    t = objects[found][STREAMED]["centroid"]
+    page.mouse.click(*to_screen(*t))
+    page.wait_for_selector("#message:has-text('1 point not the object')")
+    init = api.get_session(sid)["init"]
+    clicked = init["exclude"][0] if len(init["exclude"]) == 1 else [float("inf")] * 2
+    check(abs(clicked[0] - t[0]) < 1.0 and abs(clicked[1] - t[1]) < 1.0 and init["outline"] is None,
+          f"the session's hint is the point that is not the object, the lasso gone ({init['exclude']}, outline {init['outline']})")
+    check(page.locator("#overlay-left .not-this").count() == 1, "the point that is not the object is marked")
+    page.screenshot(path=str(shots / "04c-not-this.png"), full_page=True)
+    streamed_on(target, "\"not this\" on the other")
+
     # 4. The calibration page: samples, R^2, a sample from the session.
     page.goto(f"{server.base}/#/calibrations/{cal['id']}")
     page.wait_for_selector("table#samples")

@@ -205,13 +205,16 @@ async function sessionPage(id, signal) {
   let session = await api(path, { signal });
   const title = el("h1", {});
   const meta = el("p", { class: "muted" });
-  const message = el("p", { id: "message", class: "help" }, "Drag a box around the object, or click on it, in the left image to point semdepth at it.");
+  const message = el("p", { id: "message", class: "help" }, "Drag a box around the object, or click on it, in the left image to point semdepth at it; draw round it with the lasso; click what is not it with \u201cnot this\u201d.");
   const left = imageView("left", true);
+  const tools = el("div", { class: "tools", id: "tools", role: "radiogroup" }, ...[["box", "box or point"], ["lasso", "lasso"], ["exclude", "not this"]].map(([tool, label]) =>
+    el("label", {}, el("input", { type: "radio", name: "tool", value: tool, id: `tool-${tool}`, ...(tool === "box" ? { checked: "" } : {}) }), ` ${label}`)));
+  tools.addEventListener("change", (ev) => { left.tool = ev.target.value; });
   const right = imageView("right", false);
   const numbers = el("div", { class: "numbers", id: "numbers" });
   const zPlot = plotPanel("z (µm), ±1 standard error shaded", "plot-z", "µm");
   const dPlot = plotPanel("disparity across the tilt axis (px), ±1 standard error shaded", "plot-disparity", "px");
-  main.replaceChildren(title, meta, message, el("div", { class: "views" }, left.node, right.node), numbers, zPlot.node, dPlot.node);
+  main.replaceChildren(title, meta, message, tools, el("div", { class: "views" }, left.node, right.node), numbers, zPlot.node, dPlot.node);
 
   const series = []; // {frame, status, d, ds, z, zs}
   let latest = null;
@@ -322,6 +325,13 @@ async function sessionPage(id, signal) {
   }
 
   left.onHint = async (hint) => {
+    // "Not this" keeps the box and the polarity the session has (hints go
+    // as a set) and its other "not this" points; a point or an outline
+    // named what is now refused, and goes.
+    if (hint.exclude) {
+      const keep = Object.fromEntries(["roi", "polarity"].filter((k) => session.init?.[k] != null && session.init[k] !== "any").map((k) => [k, session.init[k]]));
+      hint = { ...keep, exclude: [...(session.init?.exclude ?? []), ...hint.exclude] };
+    }
     pendingHint = hint;
     left.showHint(hint);
     try {
@@ -394,9 +404,11 @@ async function sessionPage(id, signal) {
 
 function hintText(init) {
   if (!init) return "";
-  if (init.roi) return `box ${init.roi.map((v) => Math.round(v)).join(", ")}`;
-  if (init.point) return `point ${init.point.map((v) => Math.round(v)).join(", ")}`;
-  return "";
+  const not = init.exclude?.length ? `${init.exclude.length} point${init.exclude.length > 1 ? "s" : ""} not the object` : "";
+  const named = init.roi ? `box ${init.roi.map((v) => Math.round(v)).join(", ")}`
+    : init.point ? `point ${init.point.map((v) => Math.round(v)).join(", ")}`
+    : init.outline ? `outline of ${init.outline.length} vertices` : "";
+  return [named, not].filter(Boolean).join(", ");
 }
 
 function cell(key, ...value) {
@@ -416,11 +428,13 @@ function imageView(side, pointable) {
   const overlay = svg("svg", { id: `overlay-${side}`, preserveAspectRatio: "none" });
   const polygon = svg("polygon", { class: "contour", "data-side": side });
   const hintRect = svg("rect", { class: "hint", visibility: "hidden" });
+  const hintPath = svg("polygon", { class: "hint", id: `lasso-${side}`, visibility: "hidden" });
+  const excluded = svg("g", { class: "excluded" });
   const othersGroup = svg("g", { class: "others" });
-  overlay.append(othersGroup, polygon, hintRect);
+  overlay.append(othersGroup, polygon, hintRect, hintPath, excluded);
   const empty = el("div", { class: "empty" }, "No image yet");
   const node = el("div", { class: `view${pointable ? " pointable" : ""}`, id: `view-${side}` }, img, overlay, empty, el("span", { class: "label" }, side === "left" ? "left view" : "right view"));
-  const view = { node, onHint: null, frame: null };
+  const view = { node, onHint: null, frame: null, tool: "box" };
   let box = null; // [x0, y0, width, height] of the image in frame coordinates
   let busy = false, again = false, url = null;
 
@@ -461,9 +475,16 @@ function imageView(side, pointable) {
     }));
   };
   view.showHint = (hint) => {
-    if (!hint) { hintRect.setAttribute("visibility", "hidden"); return; }
-    const [x, y, w, h] = hint.roi ?? [hint.point[0] - 4, hint.point[1] - 4, 8, 8];
-    Object.entries({ x, y, width: w, height: h, visibility: "visible" }).forEach(([k, v]) => hintRect.setAttribute(k, v));
+    hintRect.setAttribute("visibility", "hidden");
+    hintPath.setAttribute("visibility", "hidden");
+    excluded.replaceChildren(...(hint?.exclude ?? []).map(([x, y]) => svg("path", { class: "not-this", d: `M${x - 6},${y - 6}L${x + 6},${y + 6}M${x - 6},${y + 6}L${x + 6},${y - 6}` })));
+    if (hint?.outline) {
+      hintPath.setAttribute("points", hint.outline.map((p) => p.join(",")).join(" "));
+      hintPath.setAttribute("visibility", "visible");
+    } else if (hint?.roi || hint?.point) {
+      const [x, y, w, h] = hint.roi ?? [hint.point[0] - 4, hint.point[1] - 4, 8, 8];
+      Object.entries({ x, y, width: w, height: h, visibility: "visible" }).forEach(([k, v]) => hintRect.setAttribute(k, v));
+    }
   };
   if (pointable) {
     const toFrame = (ev) => {
@@ -472,28 +493,44 @@ function imageView(side, pointable) {
       const q = p.matrixTransform(overlay.getScreenCTM().inverse());
       return [q.x, q.y];
     };
-    let start = null, startScreen = null;
+    // The lasso keeps a vertex each time the pointer has moved 3 screen
+    // pixels; a closing stretch back to the start is implied.
+    let start = null, startScreen = null, lasso = [], lastScreen = null;
+    const round = (p) => p.map((v) => Math.round(v * 10) / 10);
     overlay.addEventListener("pointerdown", (ev) => {
       if (!box) return;
       ev.preventDefault();
       overlay.setPointerCapture(ev.pointerId);
       start = toFrame(ev);
-      startScreen = [ev.clientX, ev.clientY];
+      startScreen = lastScreen = [ev.clientX, ev.clientY];
+      lasso = [round(start)];
     });
     overlay.addEventListener("pointermove", (ev) => {
       if (!start) return;
       const p = toFrame(ev);
-      view.showHint({ roi: [Math.min(start[0], p[0]), Math.min(start[1], p[1]), Math.abs(p[0] - start[0]), Math.abs(p[1] - start[1])] });
+      if (view.tool === "lasso") {
+        if (Math.hypot(ev.clientX - lastScreen[0], ev.clientY - lastScreen[1]) >= 3) {
+          lasso.push(round(p));
+          lastScreen = [ev.clientX, ev.clientY];
+          view.showHint({ outline: lasso });
+        }
+      } else if (view.tool === "box") {
+        view.showHint({ roi: [Math.min(start[0], p[0]), Math.min(start[1], p[1]), Math.abs(p[0] - start[0]), Math.abs(p[1] - start[1])] });
+      }
     });
     overlay.addEventListener("pointerup", (ev) => {
       if (!start) return;
       const p = toFrame(ev);
       const moved = Math.hypot(ev.clientX - startScreen[0], ev.clientY - startScreen[1]);
-      const hint = moved < 5
+      let hint;
+      if (view.tool === "exclude") hint = { exclude: [round(p)] };
+      else if (view.tool === "lasso") hint = lasso.length >= 3 ? { outline: lasso.length > 4000 ? lasso.filter((_, i) => i % Math.ceil(lasso.length / 4000) === 0) : lasso } : null;
+      else hint = moved < 5
         ? { point: [Math.round(p[0]), Math.round(p[1])] }
         : { roi: [Math.round(Math.min(start[0], p[0])), Math.round(Math.min(start[1], p[1])), Math.round(Math.abs(p[0] - start[0])), Math.round(Math.abs(p[1] - start[1]))] };
       start = null;
-      view.onHint?.(hint);
+      if (hint) view.onHint?.(hint);
+      else view.showHint(null);
     });
   }
   return view;
