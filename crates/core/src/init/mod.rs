@@ -662,9 +662,10 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
             &params.hints_for(frame.width, frame.height)?,
             outline,
         )?,
-        None => find_object(frame, params)?,
+        // A drawn outline says where the object's edge is: it is not
+        // grown over a rim beyond it.
+        None => grown_over_rim(frame, find_object(frame, params)?),
     };
-    let found = grown_over_rim(frame, found);
     // The outline on the object's edge to a fraction of a pixel, where the
     // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
     Ok(match fitted_to_edge(frame, &found.contour) {
