@@ -461,7 +461,7 @@ const ARRAY_FIELDS: [&str; 6] = ["roi", "point", "outline", "exclude", "objects"
 /// The path of the first array in `object` where the API takes no array.
 /// serde reads a struct from an array of its fields in order, so without
 /// this check `"tracker": []` would pass as the default parameters.
-fn misplaced_array(object: &JsonObject, path: &str) -> Option<String> {
+pub(crate) fn misplaced_array(object: &JsonObject, path: &str) -> Option<String> {
     use serde_json::Value;
     for (key, value) in object {
         let here = if path.is_empty() {

@@ -416,8 +416,8 @@ pub async fn reset_session(
 
 /// Name the object anew: the next pair initialises with these hints.
 ///
-/// The hints (`roi`, `point`, `polarity`, `min_area_px`, `max_area_px`)
-/// replace the session's as a set; other `init` parameters given override
+/// The hints (`roi`, `point`, `outline`, `exclude`, `polarity`,
+/// `min_area_px`, `max_area_px`) replace the session's as a set; other `init` parameters given override
 /// the session's. Earlier results stay and frames keep counting.
 #[utoipa::path(
     post,
@@ -435,7 +435,7 @@ pub async fn reset_session(
         (status = 409, description = "The session tracks several objects (`several_objects`): name one with POST .../objects/{name}/reinit", body = ErrorBody),
         (status = 413, description = "Body beyond --max-body-mib", body = ErrorBody),
         (status = 415, description = "Not JSON", body = ErrorBody),
-        (status = 422, description = "Invalid hint (`invalid_hint`): init.roi under 16 px a side, init.point not finite", body = ErrorBody),
+        (status = 422, description = "Invalid hint (`invalid_hint`): init.roi under 16 px a side, init.point not finite, init.outline crossing itself or of fewer than 3 vertices, more than 64 init.exclude points", body = ErrorBody),
         (status = 503, description = "Storage failed or the server is shutting down", body = ErrorBody),
     )
 )]
@@ -444,24 +444,44 @@ pub async fn reinit_session(
     ApiPath(id): ApiPath<String>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let view = state
+    Ok(ApiJson(reinit(&state, &id, None, &body, &fields).await?))
+}
+
+/// Names the session's object (or its object `name`) anew with a reinit
+/// body and its JSON `fields`: the next pair tracked initialises with the
+/// new hints. The REST reinit routes and the stream's `reinit` message
+/// share it.
+pub(crate) async fn reinit(
+    state: &AppState,
+    id: &str,
+    name: Option<&str>,
+    body: &SessionReinit,
+    fields: &serde_json::Map<String, serde_json::Value>,
+) -> Result<SessionView, ApiError> {
+    state
         .db
-        .update_session(&id, None, |core| {
-            if core.session.objects().len() > 1 {
-                return Err(ApiError::conflict(
-                    "several_objects",
-                    format!(
-                        "session {id:?} tracks {} objects (expected POST /v1/sessions/{{id}}/objects/{{name}}/reinit to name one)",
-                        core.session.objects().len()
-                    ),
-                ));
+        .update_session(id, None, |core| match name {
+            Some(name) => {
+                let object = core.session.object_mut(name)?;
+                let params = reinited(object.tracker.params(), body, fields)?;
+                object.tracker.set_params(params);
+                object.tracker.reset();
+                Ok(())
             }
-            let params = reinited(core.primary().params(), &body, &fields)?;
-            core.restart(Some(params));
-            Ok(())
+            None if core.session.objects().len() > 1 => Err(ApiError::conflict(
+                "several_objects",
+                format!(
+                    "session {id:?} tracks {} objects (expected POST /v1/sessions/{{id}}/objects/{{name}}/reinit to name one)",
+                    core.session.objects().len()
+                ),
+            )),
+            None => {
+                let params = reinited(core.primary().params(), body, fields)?;
+                core.restart(Some(params));
+                Ok(())
+            }
         })
-        .await?;
-    Ok(ApiJson(view))
+        .await
 }
 
 /// Output format of the results.
@@ -914,17 +934,7 @@ pub async fn reinit_object(
     ApiPath((id, name)): ApiPath<(String, String)>,
     ApiJsonFields(body, fields): ApiJsonFields<SessionReinit>,
 ) -> Result<ApiJson<SessionView>, ApiError> {
-    let view = state
-        .db
-        .update_session(&id, None, |core| {
-            let object = core.session.object_mut(&name)?;
-            let params = reinited(object.tracker.params(), &body, &fields)?;
-            object.tracker.set_params(params);
-            object.tracker.reset();
-            Ok(())
-        })
-        .await?;
-    Ok(ApiJson(view))
+    Ok(ApiJson(reinit(&state, &id, Some(&name), &body, &fields).await?))
 }
 
 /// `current` with a reinit body's `init` applied (see

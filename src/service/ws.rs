@@ -3,7 +3,8 @@
 //! Each binary message is one pair in the SDP1 format ([`super::wire`]). Each pair is
 //! answered by one text message, the FrameResult plus `seq`, or
 //! `{"seq": n|null, "error": {...}}` for a malformed message (the socket stays
-//! open).
+//! open). A text message `{"reinit": {"init": {...}}}` names the object anew
+//! (see [`control`]), answered `{"seq": null, "reinit": <the session>}`.
 //!
 //! Three tasks per socket: the reader (never waits on processing, so
 //! ping/pong stays prompt; tungstenite answers pings while reading), the
@@ -87,6 +88,63 @@ pub struct StreamErrorReply {
     pub error: super::error::ErrorDetail,
 }
 
+/// Reply to a `reinit` text message: the session with its new hints.
+#[derive(Clone, Debug, Serialize, ToSchema)]
+pub struct ReinitReply {
+    /// Always null (the message is no pair).
+    pub seq: Option<u64>,
+    /// The session, awaiting its next first pair (or its object's).
+    pub reinit: super::api::model::SessionView,
+}
+
+/// A text message on a stream: `{"reinit": {"init": {...}}}`, with
+/// `"object": NAME` in a session of several objects, names the object anew
+/// as `POST /v1/sessions/{id}/reinit` (or `.../objects/{name}/reinit`)
+/// does: the next pair tracked initialises with the new hints (a pair
+/// already waiting in the queue included). Anything else is refused.
+async fn control(state: &AppState, id: &str, text: &str) -> Result<super::api::model::SessionView, ApiError> {
+    use serde_json::Value;
+    let expected = "(expected {\"reinit\": {\"init\": {...hints}}} or one binary SDP1 message per pair)";
+    let value: Value = serde_json::from_str(text)
+        .map_err(|e| ApiError::bad_request("invalid_json", format!("text message: {e} {expected}")))?;
+    let Some(reinit) = value
+        .as_object()
+        .filter(|o| o.len() == 1)
+        .and_then(|o| o.get("reinit"))
+        .and_then(Value::as_object)
+    else {
+        return Err(ApiError::bad_request(
+            "expected_binary",
+            format!("text message that is no reinit {expected}"),
+        ));
+    };
+    let bad = |m: String| ApiError::bad_request("invalid_json", m);
+    if let Some(key) = reinit.keys().find(|k| !matches!(k.as_str(), "init" | "object")) {
+        return Err(bad(format!(
+            "reinit: unknown field `{key}` (expected init, object)"
+        )));
+    }
+    if let Some(path) = super::error::misplaced_array(reinit, "reinit") {
+        return Err(bad(format!(
+            "{path}: expected an object or a single value, got an array"
+        )));
+    }
+    let name = match reinit.get("object") {
+        None => None,
+        Some(Value::String(name)) => Some(name.as_str()),
+        Some(other) => return Err(bad(format!("reinit.object: {other} (expected an object's name)"))),
+    };
+    let body = super::api::model::SessionReinit {
+        init: match reinit.get("init") {
+            Some(init) => {
+                serde_json::from_value(init.clone()).map_err(|e| bad(format!("reinit.init: {e}")))?
+            }
+            None => Default::default(),
+        },
+    };
+    super::sessions::reinit(state, id, name, &body, reinit).await
+}
+
 /// Stream stereo pairs over a WebSocket.
 #[utoipa::path(
     get,
@@ -95,7 +153,7 @@ pub struct StreamErrorReply {
     tag = "sessions",
     params(("id" = String, Path, description = "Session id"), StreamQuery),
     responses(
-        (status = 101, description = "Switching to the WebSocket protocol: binary SDP1 pair messages in, one JSON text reply per pair out"),
+        (status = 101, description = "Switching to the WebSocket protocol: binary SDP1 pair messages in, one JSON text reply per pair out; a text message {\"reinit\": {\"init\": {...hints}, \"object\": NAME}} names the object anew (the next pair tracked initialises with the hints), answered {\"seq\": null, \"reinit\": <the session>}"),
         (status = 400, description = "Not a WebSocket upgrade, invalid query, or an id that is not UTF-8", body = ErrorBody),
         (status = 401, description = "Missing or wrong bearer token", body = ErrorBody),
         (status = 404, description = "No such session", body = ErrorBody),
@@ -487,16 +545,18 @@ async fn run_stream(state: AppState, session: Arc<Session>, query: StreamQuery, 
                     }
                 }
             },
-            Message::Text(_) => {
-                let e = ApiError::bad_request(
-                    "expected_binary",
-                    "text message received (expected one binary SDP1 message per pair)",
-                );
-                let reply = StreamErrorReply {
-                    seq: None,
-                    error: e.body().error,
+            Message::Text(text) => {
+                let reply = match control(&state, session.id(), &text).await {
+                    Ok(view) => serde_json::to_string(&ReinitReply {
+                        seq: None,
+                        reinit: view,
+                    }),
+                    Err(e) => serde_json::to_string(&StreamErrorReply {
+                        seq: None,
+                        error: e.body().error,
+                    }),
                 };
-                if let Ok(text) = serde_json::to_string(&reply) {
+                if let Ok(text) = reply {
                     if reply_tx
                         .send(Reply::Now(Message::Text(text.into())))
                         .await

@@ -405,6 +405,114 @@ async fn a_pair_the_hints_do_not_fit_gets_an_error_and_the_socket_stays_open() {
     server.stop().await.unwrap();
 }
 
+/// Issue #64 item 5: hints over the socket itself. A text message
+/// `{"reinit": {"init": {...}}}` names the object anew (answered with the
+/// session and its hints): a lasso round disc B, then a point on the larger
+/// disc A that is not the object, each take the next pair on B. A bad
+/// control message gets an error naming the field, and the socket stays
+/// open.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hints_sent_over_the_socket_name_the_next_pairs_object() {
+    let dir = tempfile::tempdir().unwrap();
+    let server = TestServer::start(test_config(&dir.path().join("db.sqlite3"))).await;
+    let sid = new_session(&server.base).await;
+    let (mut ws, _) = tokio_tungstenite::connect_async(server.stream_url(&sid, "all"))
+        .await
+        .unwrap();
+    let (left, right) = discs::scene_pair([0.0, 0.0]);
+    let [bx, by, br] = discs::DISC_B;
+    let lasso: Vec<[f64; 2]> = (0..8)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / 8.0;
+            [bx + (br + 5.0) * a.cos(), by + (br + 5.0) * a.sin()]
+        })
+        .collect();
+    let not_a = json!([[discs::DISC_A[0], discs::DISC_A[1]]]);
+    for (seq, init) in [(0, json!({"outline": lasso})), (1, json!({"exclude": not_a}))] {
+        ws.send(Message::Text(
+            json!({"reinit": {"init": init}}).to_string().into(),
+        ))
+        .await
+        .unwrap();
+        let r = next_reply(&mut ws).await;
+        assert_eq!(
+            (r["seq"].clone(), r["reinit"]["state"].as_str()),
+            (Value::Null, Some("awaiting_first_pair")),
+            "{r}"
+        );
+        assert_eq!(
+            r["reinit"]["init"]["outline"].is_null(),
+            seq == 1,
+            "the hints go as a set: {r}"
+        );
+        ws.send(Message::Binary(sdp1_raw_frames(seq, &left, &right).into()))
+            .await
+            .unwrap();
+        let r = next_reply(&mut ws).await;
+        assert_eq!(
+            (r["seq"].as_u64(), r["status"].as_str()),
+            (Some(seq), Some("initialised")),
+            "{r}"
+        );
+        let d = discs::distance(&r["left"]["centroid"], bx, by);
+        assert!(
+            d < 1.0,
+            "{init}: left centroid {} is {d:.2} px off B",
+            r["left"]["centroid"]
+        );
+    }
+    let bad = [
+        (
+            json!({"reinit": {"init": {"outline": [[0, 0], [9, 9]]}}}),
+            "invalid_hint",
+            "init.outline",
+        ),
+        (
+            json!({"reinit": {"init": {"roi": "x"}}}),
+            "invalid_json",
+            "reinit.init",
+        ),
+        (
+            json!({"reinit": {"hints": {}}}),
+            "invalid_json",
+            "unknown field `hints`",
+        ),
+        (
+            json!({"reinit": {"object": "nope", "init": {}}}),
+            "object_not_found",
+            "nope",
+        ),
+        (
+            json!({"reinit": {"init": {"outline": [[[0]]]}}}),
+            "invalid_json",
+            "reinit.init.outline[0][0]",
+        ),
+        (json!({"hello": 1}), "expected_binary", "reinit"),
+    ];
+    for (message, code, needle) in bad {
+        ws.send(Message::Text(message.to_string().into())).await.unwrap();
+        let r = next_reply(&mut ws).await;
+        assert_eq!(
+            (r["seq"].clone(), r["error"]["code"].as_str()),
+            (Value::Null, Some(code)),
+            "{message}: {r}"
+        );
+        let m = r["error"]["message"].as_str().unwrap();
+        assert!(m.contains(needle), "{message}: {m} lacks {needle:?}");
+    }
+    ws.send(Message::Binary(sdp1_raw_frames(2, &left, &right).into()))
+        .await
+        .unwrap();
+    let r = next_reply(&mut ws).await;
+    assert_eq!(
+        (r["seq"].as_u64(), r["status"].as_str()),
+        (Some(2), Some("tracked")),
+        "{r}"
+    );
+    ws.close(None).await.unwrap();
+    server.stop().await.unwrap();
+}
+
 /// Issue #22: a stream's pair header may carry `label` and `timestamp`; the
 /// reply and the stored result echo them with the times of receipt and
 /// processing. A timestamp that is not RFC 3339 is answered with an error
