@@ -542,7 +542,7 @@ fn write_overlay(
 /// The rule a withheld pair's reason names (its first clause; a run of
 /// uncertain pairs that ends in a loss is named by the pair's own rule).
 fn rule_of(reason: &str) -> &'static str {
-    const RULES: [(&str, &str); 12] = [
+    const RULES: [(&str, &str); 14] = [
         (
             "the disparity's standard error is",
             "standard error over its limit (max_disparity_std_px)",
@@ -579,6 +579,8 @@ fn rule_of(reason: &str) -> &'static str {
         ),
         ("refused:", "first pair: hint refused"),
         ("no valid contour position", "no valid contour position"),
+        ("the contour left the", "contour left the image"),
+        ("the disparity jumped", "occluded: disparity jumped while hidden"),
     ];
     RULES
         .iter()
