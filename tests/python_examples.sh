@@ -130,7 +130,7 @@ Z_RMS_PX = 0.3          # z error allowed, as the z of this much disparity
 tmp = Path(sys.argv[1])
 examples, server, token, cal_id = sys.argv[2:6]
 sys.path.insert(0, examples)
-from semdepth_client import SemdepthClient, SemdepthError, encode_pair, stream_pairs  # noqa: E402
+from semdepth_client import SemdepthClient, SemdepthError, encode_pair, reinit_message, stream_pairs  # noqa: E402
 truth = json.loads((tmp / "pairs" / "truth.json").read_text())
 geometry = truth["config"]["disparity"]
 frames = truth["frames"]
@@ -272,6 +272,19 @@ try:
     hinted = api.depth(pairs / "0000_left.png", pairs / "0000_right.png", roi=roi, point=[cx, cy], polarity="brighter")
     off = math.hypot(hinted["left"]["centroid"][0] - cx, hinted["left"]["centroid"][1] - cy)
     check(hinted["status"] == "initialised" and off < 1.5, f"client: depth() with hints, {off:.2f} px from the true centroid")
+    # A lasso: the true outline at 16 vertices, 4 px outside it.
+    step = max(1, len(outline) // 16)
+    lasso = [[x + 4 * (x - cx) / max(1e-9, math.hypot(x - cx, y - cy)), y + 4 * (y - cy) / max(1e-9, math.hypot(x - cx, y - cy))]
+             for x, y in outline[::step]]
+    session = api.reinit(upload_sid, outline=lasso)
+    check(session["init"]["outline"] is not None and len(session["init"]["outline"]) == len(lasso) and session["init"]["roi"] is None,
+          f"client: reinit(outline=...) sets a lasso of {len(lasso)} vertices and clears the box")
+    again = api.upload_pair(upload_sid, pairs / "0000_left.png", pairs / "0000_right.png")
+    off = math.hypot(again["left"]["centroid"][0] - cx, again["left"]["centroid"][1] - cy)
+    check(again["status"] == "initialised" and off < 1.5, f"client: after reinit(outline=...) {again['status']}, {off:.2f} px from the true centroid")
+    lassoed = api.depth(pairs / "0000_left.png", pairs / "0000_right.png", outline=lasso)
+    off = math.hypot(lassoed["left"]["centroid"][0] - cx, lassoed["left"]["centroid"][1] - cy)
+    check(lassoed["status"] == "initialised" and off < 1.5, f"client: depth(outline=...), {off:.2f} px from the true centroid")
     check(api.reset(upload_sid)["state"] == "awaiting_first_pair", "client: reset()")
     api.delete_session(upload_sid)
     try:
@@ -293,11 +306,22 @@ try:
         sid = api.create_session(name="raw")["id"]
         left, right = disc(90.0), disc(95.5)
         msgs = [encode_pair(i, left, right, encoding="raw", width=200, height=160, bit_depth=8) for i in range(2)]
+        # New hints among the pairs: a square round the disc, 5 px outside it.
+        msgs.append(reinit_message(outline=[[50, 40], [130, 40], [130, 120], [50, 120]]))
+        msgs.append(encode_pair(2, left, right, encoding="raw", width=200, height=160, bit_depth=8))
         return [r async for r in stream_pairs(server, sid, msgs, token=token)]
 
     replies = asyncio.run(raw_stream())
-    check(len(replies) == 2 and all(abs(r.get("disparity_axis_px", 0) - 5.5) < 0.1 for r in replies),
-          f"client: raw SDP1 pairs measure {[r.get('disparity_axis_px') for r in replies]} px for a 5.5 px shift")
+    measured = [r for r in replies if "reinit" not in r]
+    check(len(measured) == 3 and all(abs(r.get("disparity_axis_px", 0) - 5.5) < 0.1 for r in measured),
+          f"client: raw SDP1 pairs measure {[r.get('disparity_axis_px') for r in measured]} px for a 5.5 px shift")
+    # The next pair tracked after the hints arrive initialises: pair 1 if it
+    # was still waiting, else pair 2.
+    reinit_reply = [r for r in replies if "reinit" in r]
+    check(len(replies) == 4 and len(reinit_reply) == 1 and reinit_reply[0]["seq"] is None
+          and len(reinit_reply[0]["reinit"]["init"]["outline"]) == 4
+          and [r["status"] for r in measured[1:]].count("initialised") == 1,
+          f"client: reinit_message() among streamed pairs names the object anew ({[r.get('status', 'reinit') for r in replies]})")
 except (SemdepthError, KeyError, TypeError) as e:
     check(False, f"client calls: {type(e).__name__}: {e}")
 

@@ -202,7 +202,7 @@ def before_add_examples(context, examples):
     """Examples (the documented example of each field): also with a real
     pair, without the example hints (they lie outside its 96x80 images)."""
     more = [
-        _with_pair(case, 0, {k: v for k, v in case.query.items() if k not in ("roi", "point")})
+        _with_pair(case, 0, {k: v for k, v in case.query.items() if k not in ("roi", "point", "outline", "exclude")})
         for case in examples
         if _op(case) in UPLOADS and _is_positive(case)
     ]

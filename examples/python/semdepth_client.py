@@ -302,15 +302,19 @@ class SemdepthClient:
 
     def create_session(self, name: Optional[str] = None, calibration_id: Optional[str] = None,
                        roi: Optional[Sequence[int]] = None, point: Optional[Sequence[float]] = None,
-                       polarity: Optional[str] = None, **params: Any) -> Dict[str, Any]:
+                       polarity: Optional[str] = None, outline: Optional[Sequence[Sequence[float]]] = None,
+                       exclude: Optional[Sequence[Sequence[float]]] = None, **params: Any) -> Dict[str, Any]:
         """``POST /v1/sessions``; ``params`` may hold ``init`` and ``tracker``.
 
         ``roi`` ``[x, y, width, height]`` (the box the object lies in, pixels,
-        clipped to the image), ``point`` ``[x, y]`` (a point on the object) and
-        ``polarity`` (``"brighter"``, ``"darker"`` or ``"any"``) name the object
-        the first pair initialises on; they go into ``init``."""
+        clipped to the image), ``point`` ``[x, y]`` (a point on the object),
+        ``outline`` ``[[x, y], ...]`` (the object's outline as drawn round it,
+        at least 3 vertices), ``exclude`` ``[[x, y], ...]`` (points on what is
+        not the object) and ``polarity`` (``"brighter"``, ``"darker"`` or
+        ``"any"``) name the object the first pair initialises on; they go into
+        ``init``."""
         body: Dict[str, Any] = dict(params)
-        hints = _hints(roi=roi, point=point, polarity=polarity)
+        hints = _hints(roi=roi, point=point, polarity=polarity, outline=outline, exclude=exclude)
         if hints:
             body["init"] = {**body.get("init", {}), **hints}
         if name is not None:
@@ -353,15 +357,17 @@ class SemdepthClient:
     def reinit(self, session_id: str, roi: Optional[Sequence[int]] = None,
                point: Optional[Sequence[float]] = None, polarity: Optional[str] = None,
                min_area_px: Optional[float] = None, max_area_px: Optional[float] = None,
-               **init: Any) -> Dict[str, Any]:
+               outline: Optional[Sequence[Sequence[float]]] = None,
+               exclude: Optional[Sequence[Sequence[float]]] = None, **init: Any) -> Dict[str, Any]:
         """``POST /v1/sessions/{id}/reinit``: the next pair initialises on the
         object these hints name; earlier results stay and frames keep counting.
 
-        The hints (``roi``, ``point``, ``polarity``, ``min_area_px``,
-        ``max_area_px``) replace the session's as a set: those left as None are
-        cleared. Other ``init`` parameters given as keywords (e.g.
-        ``working_max_side=1024``) replace the session's. Returns the session."""
-        body = {**init, **_hints(roi=roi, point=point, polarity=polarity,
+        The hints (``roi``, ``point``, ``outline``, ``exclude``, ``polarity``,
+        ``min_area_px``, ``max_area_px``) replace the session's as a set: those
+        left as None are cleared. Other ``init`` parameters given as keywords
+        (e.g. ``working_max_side=1024``) replace the session's. Returns the
+        session."""
+        body = {**init, **_hints(roi=roi, point=point, polarity=polarity, outline=outline, exclude=exclude,
                                  min_area_px=min_area_px, max_area_px=max_area_px)}
         return self.request("POST", f"/v1/sessions/{self._id(session_id)}/reinit", {"init": body})
 
@@ -405,20 +411,38 @@ class SemdepthClient:
 
     def depth(self, left: ImageInput, right: ImageInput, calibration_id: Optional[str] = None,
               roi: Optional[Sequence[int]] = None, point: Optional[Sequence[float]] = None,
-              polarity: Optional[str] = None) -> Dict[str, Any]:
+              polarity: Optional[str] = None, outline: Optional[Sequence[Sequence[float]]] = None,
+              exclude: Optional[Sequence[Sequence[float]]] = None) -> Dict[str, Any]:
         """``POST /v1/depth``: measures one pair without a session; ``roi``,
-        ``point`` and ``polarity`` are hints as in :meth:`create_session`."""
+        ``point``, ``outline``, ``exclude`` and ``polarity`` are hints as in
+        :meth:`create_session`."""
         query: Dict[str, Any] = {"calibration_id": calibration_id, "polarity": polarity}
         if roi is not None:
             query["roi"] = ",".join(str(int(v)) for v in roi)
         if point is not None:
             query["point"] = ",".join(repr(float(v)) for v in point)
+        for key, points in (("outline", outline), ("exclude", exclude)):
+            if points is not None:
+                query[key] = ",".join(repr(float(v)) for p in points for v in p)
         return self._multipart("POST", "/v1/depth", left, right, query=query)
+
+
+def reinit_message(object: Optional[str] = None, **hints: Any) -> Dict[str, Any]:
+    """New hints to send among the pairs of :func:`stream_pairs` (the
+    stream's text message ``{"reinit": {"init": {...}}}``): keywords as in
+    :meth:`Client.reinit`, replacing the session's hints as a set; ``object``
+    names one object of a session of several."""
+    body: Dict[str, Any] = {"init": _hints(**hints)}
+    if object is not None:
+        body["object"] = object
+    return {"reinit": body}
 
 
 def _hints(**hints: Any) -> Dict[str, Any]:
     """The hints given (not None) as ``init`` fields, lists for sequences."""
-    return {k: (list(v) if isinstance(v, (tuple, list)) else v) for k, v in hints.items() if v is not None}
+    def plain(v: Any) -> Any:
+        return [plain(x) for x in v] if isinstance(v, (tuple, list)) else v
+    return {k: plain(v) for k, v in hints.items() if v is not None}
 
 
 # -- streaming ----------------------------------------------------------------
@@ -482,11 +506,14 @@ async def stream_pairs(
 
     ``url`` is the server's base address (``http://host:port``; ``ws://``
     works too). Each item of ``pairs`` is ``(left, right)`` (paths or bytes of
-    encoded files; the encoding is taken from the left one), or ready-made
-    message bytes from :func:`encode_pair`; sequence numbers count from 0 in
-    the order given. Yields one JSON reply per pair: the FrameResult plus
-    ``seq``, ``{"seq": n, "status": "skipped"}`` under ``policy="latest"``, or
-    ``{"seq": n|null, "error": {...}}``. Sending runs alongside receiving, so
+    encoded files; the encoding is taken from the left one), ready-made
+    message bytes from :func:`encode_pair`, or new hints as a dict from
+    :func:`reinit_message` (the next pair tracked initialises with them);
+    sequence numbers count from 0 over the pairs in the order given. Yields
+    one JSON reply per message: the FrameResult plus ``seq``, ``{"seq": n,
+    "status": "skipped"}`` under ``policy="latest"``, ``{"seq": null,
+    "reinit": <the session>}`` for new hints, or ``{"seq": n|null, "error":
+    {...}}``. Sending runs alongside receiving, so
     ``policy="all"`` slows the sender down without stalling. Needs the
     ``websockets`` package (12 or newer).
     """
@@ -513,15 +540,20 @@ async def stream_pairs(
         raise SemdepthError(0, "unreachable", f"cannot open {address}: {e}") from None
 
     async def sender() -> int:
-        count = 0
+        count, seq = 0, 0
         for item in pairs:
+            if isinstance(item, dict):
+                await ws.send(json.dumps(item))
+                count += 1
+                continue
             if isinstance(item, (bytes, bytearray, memoryview)):
                 message = bytes(item)
             else:
                 left, right = item
-                message = encode_pair(count, left, right)
+                message = encode_pair(seq, left, right)
             await ws.send(message)
             count += 1
+            seq += 1
         return count
 
     task = asyncio.ensure_future(sender())
