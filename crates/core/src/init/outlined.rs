@@ -2,10 +2,11 @@
 //! the object, scored like a found region and then moved onto the object's
 //! edges like one ([`super::initialise`]).
 
-use crate::energy::{data_term, michelson, INTENSITY_OFFSET};
+use crate::energy::{data_term, michelson, EnergyParams, INTENSITY_OFFSET};
+use crate::fit::{fit_free_avoiding, free_fit_tables, FreeFitParams, RigidTemplate};
 use crate::geometry::Polygon;
 use crate::imageio::GrayFrame;
-use crate::region::{PixelRect, PrefixSums};
+use crate::region::{PixelRect, PrefixSums, RegionSum};
 
 use super::{edge_stage, Hints, InitDiagnostics, InitError, InitParams, InitResult, Score, Source};
 
@@ -16,6 +17,11 @@ const MARGIN_SHARE: f64 = 0.5;
 
 /// Least margin of an outlined region's window, pixels.
 const MIN_MARGIN_PX: f64 = 4.0;
+
+/// How far past the drawn outline the region-based fit may move the
+/// object's outline, pixels: a line drawn along the edge falls a little
+/// inside it here and there.
+const DRAWN_SLACK_PX: f64 = 3.0;
 
 /// The object the drawn `outline` names in `frame`: the region it encloses
 /// inside the image, resampled to the contour spacing, crossing the image
@@ -48,6 +54,13 @@ pub(super) fn outlined(
         contour.points.reverse();
     }
     let contour = contour.resampled_every(params.contour_spacing_px, 8);
+    // Drawn along the edge, the outline is moved onto it by the edge fit
+    // that follows; drawn loosely round the object, beyond that fit's
+    // reach, it is shrunk onto the object first.
+    let contour = match super::fitted_to_edge(frame, &contour) {
+        Some(_) => contour,
+        None => shrunk_onto_object(frame, &contour).resampled_every(params.contour_spacing_px, 8),
+    };
     let score = score(frame, &contour, border.is_empty());
     if let Some(s) = score.filter(|s| !hints.polarity.admits(s.contrast)) {
         return Err(InitError::HintMatchesNothing {
@@ -84,6 +97,46 @@ pub(super) fn outlined(
     })
 }
 
+/// The region-based active contour's free fit (Dahmen et al., section 3)
+/// from the `drawn` outline, its vertices held within [`DRAWN_SLACK_PX`]
+/// of it: a lasso drawn loosely round the object shrinks onto the object
+/// it encloses. The drawn outline itself when the fit leaves less than
+/// [`super::MIN_OUTLINE_AREA_PX`] or cannot run (outside the image).
+fn shrunk_onto_object(frame: &GrayFrame, drawn: &Polygon) -> Polygon {
+    let image = PixelRect::full(frame).extent();
+    let start = drawn.snapped_to_box(image, RigidTemplate::ON_BORDER_PX);
+    let energy = EnergyParams::default();
+    let Some(sums) = free_fit_tables(frame, &start, &energy) else {
+        return drawn.clone();
+    };
+    let (a, b) = (
+        start.offset_along_normals(DRAWN_SLACK_PX),
+        start.offset_along_normals(-DRAWN_SLACK_PX),
+    );
+    let allowed = if a.area() > b.area() { a } else { b };
+    let [x0, y0, x1, y1] = allowed.bounds();
+    let bounds = [
+        x0.max(image[0]),
+        y0.max(image[1]),
+        x1.min(image[2]),
+        y1.min(image[3]),
+    ];
+    let fitted = fit_free_avoiding(
+        &sums,
+        &start,
+        &energy,
+        &FreeFitParams::default(),
+        Some(bounds),
+        &|p| !allowed.contains(p),
+    )
+    .polygon;
+    if fitted.area() >= super::MIN_OUTLINE_AREA_PX {
+        fitted
+    } else {
+        drawn.clone()
+    }
+}
+
 /// A candidate's score of the region inside `contour` (see [`outlined`]);
 /// `None` when its window holds nothing but it. The outline's length
 /// counts only off the image border (all of it when `inside` the image).
@@ -94,7 +147,7 @@ fn score(frame: &GrayFrame, contour: &Polygon, inside: bool) -> Option<Score> {
     let rect = PixelRect::around(contour.bounds(), margin, frame.width, frame.height)?;
     let sums = PrefixSums::new(frame, rect, INTENSITY_OFFSET);
     let (region, window) = (sums.polygon(&contour.points), sums.total());
-    let rest = crate::region::RegionSum {
+    let rest = RegionSum {
         count: window.count - region.count,
         sum: window.sum - region.sum,
     };
