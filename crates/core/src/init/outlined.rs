@@ -1,6 +1,8 @@
 //! A drawn outline as the hint: the region a person's lasso encloses is
 //! the object, scored like a found region and then moved onto the object's
-//! edges like one ([`super::initialise`]).
+//! edges like one ([`super::initialise`]); a lasso drawn loosely round it,
+//! beyond the edge fit's reach, is first shrunk onto it by the region-based
+//! fit.
 
 use crate::energy::{data_term, michelson, EnergyParams, INTENSITY_OFFSET};
 use crate::fit::{fit_free_avoiding, free_fit_tables, FreeFitParams, RigidTemplate};
