@@ -760,21 +760,20 @@ impl DepthQuery {
 /// Exactly `N` comma-separated numbers, each with optional spaces around it
 /// (the pattern the query parameters document).
 fn numbers<T: std::str::FromStr, const N: usize>(text: &str) -> Option<[T; N]> {
-    let values: Vec<T> = text
-        .split(',')
-        .map(|v| v.trim_matches(' ').parse().ok())
-        .collect::<Option<_>>()?;
-    values.try_into().ok()
+    listed(text)?.try_into().ok()
 }
 
 /// At least `least` comma-separated `x,y` pairs of numbers (the pattern
 /// the query parameters document).
 fn xy_pairs(text: &str, least: usize) -> Option<Vec<[f64; 2]>> {
-    let values: Vec<f64> = text
-        .split(',')
+    super::api::params::xy_pairs(&listed(text)?, least)
+}
+
+/// Comma-separated values, each with optional spaces around it.
+fn listed<T: std::str::FromStr>(text: &str) -> Option<Vec<T>> {
+    text.split(',')
         .map(|v| v.trim_matches(' ').parse().ok())
-        .collect::<Option<_>>()?;
-    super::api::params::xy_pairs(&values, least)
+        .collect()
 }
 
 /// Initialise and measure one pair without a session.

@@ -541,24 +541,12 @@ async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
 
     // A lasso round disc B names it, though A is larger; so does a point
     // on A that says "not this".
-    let [bx, by, br] = discs::DISC_B;
-    let lasso: Vec<[f64; 2]> = (0..10)
-        .map(|k| {
-            let a = k as f64 * std::f64::consts::TAU / 10.0;
-            [bx + (br + 4.0) * a.cos(), by + (br + 4.0) * a.sin()]
-        })
-        .collect();
+    let lasso = discs::lasso(discs::DISC_B, 4.0, 10);
     reinit(sid.clone(), json!({"outline": lasso})).await;
     let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
     assert_eq!(status, 200, "{r}");
     assert_on_disc(&r, 1, "initialised", discs::DISC_B, [0.0, 0.0]);
-    let (_, s) = json_of(
-        http.get(format!("{base}/v1/sessions/{sid}"))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
+    let s = get_json(&format!("{base}/v1/sessions/{sid}")).await;
     assert_eq!(s["init"]["outline"].as_array().map(Vec::len), Some(10), "{s}");
     reinit(
         sid.clone(),
@@ -568,13 +556,7 @@ async fn hints_that_name_nothing_or_one_region_twice_are_refused() {
     let (status, r) = upload_scene(&http, base, &sid, [0.0, 0.0]).await;
     assert_eq!(status, 200, "{r}");
     assert_on_disc(&r, 2, "initialised", discs::DISC_B, [0.0, 0.0]);
-    let (_, s) = json_of(
-        http.get(format!("{base}/v1/sessions/{sid}"))
-            .send()
-            .await
-            .unwrap(),
-    )
-    .await;
+    let s = get_json(&format!("{base}/v1/sessions/{sid}")).await;
     assert_eq!(
         s["init"]["outline"],
         Value::Null,

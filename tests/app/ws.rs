@@ -420,13 +420,8 @@ async fn hints_sent_over_the_socket_name_the_next_pairs_object() {
         .await
         .unwrap();
     let (left, right) = discs::scene_pair([0.0, 0.0]);
-    let [bx, by, br] = discs::DISC_B;
-    let lasso: Vec<[f64; 2]> = (0..8)
-        .map(|k| {
-            let a = k as f64 * std::f64::consts::TAU / 8.0;
-            [bx + (br + 5.0) * a.cos(), by + (br + 5.0) * a.sin()]
-        })
-        .collect();
+    let [bx, by, _] = discs::DISC_B;
+    let lasso = discs::lasso(discs::DISC_B, 5.0, 8);
     let not_a = json!([[discs::DISC_A[0], discs::DISC_A[1]]]);
     for (seq, init) in [(0, json!({"outline": lasso})), (1, json!({"exclude": not_a}))] {
         ws.send(Message::Text(

@@ -22,6 +22,16 @@ pub const ROI_B: [i64; 4] = [200, 75, 70, 70];
 /// Disparity of both discs between the left and right views, pixels (x).
 pub const DISPARITY_PX: f64 = 6.0;
 
+/// A lasso round `disc`: `vertices` points on a circle `margin` px outside it.
+pub fn lasso([cx, cy, r]: [f64; 3], margin: f64, vertices: usize) -> Vec<[f64; 2]> {
+    (0..vertices)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::TAU / vertices as f64;
+            [cx + (r + margin) * a.cos(), cy + (r + margin) * a.sin()]
+        })
+        .collect()
+}
+
 /// An 8-bit frame: each disc `[cx, cy, r]` at grey 180 with a soft edge
 /// about 1 px wide, background 60, plus a deterministic texture of +-3
 /// grey levels.

@@ -655,17 +655,13 @@ pub fn roi_domain([x, y, w, h]: [i64; 4], width: u32, height: u32) -> Option<[f6
 /// tool entering from the image border).
 pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
     params.validate()?;
-    let found = match &params.outline {
-        Some(outline) => outlined::outlined(
-            frame,
-            params,
-            &params.hints_for(frame.width, frame.height)?,
-            outline,
-        )?,
-        // A drawn outline says where the object's edge is: it is not
-        // grown over a rim beyond it.
-        None => grown_over_rim(frame, find_object(frame, params)?),
-    };
+    // A drawn outline says where the object's edge is: it is not grown
+    // over a rim beyond it, and it comes moved onto the edge already.
+    if let Some(outline) = &params.outline {
+        let hints = params.hints_for(frame.width, frame.height)?;
+        return outlined::outlined(frame, params, &hints, outline);
+    }
+    let found = grown_over_rim(frame, find_object(frame, params)?);
     // The outline on the object's edge to a fraction of a pixel, where the
     // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
     Ok(match fitted_to_edge(frame, &found.contour) {

@@ -1,8 +1,8 @@
 //! A drawn outline as the hint: the region a person's lasso encloses is
-//! the object, scored like a found region and then moved onto the object's
-//! edges like one ([`super::initialise`]); a lasso drawn loosely round it,
-//! beyond the edge fit's reach, is first shrunk onto it by the region-based
-//! fit.
+//! the object, scored like a found region and moved onto the object's
+//! edges like one ([`super::fitted_to_edge`]); a lasso drawn loosely round
+//! it, beyond the edge fit's reach, is first shrunk onto it by the
+//! region-based fit.
 
 use crate::energy::{data_term, michelson, EnergyParams, INTENSITY_OFFSET};
 use crate::fit::{fit_free_avoiding, free_fit_tables, FreeFitParams, RigidTemplate};
@@ -10,7 +10,9 @@ use crate::geometry::Polygon;
 use crate::imageio::GrayFrame;
 use crate::region::{PixelRect, PrefixSums, RegionSum};
 
-use super::{edge_stage, Hints, InitDiagnostics, InitError, InitParams, InitResult, Score, Source};
+use super::{
+    edge_stage, fitted_to_edge, Hints, InitDiagnostics, InitError, InitParams, InitResult, Score, Source,
+};
 
 /// Width of the surroundings an outlined region's contrast is measured
 /// against, as a share of its mean thickness 2A/L: the window is its box
@@ -56,12 +58,17 @@ pub(super) fn outlined(
         contour.points.reverse();
     }
     let contour = contour.resampled_every(params.contour_spacing_px, 8);
-    // Drawn along the edge, the outline is moved onto it by the edge fit
-    // that follows; drawn loosely round the object, beyond that fit's
-    // reach, it is shrunk onto the object first.
-    let contour = match super::fitted_to_edge(frame, &contour) {
-        Some(_) => contour,
-        None => shrunk_onto_object(frame, &contour).resampled_every(params.contour_spacing_px, 8),
+    // Drawn along the edge, the outline is moved onto it by the edge fit;
+    // drawn loosely round the object, beyond that fit's reach, it is
+    // shrunk onto the object first. The region is scored before its edge
+    // fit.
+    let (contour, on_edge) = match fitted_to_edge(frame, &contour) {
+        Some((moved, _)) => (contour, Some(moved)),
+        None => {
+            let shrunk = shrunk_onto_object(frame, &contour).resampled_every(params.contour_spacing_px, 8);
+            let moved = fitted_to_edge(frame, &shrunk).map(|(moved, _)| moved);
+            (shrunk, moved)
+        }
     };
     let score = score(frame, &contour, border.is_empty());
     if let Some(s) = score.filter(|s| !hints.polarity.admits(s.contrast)) {
@@ -75,6 +82,7 @@ pub(super) fn outlined(
         });
     }
     let stage = edge_stage(frame, params, hints)?;
+    let contour = on_edge.unwrap_or(contour);
     Ok(InitResult {
         centroid: contour.centroid(),
         area_px: contour.area(),
@@ -111,11 +119,7 @@ fn shrunk_onto_object(frame: &GrayFrame, drawn: &Polygon) -> Polygon {
     let Some(sums) = free_fit_tables(frame, &start, &energy) else {
         return drawn.clone();
     };
-    let (a, b) = (
-        start.offset_along_normals(DRAWN_SLACK_PX),
-        start.offset_along_normals(-DRAWN_SLACK_PX),
-    );
-    let allowed = if a.area() > b.area() { a } else { b };
+    let allowed = start.offset_along_normals(DRAWN_SLACK_PX);
     let [x0, y0, x1, y1] = allowed.bounds();
     let bounds = [
         x0.max(image[0]),

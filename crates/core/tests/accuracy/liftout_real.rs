@@ -67,16 +67,10 @@ pub const LASSO_VERTICES: usize = 24;
 /// vertices, each moved [`LASSO_SLACK_PX`] outwards (past the image
 /// border where the object crosses it).
 pub fn lasso(reference: &[Point]) -> Vec<Point> {
-    let coarse = Polygon::new(reference.to_vec()).resampled(LASSO_VERTICES);
-    let (a, b) = (
-        coarse.offset_along_normals(LASSO_SLACK_PX),
-        coarse.offset_along_normals(-LASSO_SLACK_PX),
-    );
-    if a.area() > b.area() {
-        a.points
-    } else {
-        b.points
-    }
+    Polygon::new(reference.to_vec())
+        .resampled(LASSO_VERTICES)
+        .offset_along_normals(LASSO_SLACK_PX)
+        .points
 }
 
 /// One object through one real sequence.
