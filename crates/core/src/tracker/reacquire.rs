@@ -1,6 +1,6 @@
-//! After a loss: the object sought by its own template over the hint box
-//! or the whole image, and taken where both views show it as on its first
-//! pair.
+//! After a loss: the object sought by its own template over the hint box,
+//! then the whole image, and taken where both views show it as on its
+//! first pair.
 
 use crate::energy::INTENSITY_OFFSET;
 use crate::fit::{fit_rigid, Pose, RigidSearch, RigidTemplate};
@@ -103,8 +103,11 @@ impl StereoTracker {
                 .is_none_or(|g| (MIN_GREY_CHANGE..=1.0 / MIN_GREY_CHANGE).contains(&g))
     }
 
-    /// The object sought by its template over the hint box (or the whole
-    /// image) after a loss: the lowest local minima of the decimated
+    /// The object sought by its template after a loss, over the hint box
+    /// and, when it is not found there, over the whole image (a stage move
+    /// carries a needle and its lamella out of the box they were named in:
+    /// 68-300 px between two views of the real lift-out approach): the
+    /// lowest local minima of the decimated
     /// template's energy on a grid of centres (steps of half the template's
     /// thickness, coarser on large images: at most about 20,000 points) at
     /// the last rotation, each fitted rigidly within two steps; the lowest
@@ -114,11 +117,28 @@ impl StereoTracker {
     pub(super) fn search_template(
         &self,
         frame: &GrayFrame,
-        (template, sectors): &(RigidTemplate, SectorTemplate),
+        templates: &(RigidTemplate, SectorTemplate),
         reference: SectorReference,
         theta: f64,
     ) -> Option<Pose> {
         let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
+        let whole = [0, 0, frame.width, frame.height];
+        let found = self.search_within(frame, templates, reference, theta, [x, y, w, h]);
+        if found.is_some() || [x, y, w, h] == whole {
+            return found;
+        }
+        self.search_within(frame, templates, reference, theta, whole)
+    }
+
+    /// [`Self::search_template`] over the box `[x, y, w, h]`.
+    fn search_within(
+        &self,
+        frame: &GrayFrame,
+        (template, sectors): &(RigidTemplate, SectorTemplate),
+        reference: SectorReference,
+        theta: f64,
+        [x, y, w, h]: [u32; 4],
+    ) -> Option<Pose> {
         let (x0, y0, x1, y1) = (x as f64, y as f64, (x + w) as f64, (y + h) as f64);
         let reach = template.radius + template.margin + 2.0;
         let rect = PixelRect::around([x0, y0, x1, y1], reach, frame.width, frame.height)?;

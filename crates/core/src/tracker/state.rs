@@ -9,7 +9,7 @@ use crate::scatter::DisparityRun;
 use super::params::TrackerParams;
 
 /// After a loss, pairs on which the object is sought by its own template
-/// (over the hint box, or the whole image) before the tracker initialises
+/// (over the hint box, then the whole image) before the tracker initialises
 /// afresh: a lost object is not replaced by whatever is largest.
 pub const REACQUIRE_PAIRS: u32 = 10;
 
@@ -103,7 +103,7 @@ pub enum Phase {
         velocity_measured: bool,
     },
     /// Lost: each pair seeks the object by its own template (over the hint
-    /// box, or the whole image), keeping the last good poses.
+    /// box, then the whole image), keeping the last good poses.
     Searching {
         /// Pairs searched in vain so far, fewer than [`REACQUIRE_PAIRS`].
         missed: u32,

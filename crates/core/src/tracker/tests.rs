@@ -2,6 +2,7 @@
 use super::*;
 use crate::calib::MetaWatch;
 use crate::fit::place;
+use crate::geometry::Point;
 use crate::region::PrefixSums;
 use crate::region::RegionSum;
 use crate::synth::{frames, Preset, Scene, Shape, SynthConfig};
@@ -191,6 +192,57 @@ fn a_twenty_pixel_jump_between_pairs_is_caught() {
     let d = r.disparity_px.unwrap()[0] - moved.truth.disparity_px[0];
     let d0 = first.truth.disparity_px[0];
     assert!(d.abs() < 0.5, "disparity error {d} (first pair's disparity {d0})");
+}
+
+/// A stage move carries the object out of the box it was named in: the
+/// tracking step loses it, and the next pair's search finds it outside the
+/// box, over the whole image.
+#[test]
+fn an_object_moved_out_of_its_hint_box_is_found_again() {
+    let config = SynthConfig {
+        frames: 1,
+        ..SynthConfig::preset(Preset::Clean, Shape::Blob, 6)
+    };
+    let first = Scene::new(&config).unwrap().render(0);
+    let [cx, cy] = first.truth.left.centroid;
+    let (w, h) = (first.left.width as f64, first.left.height as f64);
+    // A box a person draws: the object's bounds and 15 px around them.
+    let [x0, y0, x1, y1] = first.truth.left.polygon.bounds();
+    let roi = [
+        x0 as i64 - 15,
+        y0 as i64 - 15,
+        (x1 - x0) as i64 + 30,
+        (y1 - y0) as i64 + 30,
+    ];
+    // Moved to the other side of the frame, well outside the box.
+    let other = |c: f64, side: f64| if c < side / 2.0 { 0.7 * side } else { 0.3 * side };
+    let to = [other(cx, w), other(cy, h)];
+    let mut moved_config = config.clone();
+    moved_config.motion.start_px = Some(to);
+    let moved = Scene::new(&moved_config).unwrap().render(0);
+    let t = moved.truth.left.centroid;
+    let outside = |p: Point| {
+        let [x, y, bw, bh] = roi.map(|v| v as f64);
+        p[0] < x || p[0] > x + bw || p[1] < y || p[1] > y + bh
+    };
+    assert!(outside(t), "moved to {t:?}, box {roi:?}");
+    let mut params = TrackerParams::default();
+    params.init.roi = Some(roi);
+    let mut tracker = StereoTracker::new(params);
+    let r = tracker.process(&first.left, &first.right).unwrap();
+    assert_eq!(r.status, Status::Initialised, "{:?}", r.reason);
+    let r = tracker.process(&moved.left, &moved.right).unwrap();
+    assert_eq!(r.status, Status::Lost, "{r:?}");
+    let r = tracker.process(&moved.left, &moved.right).unwrap();
+    assert_eq!(r.status, Status::Tracked, "{:?}", r.reason);
+    assert_eq!(r.reason.as_deref(), Some(REACQUIRED));
+    let c = r.left.unwrap().centroid;
+    assert!(
+        (c[0] - t[0]).hypot(c[1] - t[1]) < 0.5,
+        "left centroid {c:?} vs truth {t:?}"
+    );
+    let d = r.disparity_px.unwrap()[0] - moved.truth.disparity_px[0];
+    assert!(d.abs() < 0.5, "disparity error {d}");
 }
 
 /// The near tables (G around the contour, window rows around its
