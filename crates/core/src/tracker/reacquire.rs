@@ -105,15 +105,14 @@ impl StereoTracker {
 
     /// The object sought by its template after a loss, over the hint box
     /// and, when it is not found there, over the whole image (a stage move
-    /// carries a needle and its lamella out of the box they were named in:
-    /// 68-300 px between two views of the real lift-out approach): the
-    /// lowest local minima of the decimated
-    /// template's energy on a grid of centres (steps of half the template's
-    /// thickness, coarser on large images: at most about 20,000 points) at
-    /// the last rotation, each fitted rigidly within two steps; the lowest
-    /// energy among the fits whose sectors show the object as on the first
-    /// pair stands. The five lowest minima are fitted first, the next ten
-    /// only when none of those shows the object ([`SEARCH_MINIMA`]).
+    /// carries an object out of the box it was named in): the lowest local
+    /// minima of the decimated template's energy on a grid of centres
+    /// (steps of half the template's thickness, coarser on large images: at
+    /// most about 20,000 points) at the last rotation, each fitted rigidly
+    /// within two steps; the lowest energy among the fits whose sectors
+    /// show the object as on the first pair stands. The five lowest minima
+    /// are fitted first, the next ten only when none of those shows the
+    /// object ([`SEARCH_MINIMA`]).
     pub(super) fn search_template(
         &self,
         frame: &GrayFrame,
