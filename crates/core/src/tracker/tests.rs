@@ -167,6 +167,13 @@ fn a_tracker_from_a_saved_state_continues_the_session() {
     }
 }
 
+/// The first pair of `config`'s scene with its object started at `start`.
+fn started_at(config: &SynthConfig, start: Point) -> crate::synth::SynthPair {
+    let mut config = config.clone();
+    config.motion.start_px = Some(start);
+    Scene::new(&config).unwrap().render(0)
+}
+
 #[test]
 fn a_twenty_pixel_jump_between_pairs_is_caught() {
     let config = SynthConfig {
@@ -176,9 +183,7 @@ fn a_twenty_pixel_jump_between_pairs_is_caught() {
     let first = Scene::new(&config).unwrap().render(0);
     // The same scene with the object started 20 px further right and 5 px down.
     let start = first.truth.left.centroid;
-    let mut moved_config = config.clone();
-    moved_config.motion.start_px = Some([start[0] + 20.0, start[1] + 5.0]);
-    let moved = Scene::new(&moved_config).unwrap().render(0);
+    let moved = started_at(&config, [start[0] + 20.0, start[1] + 5.0]);
     let mut tracker = StereoTracker::new(TrackerParams::default());
     tracker.process(&first.left, &first.right).unwrap();
     let r = tracker.process(&moved.left, &moved.right).unwrap();
@@ -217,9 +222,7 @@ fn an_object_moved_out_of_its_hint_box_is_found_again() {
     // Moved to the other side of the frame, well outside the box.
     let other = |c: f64, side: f64| if c < side / 2.0 { 0.7 * side } else { 0.3 * side };
     let to = [other(cx, w), other(cy, h)];
-    let mut moved_config = config.clone();
-    moved_config.motion.start_px = Some(to);
-    let moved = Scene::new(&moved_config).unwrap().render(0);
+    let moved = started_at(&config, to);
     let t = moved.truth.left.centroid;
     let outside = |p: Point| {
         let [x, y, bw, bh] = roi.map(|v| v as f64);

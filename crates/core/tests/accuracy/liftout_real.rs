@@ -693,7 +693,7 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // face.
     ("approach ib needle", Naming::Box, [2, 0, 1]),
     ("approach ib needle", Naming::Point, [3, 0, 1]),
-    ("approach ib needle", Naming::Outline, [2, 0, 1]),
+    ("approach ib needle", Naming::Outline, [0, 0, 1]),
     ("approach ib lamella", Naming::Box, [3, 0, 1]),
     ("approach ib lamella", Naming::Point, [1, 0, 3]),
     ("approach ib lamella", Naming::Outline, [0, 0, 3]),
