@@ -18,6 +18,7 @@ use crate::strips::refit_without_strips;
 
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
+use super::profile::profile;
 use super::result::{PairResult, Status, TrackError};
 use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
@@ -390,6 +391,7 @@ impl StereoTracker {
             result.mark_lost(reason);
             self.state = None;
             self.template = None;
+            self.last_profile = None;
             return result;
         }
         // After a loss the object's first initialisation stays the
@@ -404,6 +406,7 @@ impl StereoTracker {
             Some(previous) if previous > 0.0 => previous,
             _ => own,
         };
+        self.last_profile = (!template.cuts.is_empty()).then(|| profile(left, &sectors, state.left));
         self.state = Some(state);
         self.template = Some((template, sectors));
         result

@@ -14,6 +14,7 @@ mod epipolar;
 mod first_pair;
 mod loss;
 mod params;
+mod profile;
 mod reacquire;
 mod result;
 mod state;
@@ -114,6 +115,11 @@ pub struct StereoTracker {
     frames: u64,
     /// Scratch for the smoothed pair of a blurred object.
     prefiltered: Prefiltered,
+    /// The grey profile across the left outline on the last pair whose
+    /// pose was followed ([`profile::profile`]), which a slide along the
+    /// object's weakest direction is compared with; not stored (a restored
+    /// tracker takes it from its next such pair).
+    last_profile: Option<Vec<f64>>,
 }
 
 impl StereoTracker {
@@ -126,6 +132,7 @@ impl StereoTracker {
             template: None,
             frames: 0,
             prefiltered: Prefiltered::default(),
+            last_profile: None,
         }
     }
 
@@ -138,6 +145,7 @@ impl StereoTracker {
             template,
             frames,
             prefiltered: Prefiltered::default(),
+            last_profile: None,
         }
     }
 
@@ -184,6 +192,7 @@ impl StereoTracker {
     pub fn reset(&mut self) {
         self.state = None;
         self.template = None;
+        self.last_profile = None;
     }
 
     /// Processes one stereo pair.

@@ -11,6 +11,7 @@ use crate::uncertainty;
 use std::borrow::Cow;
 
 use super::border::shared_view_limits;
+use super::profile::{correlation, profile, weights_along};
 use super::reacquire::REACQUIRE_OCCLUDED_FRACTION;
 use super::result::{PairResult, Status, GOES_ON, UNCERTAIN};
 use super::state::{Phase, TrackerState};
@@ -84,15 +85,6 @@ pub(super) const MIN_HELD_SHARE: f64 = 0.03;
 /// from where its domain was fixed is fitted again in the domain at its
 /// pose, pixels.
 pub(super) const FIXED_REFIT_PX: f64 = 0.5;
-
-/// Least contrast, relative to its first pair's, that the outline fixing
-/// a border-cut object's weakest direction keeps (weighted by what each
-/// sector of it fixes) for a move of more than [`FAR_MOVE_PX`] along that
-/// direction to be followed (see [`StereoTracker::unconfirmed_slide`]).
-/// Between a needle's tip over a grain as bright as itself (the tilted
-/// renderer's scenes) and the real lift-out needle sliding along its axis
-/// (BENCHMARKS.md).
-pub(super) const MIN_SLIDE_CONTRAST: f64 = 0.85;
 
 /// Where the left-out sectors of `fit` lie along the unit direction `w`,
 /// relative to its pose, when they lie towards one end of the object
@@ -528,19 +520,18 @@ impl StereoTracker {
                         0.0
                     },
                 )
-            } else if let Some(kept) =
+            } else if let Some([at_fit, at_prediction]) =
                 self.unconfirmed_slide(left, left_templates, &state, (left_fit.pose, w), along)
             {
                 // A tool cut by the border is placed along its axis by its
                 // tip alone: a fit that left the prediction along that axis
-                // for a pose where its tip lost its contrast (a needle's tip
-                // over a grain as bright as itself: its contour stopped
-                // where the needle seemed to end) is not followed.
+                // for a pose where its outline looks less like the last
+                // pair's than at the prediction (a needle's tip over a
+                // grain as bright as itself: its contour stopped where the
+                // needle seemed to end) is not followed.
                 result.mark_lost(format!(
-                    "{UNCERTAIN}: the contour of an object cut by the border moved {:.1} px along its weakest direction from the prediction, to where the outline that places it along that direction kept {:.0}% of its contrast (least {:.0}%){GOES_ON}",
+                    "{UNCERTAIN}: the contour of an object cut by the border moved {:.1} px along its weakest direction from the prediction, to where the outline that places it along that direction looks less like the last pair's than at the prediction (correlation {at_fit:.2} against {at_prediction:.2}){GOES_ON}",
                     along.abs(),
-                    100.0 * kept,
-                    100.0 * MIN_SLIDE_CONTRAST
                 ));
                 Some(along)
             } else {
@@ -556,6 +547,10 @@ impl StereoTracker {
                     pose.y -= back * w[1];
                 }
                 candidate.left_velocity = velocity(candidate.left);
+            } else if !templates.0.cuts.is_empty() {
+                // What a later slide is compared with (only an object cut
+                // by the border is judged so).
+                self.last_profile = Some(profile(left, &templates.1, candidate.left));
             }
             self.state = Some(candidate);
         }
@@ -564,15 +559,19 @@ impl StereoTracker {
 
     /// For a template cut by the border whose left fit at `pose` moved
     /// `along` px from the prediction along its weakest direction `w`, more
-    /// than [`FAR_MOVE_PX`]: the contrast the outline that fixes `w` kept,
-    /// when below [`MIN_SLIDE_CONTRAST`]. That is the sectors' contrast
-    /// ratios to the first pair (over their median, so that a change of
-    /// the whole outline's contrast does not count), averaged with the
-    /// weight of the information each sector gives along `w`
-    /// ([`uncertainty::weighted_length`] of its arc): a needle's tip
-    /// carries it, and loses its contrast over a grain as bright as itself,
-    /// while the needle's sides, whose backdrop changes as it slides over
-    /// a structured substrate, carry little.
+    /// than [`FAR_MOVE_PX`]: the correlations of the grey profile across
+    /// its outline with the last followed pair's ([`profile`]), at `pose`
+    /// and at the prediction, when the first is not the higher. Each
+    /// sample is weighted by what its vertex fixes along `w`, so a needle's
+    /// tip carries the comparison and its sides, whose backdrop changes as
+    /// it slides over a structured substrate, carry little. A needle that
+    /// moved along its axis shows its tip where it was fitted and its shank
+    /// at the prediction; a contour that stopped short of a tip gone over
+    /// a grain as bright as itself, or ran on along a grain, shows the
+    /// tip's look at the prediction better than where it went. No
+    /// reference (a restored tracker before its first followed pair): not
+    /// confirmed. The correlation ignores affine grey changes between the
+    /// pairs.
     pub(super) fn unconfirmed_slide(
         &self,
         left: &GrayFrame,
@@ -580,36 +579,17 @@ impl StereoTracker {
         state: &TrackerState,
         (pose, w): (Pose, Point),
         along: f64,
-    ) -> Option<f64> {
+    ) -> Option<[f64; 2]> {
         if template.cuts.is_empty() || along.abs() <= FAR_MOVE_PX {
             return None;
         }
-        let sums = self.sums_around(left, template, pose, Self::NEAR_REACH_PX);
-        let look = sectors.look(&sums, pose);
-        let reference = state.left_look().contrasts;
-        let ratios: Vec<Option<f64>> = (0..sectors.len())
-            .map(|k| {
-                let (r, c) = (reference.get(k).copied()?, look.contrasts.get(k).copied()?);
-                (r.is_finite() && c.is_finite() && r != 0.0).then(|| c / r)
-            })
-            .collect();
-        let mut seen: Vec<f64> = ratios.iter().flatten().copied().collect();
-        if seen.is_empty() {
-            return None;
-        }
-        seen.sort_by(f64::total_cmp);
-        let median = seen[seen.len() / 2];
-        if median <= 0.0 {
-            return Some(0.0);
-        }
-        let (mut weighted, mut weights) = (0.0, 0.0);
-        for (k, ratio) in ratios.iter().enumerate() {
-            let Some(ratio) = ratio else { continue };
-            let others: Vec<bool> = (0..sectors.len()).map(|j| j != k).collect();
-            let information = uncertainty::weighted_length(&sectors.visible_arcs(pose, &others), w);
-            weighted += information * (ratio / median).min(1.0);
-            weights += information;
-        }
-        (weights > 0.0 && weighted / weights < MIN_SLIDE_CONTRAST).then_some(weighted / weights)
+        let Some(last) = &self.last_profile else {
+            return Some([f64::NAN; 2]);
+        };
+        let [predicted, _] = state.predicted();
+        let weights = weights_along(sectors, pose, w);
+        let [at_fit, at_prediction] =
+            [pose, predicted].map(|p| correlation(last, &profile(left, sectors, p), &weights));
+        (at_fit.is_nan() || at_fit <= at_prediction.max(-1.0)).then_some([at_fit, at_prediction])
     }
 }

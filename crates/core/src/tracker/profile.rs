@@ -1,0 +1,128 @@
+//! The grey profile across an object's outline: samples along each
+//! vertex's normal, compared between pairs by a correlation weighted by
+//! what each vertex fixes along a direction. Affine changes of the grey
+//! levels leave the correlation unchanged.
+
+use crate::fit::Pose;
+use crate::geometry::{Point, Polygon};
+use crate::imageio::GrayFrame;
+use crate::occlusion::SectorTemplate;
+
+/// Where the profile is sampled along each vertex's outward normal,
+/// pixels: across the edge and the grey on either side of it, as far as
+/// an edge blurred over a few pixels reaches.
+const OFFSETS_PX: [f64; 8] = [-6.0, -4.0, -2.0, -1.0, 1.0, 2.0, 4.0, 6.0];
+
+/// Vertices this close to the image border, pixels, are not sampled: an
+/// outline along the border (an object cut by it) is no edge of the
+/// object.
+const BORDER_PX: f64 = 4.0;
+
+/// The template's outline at `pose` with its unit outward normals.
+fn placed(sectors: &SectorTemplate, pose: Pose) -> (Vec<Point>, Vec<Point>) {
+    let mut contour = sectors.visible_arcs(pose, &[]).swap_remove(0);
+    // The closed contour repeats its first vertex at the end.
+    contour.pop();
+    let normals = Polygon::new(contour.clone()).outward_normals();
+    (contour, normals)
+}
+
+/// The grey profile of `frame` across the outline of `sectors` placed at
+/// `pose`: per vertex, the samples at [`OFFSETS_PX`] along its outward
+/// normal (bilinear); NaN outside the image and near its border.
+pub(super) fn profile(frame: &GrayFrame, sectors: &SectorTemplate, pose: Pose) -> Vec<f64> {
+    let (contour, normals) = placed(sectors, pose);
+    let (w, h) = (frame.width as f64, frame.height as f64);
+    let mut samples = Vec::with_capacity(contour.len() * OFFSETS_PX.len());
+    for (p, n) in contour.iter().zip(&normals) {
+        let near_border =
+            p[0] < BORDER_PX || p[1] < BORDER_PX || p[0] > w - 1.0 - BORDER_PX || p[1] > h - 1.0 - BORDER_PX;
+        samples.extend(OFFSETS_PX.iter().map(|o| {
+            if near_border {
+                f64::NAN
+            } else {
+                bilinear(frame, [p[0] + o * n[0], p[1] + o * n[1]])
+            }
+        }));
+    }
+    samples
+}
+
+/// The weight of each sample of [`profile`] for a comparison along the
+/// unit direction `u`: the information its vertex gives on a move along
+/// `u`, `(n . u)^2` times the vertex's share of the outline's length.
+pub(super) fn weights_along(sectors: &SectorTemplate, pose: Pose, u: Point) -> Vec<f64> {
+    let (contour, normals) = placed(sectors, pose);
+    let count = contour.len();
+    let mut weights = Vec::with_capacity(count * OFFSETS_PX.len());
+    for i in 0..count {
+        let (a, b) = (contour[(i + count - 1) % count], contour[(i + 1) % count]);
+        let length = 0.5 * (b[0] - a[0]).hypot(b[1] - a[1]);
+        let along = normals[i][0] * u[0] + normals[i][1] * u[1];
+        weights.extend([along * along * length; OFFSETS_PX.len()]);
+    }
+    weights
+}
+
+/// Pearson correlation of two profiles of one outline, each sample
+/// weighted by `weights`, over the samples both have; NaN when fewer than
+/// two or either is flat. In -1..=1.
+pub(super) fn correlation(a: &[f64], b: &[f64], weights: &[f64]) -> f64 {
+    let both = || {
+        a.iter()
+            .zip(b)
+            .zip(weights)
+            .filter(|((x, y), w)| x.is_finite() && y.is_finite() && **w > 0.0)
+            .map(|((x, y), w)| (*x, *y, *w))
+    };
+    let (mut total, mut mean_a, mut mean_b, mut count) = (0.0, 0.0, 0.0, 0);
+    for (x, y, w) in both() {
+        total += w;
+        mean_a += w * x;
+        mean_b += w * y;
+        count += 1;
+    }
+    if count < 2 || total <= 0.0 {
+        return f64::NAN;
+    }
+    (mean_a, mean_b) = (mean_a / total, mean_b / total);
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y, w) in both() {
+        ab += w * (x - mean_a) * (y - mean_b);
+        aa += w * (x - mean_a) * (x - mean_a);
+        bb += w * (y - mean_b) * (y - mean_b);
+    }
+    ab / (aa * bb).sqrt()
+}
+
+/// `frame` at the point `q`, interpolated bilinearly; NaN outside.
+fn bilinear(frame: &GrayFrame, q: Point) -> f64 {
+    let (w, h) = (frame.width as i64, frame.height as i64);
+    let (x0, y0) = (q[0].floor() as i64, q[1].floor() as i64);
+    if x0 < 0 || y0 < 0 || x0 + 1 >= w || y0 + 1 >= h {
+        return f64::NAN;
+    }
+    let (fx, fy) = (q[0] - x0 as f64, q[1] - y0 as f64);
+    let at = |x: i64, y: i64| f64::from(frame.data[(y * w + x) as usize]);
+    (1.0 - fy) * ((1.0 - fx) * at(x0, y0) + fx * at(x0 + 1, y0))
+        + fy * ((1.0 - fx) * at(x0, y0 + 1) + fx * at(x0 + 1, y0 + 1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_correlation_ignores_an_affine_grey_change_and_sees_a_different_profile() {
+        let a = [10.0, 20.0, 30.0, 25.0, 5.0];
+        let gained: Vec<f64> = a.iter().map(|v| 3.0 * v + 40.0).collect();
+        let weights = [1.0; 5];
+        assert!((correlation(&a, &gained, &weights) - 1.0).abs() < 1e-12);
+        let other = [30.0, 5.0, 10.0, 20.0, 25.0];
+        assert!(correlation(&a, &other, &weights) < 0.0);
+        // Samples without weight or value do not count.
+        let masked = [10.0, 20.0, f64::NAN, 0.0, 5.0];
+        assert!((correlation(&a, &masked, &[1.0, 1.0, 1.0, 0.0, 1.0]) - 1.0).abs() < 1e-12);
+        assert!(correlation(&a, &[1.0; 5], &weights).is_nan());
+    }
+}
