@@ -158,6 +158,8 @@ impl StereoTracker {
     /// rebuilt with them; the contour and pose are kept). Validate first.
     pub fn set_params(&mut self, params: TrackerParams) {
         self.template = self.state.as_ref().map(|s| templates(s, &params));
+        // The rebuilt template may have other vertices.
+        self.last_profile = None;
         self.params = params;
     }
 

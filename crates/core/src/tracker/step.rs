@@ -569,8 +569,8 @@ impl StereoTracker {
     /// at the prediction; a contour that stopped short of a tip gone over
     /// a grain as bright as itself, or ran on along a grain, shows the
     /// tip's look at the prediction better than where it went. No
-    /// reference (a restored tracker before its first followed pair): not
-    /// confirmed. The correlation ignores affine grey changes between the
+    /// reference (a restored tracker, or one given new parameters, before
+    /// its first followed pair): not confirmed. The correlation ignores affine grey changes between the
     /// pairs.
     pub(super) fn unconfirmed_slide(
         &self,
@@ -583,11 +583,11 @@ impl StereoTracker {
         if template.cuts.is_empty() || along.abs() <= FAR_MOVE_PX {
             return None;
         }
-        let Some(last) = &self.last_profile else {
+        let weights = weights_along(sectors, pose, w);
+        let Some(last) = self.last_profile.as_ref().filter(|p| p.len() == weights.len()) else {
             return Some([f64::NAN; 2]);
         };
         let [predicted, _] = state.predicted();
-        let weights = weights_along(sectors, pose, w);
         let [at_fit, at_prediction] =
             [pose, predicted].map(|p| correlation(last, &profile(left, sectors, p), &weights));
         (at_fit.is_nan() || at_fit <= at_prediction.max(-1.0)).then_some([at_fit, at_prediction])
