@@ -420,3 +420,43 @@ fn invalid_parameters_are_named() {
         );
     }
 }
+
+/// A tool entering from the border moves along its axis by 5-20 px a
+/// pair, unpredicted on the pair after its first: the move is followed
+/// because its outline looks more like the first pair's where it was fitted
+/// than at the prediction. A tracker restored from the same state has no
+/// such pair to compare with and withholds the move as `uncertain`.
+#[test]
+fn a_border_tools_move_along_its_axis_is_followed_by_how_its_outline_looks() {
+    let pairs = sequence(Preset::BorderTool, Shape::Tip, 300, 2);
+    let params = TrackerParams::default();
+    let mut tracker = StereoTracker::new(params.clone());
+    let first = tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+    assert_eq!(first.status, Status::Initialised, "{first:?}");
+    assert!(
+        !tracker.template.as_ref().unwrap().0.cuts.is_empty(),
+        "a border tool"
+    );
+    let mut restored = StereoTracker::from_state(params, tracker.state().cloned(), tracker.frames());
+    let before = tracker.state().unwrap().left;
+    let followed = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
+    assert_eq!(followed.status, Status::Tracked, "{followed:?}");
+    // The template's pose moves as the whole tool does (its centroid,
+    // outside the image included).
+    let [t0, t1] = [0, 1].map(|k| pairs[k].truth.left.centroid);
+    let moved = [t1[0] - t0[0], t1[1] - t0[1]];
+    let after = tracker.state().unwrap().left;
+    let off = (after.x - before.x - moved[0]).hypot(after.y - before.y - moved[1]);
+    assert!(moved[0].hypot(moved[1]) > 4.0, "the tool moved {moved:?}");
+    assert!(off < 1.0, "followed {off:.2} px off the tool's move {moved:?}");
+    let withheld = restored.process(&pairs[1].left, &pairs[1].right).unwrap();
+    assert_eq!(withheld.status, Status::Lost, "{withheld:?}");
+    assert!(
+        withheld
+            .reason
+            .as_deref()
+            .unwrap()
+            .contains("along its weakest direction"),
+        "{withheld:?}"
+    );
+}
