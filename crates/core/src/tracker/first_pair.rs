@@ -18,7 +18,7 @@ use crate::strips::refit_without_strips;
 
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
-use super::profile::profile;
+use super::profile::slide_reference;
 use super::result::{PairResult, Status, TrackError};
 use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
@@ -406,7 +406,7 @@ impl StereoTracker {
             Some(previous) if previous > 0.0 => previous,
             _ => own,
         };
-        self.last_profile = (!template.cuts.is_empty()).then(|| profile(left, &sectors, state.left));
+        self.last_profile = slide_reference(left, (&template, &sectors), state.left);
         self.state = Some(state);
         self.template = Some((template, sectors));
         result

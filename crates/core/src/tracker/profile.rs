@@ -3,7 +3,7 @@
 //! what each vertex fixes along a direction. Affine changes of the grey
 //! levels leave the correlation unchanged.
 
-use crate::fit::Pose;
+use crate::fit::{Pose, RigidTemplate};
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::occlusion::SectorTemplate;
@@ -46,6 +46,18 @@ pub(super) fn profile(frame: &GrayFrame, sectors: &SectorTemplate, pose: Pose) -
         }));
     }
     samples
+}
+
+/// The profile a later slide of the template is compared with
+/// ([`StereoTracker::unconfirmed_slide`](super::StereoTracker::unconfirmed_slide)):
+/// [`profile`] at `pose` for a template cut by the image border, None for
+/// any other (only a border-cut object's slide is judged).
+pub(super) fn slide_reference(
+    frame: &GrayFrame,
+    (template, sectors): (&RigidTemplate, &SectorTemplate),
+    pose: Pose,
+) -> Option<Vec<f64>> {
+    (!template.cuts.is_empty()).then(|| profile(frame, sectors, pose))
 }
 
 /// The weight of each sample of [`profile`] for a comparison along the

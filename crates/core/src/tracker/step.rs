@@ -11,7 +11,7 @@ use crate::uncertainty;
 use std::borrow::Cow;
 
 use super::border::shared_view_limits;
-use super::profile::{correlation, profile, weights_along};
+use super::profile::{correlation, profile, slide_reference, weights_along};
 use super::reacquire::REACQUIRE_OCCLUDED_FRACTION;
 use super::result::{PairResult, Status, GOES_ON, UNCERTAIN};
 use super::state::{Phase, TrackerState};
@@ -547,10 +547,8 @@ impl StereoTracker {
                     pose.y -= back * w[1];
                 }
                 candidate.left_velocity = velocity(candidate.left);
-            } else if !templates.0.cuts.is_empty() {
-                // What a later slide is compared with (only an object cut
-                // by the border is judged so).
-                self.last_profile = Some(profile(left, &templates.1, candidate.left));
+            } else {
+                self.last_profile = slide_reference(left, (&templates.0, &templates.1), candidate.left);
             }
             self.state = Some(candidate);
         }
@@ -570,8 +568,8 @@ impl StereoTracker {
     /// a grain as bright as itself, or ran on along a grain, shows the
     /// tip's look at the prediction better than where it went. No
     /// reference (a restored tracker, or one given new parameters, before
-    /// its first followed pair): not confirmed. The correlation ignores affine grey changes between the
-    /// pairs.
+    /// its first followed pair): not confirmed. The correlation ignores
+    /// affine grey changes between the pairs.
     pub(super) fn unconfirmed_slide(
         &self,
         left: &GrayFrame,

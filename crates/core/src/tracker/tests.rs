@@ -211,14 +211,8 @@ fn an_object_moved_out_of_its_hint_box_is_found_again() {
     let first = Scene::new(&config).unwrap().render(0);
     let [cx, cy] = first.truth.left.centroid;
     let (w, h) = (first.left.width as f64, first.left.height as f64);
-    // A box a person draws: the object's bounds and 15 px around them.
-    let [x0, y0, x1, y1] = first.truth.left.polygon.bounds();
-    let roi = [
-        x0 as i64 - 15,
-        y0 as i64 - 15,
-        (x1 - x0) as i64 + 30,
-        (y1 - y0) as i64 + 30,
-    ];
+    // A box a person draws around the object.
+    let roi = first.truth.left.roi_hint(0.2);
     // Moved to the other side of the frame, well outside the box.
     let other = |c: f64, side: f64| if c < side / 2.0 { 0.7 * side } else { 0.3 * side };
     let to = [other(cx, w), other(cy, h)];
