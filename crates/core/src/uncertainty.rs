@@ -38,6 +38,11 @@
 //! matrix (1 for a compact outline); a fit with hidden sectors keeps the
 //! conditional figure, as its bias term below already over-reports.
 //!
+//! A view's bands count as noise the texture and edges near the outline;
+//! what the disparity feels is what differs between the two views there.
+//! [`pair_sigma`] measures that, and the tracker uses it where it is the
+//! smaller (`StereoTracker::use_pair_noise`, docs/uncertainty.md).
+//!
 //! What this leaves out (the template not matching the outline exactly,
 //! sub-pixel discretisation) is the tracker's floor
 //! ([`crate::tracker::DISPARITY_STD_FLOOR_PX`]) and, once a run of pairs
@@ -120,8 +125,20 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
                 .sqrt(),
         );
     }
-    let outer_offset_px = bands.outer_offset_px;
-    // One run of samples per offset, in order along the outline.
+    let runs =
+        band_runs(frame, arcs, outward, bands.outer_offset_px).map(|run| run.into_iter().flatten().collect());
+    spread_of_runs(runs, mean_spacing(arcs))
+}
+
+/// The grey levels of [`band_sigma`]'s five runs along the `arcs` (inner
+/// band at 2.5 and 1.5 px, outer band at 1.5 and 2.5 px, the far run), in
+/// order along the outline: `None` where a sample falls outside the frame.
+fn band_runs(
+    frame: &GrayFrame,
+    arcs: &[Vec<Point>],
+    outward: f64,
+    outer_offset_px: f64,
+) -> [Vec<Option<f64>>; 5] {
     let offsets = [
         -BAND_PX[1],
         -BAND_PX[0],
@@ -129,19 +146,23 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
         BAND_PX[1] + outer_offset_px,
         0.5 * (BAND_PX[0] + BAND_PX[1]) + FAR_PX + outer_offset_px,
     ];
-    let mut runs: [Vec<f64>; 5] = Default::default();
+    let mut runs: [Vec<Option<f64>>; 5] = Default::default();
     for arc in arcs {
         for (p, n) in arc.iter().zip(normals(arc, outward)) {
             for (run, d) in runs.iter_mut().zip(offsets) {
                 let (x, y) = ((p[0] + d * n[0]).round(), (p[1] + d * n[1]).round());
-                if x < 0.0 || y < 0.0 || x >= f64::from(frame.width) || y >= f64::from(frame.height) {
-                    continue;
-                }
-                run.push(f64::from(frame.get(x as u32, y as u32)));
+                let inside =
+                    x >= 0.0 && y >= 0.0 && x < f64::from(frame.width) && y < f64::from(frame.height);
+                run.push(inside.then(|| f64::from(frame.get(x as u32, y as u32))));
             }
         }
     }
-    let spacing = mean_spacing(arcs);
+    runs
+}
+
+/// The noise of [`band_sigma`] (or of [`pair_sigma`]) from its five runs,
+/// `spacing` pixels apart along the outline.
+fn spread_of_runs(runs: [Vec<f64>; 5], spacing: f64) -> Option<f64> {
     let [i0, i1, o0, o1, far] = runs;
     let inside = [i0, i1].concat();
     (inside.len() >= 8 && o0.len() + o1.len() >= 8).then(|| {
@@ -155,6 +176,52 @@ pub fn band_sigma(frame: &GrayFrame, arcs: &[Vec<Point>], outward: f64, bands: N
         let factor = correlation_factor(&far, spacing);
         (0.5 * (inner * inner + outer * outer * factor)).sqrt()
     })
+}
+
+/// The noise `sigma` of one view from what differs between the two views
+/// of a pair at their fitted poses: [`band_sigma`]'s bands sampled along
+/// the same outline placed in each view (`arcs`, vertex for vertex), the
+/// right view's samples less an affine map of the left's (least squares
+/// over all bands: a change of brightness and contrast between the views),
+/// that residual's spread taken as [`band_sigma`] takes the grey levels',
+/// divided by `sqrt(2)` (the difference of two views' independent noise).
+/// What both views share (texture that moved with the object, a whole
+/// frame shifted) is no noise of the disparity; what differs (independent
+/// noise, texture at another disparity, a change of the object's look) is.
+/// `None` with fewer than 8 samples of a band in both views.
+pub fn pair_sigma(
+    frames: [&GrayFrame; 2],
+    arcs: [&[Vec<Point>]; 2],
+    outward: f64,
+    outer_offset_px: f64,
+) -> Option<f64> {
+    let [left, right] = [0, 1].map(|k| band_runs(frames[k], arcs[k], outward, outer_offset_px));
+    let pairs: Vec<(f64, f64)> = left
+        .iter()
+        .zip(&right)
+        .flat_map(|(l, r)| l.iter().zip(r).filter_map(|(a, b)| Some(((*a)?, (*b)?))))
+        .collect();
+    if pairs.len() < 16 {
+        return None;
+    }
+    // The affine map right = a left + b by least squares.
+    let n = pairs.len() as f64;
+    let (mx, my) = pairs
+        .iter()
+        .fold((0.0, 0.0), |(x, y), (a, b)| (x + a / n, y + b / n));
+    let (sxy, sxx) = pairs.iter().fold((0.0, 0.0), |(xy, xx), (a, b)| {
+        (xy + (a - mx) * (b - my), xx + (a - mx) * (a - mx))
+    });
+    let gain = if sxx > 0.0 { sxy / sxx } else { 1.0 };
+    let residuals = left.iter().zip(&right).map(|(l, r)| {
+        l.iter()
+            .zip(r)
+            .filter_map(|(a, b)| Some((*b)? - (my + gain * ((*a)? - mx))))
+            .collect::<Vec<f64>>()
+    });
+    let runs: [Vec<f64>; 5] = residuals.collect::<Vec<_>>().try_into().ok()?;
+    let spacing = mean_spacing(arcs[0]);
+    spread_of_runs(runs, spacing).map(|s| s / std::f64::consts::SQRT_2)
 }
 
 /// Mean distance between consecutive points of the `arcs`, pixels (1 when
@@ -737,6 +804,61 @@ mod tests {
         assert!(
             (1.0 / 1.5..=1.5).contains(&ratio),
             "reported {mean_reported:.4} px against observed {observed:.4} px (ratio {ratio:.2})"
+        );
+    }
+
+    /// A textured disc of radius 30 at (`disc_x`, 100) on a textured
+    /// substrate whose pattern is placed at `substrate_x`, its grey levels
+    /// mapped by `gain` and `offset`, plus white Gaussian noise of
+    /// standard deviation 5.
+    fn textured(disc_x: f64, substrate_x: f64, [gain, offset]: [f64; 2], seed: u64) -> GrayFrame {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 5.0).unwrap();
+        let (w, h) = (200u32, 200u32);
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                let v = if (x - disc_x).hypot(y - 100.0) < 30.0 {
+                    160.0 + 25.0 * (0.7 * (x - disc_x)).sin() * (0.5 * y).cos()
+                } else {
+                    80.0 + 25.0 * (0.9 * (x - substrate_x) + 0.3 * y).sin()
+                };
+                (gain * v + offset + noise.sample(&mut rng))
+                    .round()
+                    .clamp(0.0, 255.0) as u16
+            })
+            .collect();
+        GrayFrame::new(w, h, 8, data).unwrap()
+    }
+
+    /// The pair's noise is what differs between its views: a textured
+    /// disc and substrate moved 3 px together, the right view darker and
+    /// flatter (0.8 v + 30), show the white noise (5 grey levels) where
+    /// one view's bands show the texture; the substrate lagging the disc
+    /// by 2 px shows as noise.
+    #[test]
+    fn the_pairs_noise_is_what_differs_between_its_views() {
+        let outline = |x: f64| {
+            let mut arc = Polygon::circle([x, 100.0], 30.0, 96).points;
+            arc.push(arc[0]);
+            vec![arc]
+        };
+        let outward = Polygon::circle([0.0, 0.0], 30.0, 96).signed_area().signum();
+        let left = textured(90.0, 90.0, [1.0, 0.0], 1);
+        let (l, r) = (outline(90.0), outline(93.0));
+        let view = band_sigma(&left, &l, outward, NoiseBands::default()).unwrap();
+        assert!(view > 12.0, "one view's bands: {view:.1} grey levels");
+        let together = textured(93.0, 93.0, [0.8, 30.0], 2);
+        let sigma = pair_sigma([&left, &together], [&l, &r], outward, 0.0).unwrap();
+        assert!(
+            (4.0..6.5).contains(&sigma),
+            "moved together: {sigma:.1} grey levels"
+        );
+        let lagging = textured(93.0, 91.0, [0.8, 30.0], 2);
+        let lag = pair_sigma([&left, &lagging], [&l, &r], outward, 0.0).unwrap();
+        assert!(
+            lag > 2.0 * sigma,
+            "substrate lagging: {lag:.1} against {sigma:.1} grey levels"
         );
     }
 }
