@@ -20,6 +20,7 @@ mod result;
 mod state;
 mod std_error;
 mod step;
+mod substrate;
 mod tables;
 #[cfg(test)]
 mod tests;

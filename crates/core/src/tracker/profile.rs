@@ -108,7 +108,7 @@ pub(super) fn correlation(a: &[f64], b: &[f64], weights: &[f64]) -> f64 {
 }
 
 /// `frame` at the point `q`, interpolated bilinearly; NaN outside.
-fn bilinear(frame: &GrayFrame, q: Point) -> f64 {
+pub(super) fn bilinear(frame: &GrayFrame, q: Point) -> f64 {
     let (w, h) = (frame.width as i64, frame.height as i64);
     let (x0, y0) = (q[0].floor() as i64, q[1].floor() as i64);
     if x0 < 0 || y0 < 0 || x0 + 1 >= w || y0 + 1 >= h {
