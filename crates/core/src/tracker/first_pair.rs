@@ -379,6 +379,12 @@ impl StereoTracker {
             &mut right_fit,
             right_bands,
         );
+        self.use_pair_noise(
+            [left, right],
+            (&template, &sectors),
+            [left_bands, right_bands],
+            [&mut left_fit, &mut right_fit],
+        );
         let mut result = self.pair_result(
             frame,
             Status::Initialised,

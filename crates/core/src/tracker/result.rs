@@ -267,8 +267,9 @@ impl StereoTracker {
         let disparity = state.disparity();
         let axis = axis_component(self.params.tilt_axis_deg, disparity);
         let std = [
-            left.axis_std_px,
-            right.axis_std_px,
+            left.axis_std_px * left.pair_scale,
+            right.axis_std_px * right.pair_scale,
+            right.lag_px,
             left.risen_shift_px,
             right.risen_shift_px,
             DISPARITY_STD_FLOOR_PX,

@@ -11,6 +11,7 @@ use crate::region::PrefixSums;
 use crate::uncertainty;
 
 use super::state::TrackerState;
+use super::substrate;
 use super::view_fit::{either, ImageFit};
 use super::StereoTracker;
 
@@ -134,6 +135,42 @@ pub(super) fn rim_offset(state: &TrackerState) -> f64 {
     ((outline.area() - template.area()) / template.length().max(1.0)).max(0.0)
 }
 
+/// How much more a fit scatters than the sandwich figure of
+/// [`uncertainty::axis_std`] says with the pair's noise
+/// ([`StereoTracker::use_pair_noise`]), by which that noise is multiplied:
+/// at these signal-to-noise ratios the first-order figure is too small,
+/// which a view's own bands, counting texture as noise, made up for.
+/// Measured 2.2 on the static scans' needle named by a lasso (one scene,
+/// independent heavy noise; `docs/real/README.md`) and 2.1 on the
+/// generator's clean tool-in-front condition; on its other conditions the
+/// view's own figure, the ceiling, is the smaller.
+pub(super) const PAIR_NOISE_FACTOR: f64 = 2.0;
+
+/// What [`StereoTracker::axis_std`] measures of a fit.
+#[derive(Clone, Debug)]
+pub(super) struct AxisStd {
+    /// The standard error along the axis without the masked runs' shift
+    /// (the marginal one: the curvature's conditional figure times
+    /// [`uncertainty::marginal_factor`]), pixels; NaN when unmeasured.
+    std: f64,
+    /// For a fit with hidden sectors, the variance the noise alone gives
+    /// the masked runs' shift relative to `std`'s square
+    /// ([`uncertainty::difference_variance`]).
+    difference: f64,
+    /// The noise `std` was measured with ([`uncertainty::band_sigma`]),
+    /// grey levels; NaN when unmeasured.
+    sigma: f64,
+    /// The visible outline's [`uncertainty::weakest_direction_factor`]
+    /// relative to `std`.
+    weakest_factor: f64,
+    /// The direction of [`uncertainty::weakest_direction`].
+    weakest_direction: Point,
+    /// [`fixed_share`] of what is seen.
+    fixed_share: f64,
+    /// The sectors left out of `std` (not seen, or occluded).
+    left_out: Vec<bool>,
+}
+
 impl StereoTracker {
     /// Standard error of `fit` along the disparity axis, pixels, for the
     /// objective the fit minimised (the full energy, or the band energy
@@ -142,7 +179,8 @@ impl StereoTracker {
     /// [`crate::uncertainty`]); NaN when it cannot be measured.
     /// `bands`: how far outside the template the object's outline runs, and
     /// the smoothing the frames had. Sets `fit.axis_std_px` (with the masked
-    /// runs' shift in quadrature) and `fit.weakest_factor`.
+    /// runs' shift in quadrature, also kept as `fit.axis_bias_px`), the
+    /// noise it was measured with and where, and `fit.weakest_factor`.
     pub(super) fn measure_std(
         &self,
         frame: &GrayFrame,
@@ -151,27 +189,24 @@ impl StereoTracker {
         fit: &mut ImageFit,
         bands: uncertainty::NoiseBands,
     ) {
-        let ((std, difference), (factor, direction, share)) =
-            self.axis_std(frame, sums, template, sectors, fit, bands);
+        let m = self.axis_std(frame, sums, template, sectors, fit, bands);
         // The masked runs' shift less what the noise alone moves it by: the
         // fit with the runs grown is the less efficient of the two, and
         // their difference has the difference of their variances.
-        let bias = (fit.mask_shift_px.powi(2) - difference * std * std)
+        let bias = (fit.mask_shift_px.powi(2) - m.difference * m.std * m.std)
             .max(0.0)
             .sqrt();
-        fit.axis_std_px = std.hypot(bias);
-        fit.weakest_factor = factor;
-        fit.weakest_direction = direction;
-        fit.fixed_share = share;
+        fit.axis_std_px = m.std.hypot(bias);
+        fit.axis_bias_px = bias;
+        fit.noise_sigma = m.sigma;
+        fit.measured_without = m.left_out;
+        fit.weakest_factor = m.weakest_factor;
+        fit.weakest_direction = m.weakest_direction;
+        fit.fixed_share = m.fixed_share;
     }
 
     /// [`Self::measure_std`]'s standard error along the axis, without the
-    /// masked runs' shift (the marginal one: the curvature's conditional
-    /// figure times [`uncertainty::marginal_factor`]) and, for a fit with
-    /// hidden sectors, the variance the noise alone gives that shift
-    /// relative to its square ([`uncertainty::difference_variance`]); and
-    /// the visible outline's [`uncertainty::weakest_direction_factor`]
-    /// relative to it.
+    /// masked runs' shift, and what goes with it (see [`AxisStd`]).
     pub(super) fn axis_std(
         &self,
         frame: &GrayFrame,
@@ -180,7 +215,7 @@ impl StereoTracker {
         sectors: &SectorTemplate,
         fit: &ImageFit,
         bands: uncertainty::NoiseBands,
-    ) -> ((f64, f64), (f64, Point, f64)) {
+    ) -> AxisStd {
         let t = self.params.tilt_axis_deg.to_radians();
         let u = [t.sin(), -t.cos()];
         let pose = fit.pose;
@@ -219,14 +254,18 @@ impl StereoTracker {
         } else {
             0.0
         };
-        let weakest = (
+        let measured = AxisStd {
+            std: f64::NAN,
+            difference,
+            sigma: f64::NAN,
             // Relative to the marginal standard error this returns.
-            uncertainty::weakest_direction_factor(&arcs, u) / marginal,
-            uncertainty::weakest_direction(&arcs),
-            fixed_share(sectors, pose, &unseen, &left_out),
-        );
+            weakest_factor: uncertainty::weakest_direction_factor(&arcs, u) / marginal,
+            weakest_direction: uncertainty::weakest_direction(&arcs),
+            fixed_share: fixed_share(sectors, pose, &unseen, &left_out),
+            left_out,
+        };
         let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward(template), bands) else {
-            return ((f64::NAN, difference), weakest);
+            return measured;
         };
         let shifted = |d: f64| Pose {
             x: pose.x + d * u[0],
@@ -235,28 +274,99 @@ impl StereoTracker {
         };
         let m_ref = sums.reference_mean();
         let s = uncertainty::weighted_length(&arcs, u);
-        if occluded {
+        let std = if occluded {
             let (a, b) = sectors.visible_bands(sums, pose, &fit.occluded);
             let means = [a.mean(), b.mean()];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| sectors.masked_energy(sums, shifted(d), &fit.occluded, m_ref);
-            (
-                (uncertainty::axis_std(energy, m_ref, means, s, sigma), difference),
-                weakest,
-            )
+            uncertainty::axis_std(energy, m_ref, means, s, sigma)
         } else {
             let terms = template.energy_at(sums, pose, &self.params.energy);
             let means = [terms.mean_inside, terms.mean_outside];
             let s = s + cut_length(template, sums, pose, u, means);
             let energy = |d: f64| template.energy_at(sums, shifted(d), &self.params.energy).energy;
-            (
-                (
-                    marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma),
-                    difference,
-                ),
-                weakest,
-            )
+            marginal * uncertainty::axis_std(energy, m_ref, means, s, sigma)
+        };
+        AxisStd {
+            std,
+            sigma,
+            ..measured
         }
+    }
+
+    /// Measures the noise of both fits' share of the disparity's standard
+    /// error on the pair itself ([`uncertainty::pair_sigma`] over the
+    /// bands both standard errors were measured on, at the fitted poses in
+    /// `frames`), times [`PAIR_NOISE_FACTOR`], and adds the surroundings'
+    /// lag behind the object ([`substrate::lag`], less its own noise) in
+    /// quadrature: sets each fit's `pair_scale` to what the pair's noise
+    /// makes of the noise part of its `axis_std_px` (the masked runs'
+    /// shift stays; at most 1) and the right fit's `lag_px`. A view's own
+    /// bands count as noise the texture and edges near the outline, which
+    /// move with the object when they lie at its height; what the two
+    /// views differ by can move the disparity, and texture at another
+    /// height by as much as it lags. Where that sum exceeds the views' own
+    /// figure, the views' figure stands.
+    ///
+    /// Left at the view's figure while a run of `uncertain` pairs is open:
+    /// the pair's noise says that the views agree at their poses, not that
+    /// the contour is on the object, and a contour carried onto an edge at
+    /// another height by unverified moves agrees in both views (a rod
+    /// under a dark bar, its left centroid 6 px off after two uncertain
+    /// pairs, measured 0.16 px with the pair's noise against 0.57 px).
+    /// Left too when a view is unmeasured or the frames were smoothed
+    /// (their noise is measured before smoothing, see
+    /// [`uncertainty::band_sigma`]).
+    pub(super) fn use_pair_noise(
+        &self,
+        frames: [&GrayFrame; 2],
+        (template, sectors): (&RigidTemplate, &SectorTemplate),
+        bands: [uncertainty::NoiseBands; 2],
+        [left, right]: [&mut ImageFit; 2],
+    ) {
+        let in_run = self.state.as_ref().is_some_and(|s| s.uncertain_run.is_some());
+        if in_run
+            || bands.iter().any(|b| b.smoothing_px > 0.0)
+            || !(left.noise_sigma > 0.0 && right.noise_sigma > 0.0)
+        {
+            return;
+        }
+        let without = either(&left.measured_without, &right.measured_without);
+        let arcs = [left.pose, right.pose].map(|pose| sectors.visible_arcs(pose, &without));
+        let Some(sigma) = uncertainty::pair_sigma(
+            frames,
+            [&arcs[0], &arcs[1]],
+            outward(template),
+            bands[0].outer_offset_px,
+        ) else {
+            return;
+        };
+        let scaled = [&*left, &*right].map(|fit| {
+            let scale = (PAIR_NOISE_FACTOR * sigma / fit.noise_sigma).min(1.0);
+            let noise = (fit.axis_std_px.powi(2) - fit.axis_bias_px.powi(2))
+                .max(0.0)
+                .sqrt();
+            (noise * scale).hypot(fit.axis_bias_px)
+        });
+        let t = self.params.tilt_axis_deg.to_radians();
+        let reach = (template.margin, bands[0].outer_offset_px);
+        let lag = substrate::lag(
+            frames,
+            &template.points,
+            [left.pose, right.pose],
+            reach,
+            [t.sin(), -t.cos()],
+        )
+        .map_or(0.0, |l| (l.px * l.px - l.std_px * l.std_px).max(0.0).sqrt());
+        if scaled[0].hypot(scaled[1]).hypot(lag) >= left.axis_std_px.hypot(right.axis_std_px) {
+            return;
+        }
+        for (fit, scaled) in [&mut *left, &mut *right].into_iter().zip(scaled) {
+            if fit.axis_std_px > 0.0 {
+                fit.pair_scale = scaled / fit.axis_std_px;
+            }
+        }
+        right.lag_px = lag;
     }
 
     /// How far `to` lies from `from` along the disparity axis, pixels (0

@@ -439,6 +439,12 @@ impl StereoTracker {
             },
             ..state.clone()
         };
+        self.use_pair_noise(
+            [left, right],
+            (template, &templates.1),
+            [left_bands, right_bands],
+            [&mut left_fit, &mut right_fit],
+        );
         let mut result = self.pair_result(
             frame,
             Status::Tracked,

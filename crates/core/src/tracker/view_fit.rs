@@ -74,6 +74,23 @@ pub(super) struct ImageFit {
     /// Of the hidden sectors, those over bare substrate
     /// ([`crate::occlusion::overhanging`]; empty: none measured).
     pub(super) overhang: Vec<bool>,
+    /// The pixel noise `axis_std_px` was measured with, grey levels
+    /// ([`uncertainty::band_sigma`]; NaN until measured).
+    pub(super) noise_sigma: f64,
+    /// The sectors the standard error left out (not seen, or occluded;
+    /// empty until measured).
+    pub(super) measured_without: Vec<bool>,
+    /// By how much the pair's own noise scales `axis_std_px` in the
+    /// disparity's standard error (see [`StereoTracker::use_pair_noise`];
+    /// 1: not measured).
+    pub(super) pair_scale: f64,
+    /// The masked runs' shift in `axis_std_px` (0: none).
+    pub(super) axis_bias_px: f64,
+    /// On the right view's fit, how far the surroundings lag the object
+    /// from the left view, the most their texture can pull the disparity
+    /// by, counted in its standard error with the pair's noise (see
+    /// [`StereoTracker::use_pair_noise`]; 0: not counted).
+    pub(super) lag_px: f64,
 }
 
 impl ImageFit {
@@ -92,6 +109,11 @@ impl ImageFit {
             weakest_direction: [1.0, 0.0],
             fixed_share: 1.0,
             overhang: Vec::new(),
+            noise_sigma: f64::NAN,
+            measured_without: Vec::new(),
+            pair_scale: 1.0,
+            axis_bias_px: 0.0,
+            lag_px: 0.0,
         }
     }
 
@@ -533,18 +555,11 @@ impl StereoTracker {
         let (a, b) = sectors.visible_bands(&sums, pose, &mask);
         let (ma, mb) = (a.mean(), b.mean());
         let fit = ImageFit {
-            pose,
-            terms,
             contrast: michelson(ma, mb),
-            axis_std_px: f64::NAN,
             occluded: mask,
             hidden,
             mask_shift_px,
-            risen_shift_px: 0.0,
-            weakest_factor: 1.0,
-            weakest_direction: [1.0, 0.0],
-            fixed_share: 1.0,
-            overhang: Vec::new(),
+            ..ImageFit::full(pose, terms)
         };
         (fit, sums)
     }
