@@ -665,10 +665,10 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // the contour stays on the needle, and the standard error withholds the
     // pairs a loss withheld before (3 withheld, now all on the needle).
     ("contact_1 needle from 3", Naming::Point, [0, 3, 3]),
-    ("contact_1 needle", Naming::Box, [0, 4, 6]),
-    ("contact_1 needle", Naming::Point, [0, 4, 6]),
-    ("landing ib needle", Naming::Box, [0, 1, 1]),
-    ("landing ib needle", Naming::Point, [0, 1, 1]),
+    ("contact_1 needle", Naming::Box, [0, 3, 5]),
+    ("contact_1 needle", Naming::Point, [0, 3, 5]),
+    ("landing ib needle", Naming::Box, [0, 0, 0]),
+    ("landing ib needle", Naming::Point, [0, 0, 0]),
     ("static scans needle", Naming::Box, [0, 1, 8]),
     ("static scans needle", Naming::Point, [0, 0, 8]),
     ("landing eb needle", Naming::Box, [0, 0, 1]),
@@ -677,8 +677,8 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("static scans lamella", Naming::Point, [0, 0, 8]),
     ("landing ib needle, brightness", Naming::Outline, [0, 0, 0]),
     ("landing eb needle, brightness", Naming::Outline, [0, 0, 0]),
-    ("contact_1 needle from 3", Naming::Outline, [0, 3, 3]),
-    ("contact_1 needle", Naming::Outline, [0, 3, 6]),
+    ("contact_1 needle from 3", Naming::Outline, [0, 0, 0]),
+    ("contact_1 needle", Naming::Outline, [0, 2, 4]),
     ("landing ib needle", Naming::Outline, [0, 0, 0]),
     ("static scans needle", Naming::Outline, [0, 0, 0]),
     ("landing eb needle", Naming::Outline, [0, 0, 1]),
@@ -700,7 +700,7 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("approach ib lamella", Naming::Box, [3, 0, 1]),
     ("approach ib lamella", Naming::Point, [1, 0, 3]),
     ("approach ib lamella", Naming::Outline, [0, 0, 3]),
-    ("approach eb needle", Naming::Box, [0, 1, 3]),
+    ("approach eb needle", Naming::Box, [0, 1, 2]),
     ("approach eb needle", Naming::Point, [1, 0, 2]),
     ("approach eb needle", Naming::Outline, [0, 0, 0]),
     ("approach eb lamella", Naming::Box, [0, 1, 3]),
@@ -739,17 +739,34 @@ fn a_lasso_names_the_object_on_every_real_sequence() {
 }
 
 /// Tracks every sequence named by a box and by a point, prints the table
-/// of docs/real/README.md (development and held-out sequences marked) and
-/// holds each to its [`CEILINGS`].
+/// of docs/real/README.md (development and held-out sequences marked),
+/// holds each to its [`CEILINGS`] and the standard errors on real noise
+/// to their errors: over the development static scans' pairs with a
+/// number whose contour is on the object, the RMS of error over standard
+/// error within a factor of 1.5 of 1.
 #[test]
 fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     let params = TrackerParams::default();
     let mut report = Vec::new();
     // Per rule: pairs withheld and false alarms, development and held out.
     let mut by_rule: std::collections::BTreeMap<&str, [usize; 4]> = Default::default();
+    // Error over standard error of the pairs with a number whose contour
+    // is on the object: development, held out, and the development
+    // sequence of static scans (the only one with noise of its own in
+    // each view).
+    let mut z_scores: [Vec<f64>; 3] = Default::default();
     for seq in sequences() {
         for naming in [Naming::Box, Naming::Point, Naming::Outline] {
             let (judged, c) = run(&seq, naming, &params);
+            let on_object: Vec<f64> = judged
+                .iter()
+                .filter(|j| j.iou >= ON_OBJECT_IOU)
+                .filter_map(|j| Some(j.error? / j.std?))
+                .collect();
+            if seq.name.starts_with("static scans") && !seq.held_out {
+                z_scores[2].extend(&on_object);
+            }
+            z_scores[seq.held_out as usize].extend(on_object);
             for j in judged.iter().filter(|j| j.status == Status::Lost) {
                 let counts = by_rule
                     .entry(rule_of(j.reason.as_deref().unwrap_or("")))
@@ -782,6 +799,22 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     for (rule, [w, f, hw, hf]) in &by_rule {
         eprintln!("| {rule} | {w} | {f} | {hw} | {hf} |");
     }
+    let rms = |z: &[f64]| (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
+    for (set, z) in ["development", "held out", "static scans"].iter().zip(&z_scores) {
+        eprintln!(
+            "{set}: RMS error/std {:.2} over {} pairs with a number on the object",
+            rms(z),
+            z.len()
+        );
+    }
+    // Issue #64 item 4: the standard error within a factor of 1.5 of the
+    // errors on real noise (a shifted pair's views share theirs).
+    let calibration = rms(&z_scores[2]);
+    assert!(
+        z_scores[2].len() >= 8 && (1.0 / 1.5..=1.5).contains(&calibration),
+        "static scans: RMS error/std {calibration:.2} over {} pairs (expected within a factor 1.5 of 1, 8 pairs or more)",
+        z_scores[2].len()
+    );
     for (name, _, naming, c) in &report {
         let &(_, _, [wrong, alarms, withheld]) = CEILINGS
             .iter()
