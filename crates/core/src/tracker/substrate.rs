@@ -19,7 +19,7 @@ use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::region::PixelRect;
 
-use super::profile::bilinear;
+use super::profile::{bilinear, correlation};
 
 /// How far outside the outline the surroundings are registered from,
 /// pixels: an edge's blur (and a dark object's rim, added to it) goes
@@ -118,14 +118,15 @@ pub(super) fn lag(
         .map(f64::from)
         .map(|l| {
             // Every other pixel: the search only picks a whole pixel.
-            let pairs: Vec<(f64, f64)> = pixels
+            let (a, b): (Vec<f64>, Vec<f64>) = pixels
                 .iter()
                 .zip(&mapped)
                 .step_by(2)
                 .map(|(p, q)| (left_at(p, 0.5 * l), right_at(q, 0.5 * l)))
                 .filter(|(a, b)| a.is_finite() && b.is_finite())
-                .collect();
-            (l, correlation(&pairs))
+                .unzip();
+            let c = correlation(&a, &b, &vec![1.0; a.len()]);
+            (l, if a.len() >= 64 { c } else { f64::NAN })
         })
         .filter(|(_, c)| c.is_finite())
         .max_by(|a, b| a.1.total_cmp(&b.1))?
@@ -189,26 +190,6 @@ pub(super) fn lag(
         px: lag,
         std_px: variance.max(0.0).sqrt(),
     })
-}
-
-/// Pearson's correlation of the pairs; NaN with fewer than 64 or no
-/// spread.
-fn correlation(pairs: &[(f64, f64)]) -> f64 {
-    if pairs.len() < 64 {
-        return f64::NAN;
-    }
-    let n = pairs.len() as f64;
-    let (ma, mb) = pairs
-        .iter()
-        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
-    let (ab, aa, bb) = pairs.iter().fold((0.0, 0.0, 0.0), |(ab, aa, bb), (x, y)| {
-        (
-            ab + (x - ma) * (y - mb),
-            aa + (x - ma) * (x - ma),
-            bb + (y - mb) * (y - mb),
-        )
-    });
-    ab / (aa * bb).sqrt()
 }
 
 /// The solution of the 3x3 system `a x = b` (Cramer's rule); None when
