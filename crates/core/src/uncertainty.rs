@@ -40,8 +40,10 @@
 //!
 //! A view's bands count as noise the texture and edges near the outline;
 //! what the disparity feels is what differs between the two views there.
-//! [`pair_sigma`] measures that, and the tracker uses it where it is the
-//! smaller (`StereoTracker::use_pair_noise`, docs/uncertainty.md).
+//! [`pair_sigma`] measures that; the tracker uses it, with the
+//! surroundings' lag behind the object added, where the sum is below the
+//! views' own figure (`StereoTracker::use_pair_noise`,
+//! docs/uncertainty.md).
 //!
 //! What this leaves out (the template not matching the outline exactly,
 //! sub-pixel discretisation) is the tracker's floor
