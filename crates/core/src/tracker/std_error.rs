@@ -348,6 +348,13 @@ impl StereoTracker {
                 .sqrt();
             (noise * scale).hypot(fit.axis_bias_px)
         });
+        let views = left.axis_std_px.hypot(right.axis_std_px);
+        // Where the pair's noise is no smaller than the views' (each view
+        // at its cap), no lag can bring the sum below the views' figure:
+        // the registration is not made.
+        if scaled[0].hypot(scaled[1]) >= views {
+            return;
+        }
         let t = self.params.tilt_axis_deg.to_radians();
         let reach = (template.margin, bands[0].outer_offset_px);
         let lag = substrate::lag(
@@ -358,7 +365,7 @@ impl StereoTracker {
             [t.sin(), -t.cos()],
         )
         .map_or(0.0, |l| (l.px * l.px - l.std_px * l.std_px).max(0.0).sqrt());
-        if scaled[0].hypot(scaled[1]).hypot(lag) >= left.axis_std_px.hypot(right.axis_std_px) {
+        if scaled[0].hypot(scaled[1]).hypot(lag) >= views {
             return;
         }
         for (fit, scaled) in [&mut *left, &mut *right].into_iter().zip(scaled) {
