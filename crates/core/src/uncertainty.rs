@@ -686,28 +686,31 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_distr::{Distribution, Normal};
 
+    /// A 200 x 200 8-bit frame of `grey` at each pixel (x, y), rounded and
+    /// clipped.
+    fn frame_of(mut grey: impl FnMut(f64, f64) -> f64) -> GrayFrame {
+        let (w, h) = (200u32, 200u32);
+        let data = (0..w * h)
+            .map(|i| grey((i % w) as f64, (i / w) as f64).round().clamp(0.0, 255.0) as u16)
+            .collect();
+        GrayFrame::new(w, h, 8, data).unwrap()
+    }
+
     /// A disc of radius 30 at (`cx`, 100), grey 160 on 80, anti-aliased,
     /// plus white Gaussian noise of standard deviation `sigma`.
     fn noisy_disc(cx: f64, sigma: f64, seed: u64) -> GrayFrame {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let noise = Normal::new(0.0, sigma).unwrap();
-        let (w, h) = (200u32, 200u32);
-        let data = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f64, (i / w) as f64);
-                let v = crate::imageio::pixel_mean(x, y, |px, py| {
-                    if (px - cx).hypot(py - 100.0) < 30.0 {
-                        160.0
-                    } else {
-                        80.0
-                    }
-                });
-                (v + noise.sample(&mut rng) + rng.gen_range(-0.5..0.5))
-                    .round()
-                    .clamp(0.0, 255.0) as u16
-            })
-            .collect();
-        GrayFrame::new(w, h, 8, data).unwrap()
+        frame_of(|x, y| {
+            let v = crate::imageio::pixel_mean(x, y, |px, py| {
+                if (px - cx).hypot(py - 100.0) < 30.0 {
+                    160.0
+                } else {
+                    80.0
+                }
+            });
+            v + noise.sample(&mut rng) + rng.gen_range(-0.5..0.5)
+        })
     }
 
     /// White noise along the outline has no correlation to speak of; noise
@@ -816,21 +819,14 @@ mod tests {
     fn textured(disc_x: f64, substrate_x: f64, [gain, offset]: [f64; 2], seed: u64) -> GrayFrame {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let noise = Normal::new(0.0, 5.0).unwrap();
-        let (w, h) = (200u32, 200u32);
-        let data = (0..w * h)
-            .map(|i| {
-                let (x, y) = ((i % w) as f64, (i / w) as f64);
-                let v = if (x - disc_x).hypot(y - 100.0) < 30.0 {
-                    160.0 + 25.0 * (0.7 * (x - disc_x)).sin() * (0.5 * y).cos()
-                } else {
-                    80.0 + 25.0 * (0.9 * (x - substrate_x) + 0.3 * y).sin()
-                };
-                (gain * v + offset + noise.sample(&mut rng))
-                    .round()
-                    .clamp(0.0, 255.0) as u16
-            })
-            .collect();
-        GrayFrame::new(w, h, 8, data).unwrap()
+        frame_of(|x, y| {
+            let v = if (x - disc_x).hypot(y - 100.0) < 30.0 {
+                160.0 + 25.0 * (0.7 * (x - disc_x)).sin() * (0.5 * y).cos()
+            } else {
+                80.0 + 25.0 * (0.9 * (x - substrate_x) + 0.3 * y).sin()
+            };
+            gain * v + offset + noise.sample(&mut rng)
+        })
     }
 
     /// The pair's noise is what differs between its views: a textured
