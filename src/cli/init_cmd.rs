@@ -143,6 +143,7 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         "area_px": result.area_px,
         "bbox": result.bbox,
         "rim_px": result.rim_px,
+        "edge_support": result.edge_support,
         "score": result.score.map(score_json),
         "source": source_json(result.source),
         "border": result.border,

@@ -217,6 +217,16 @@ pub struct InitResult {
     /// the tracker's template follows.
     #[cfg_attr(feature = "serde", serde(default, skip_serializing_if = "Option::is_none"))]
     pub core: Option<Polygon>,
+    /// Share of the outline, leaving out its runs along the image border,
+    /// that lies near an edge the Canny stage found (0..=1): how much of it
+    /// follows a strong edge. Near: within the Canny blur's sigma plus one
+    /// working pixel, as Canny places the edge of a structure narrower than
+    /// its blur (an edge rim) up to that far inside it.
+    /// A region most of whose outline follows none (a shadow's soft level
+    /// line taken with the object) may hold more or less than the object;
+    /// the tracker reports it `uncertain`. `None` for a drawn outline.
+    #[cfg_attr(feature = "serde", serde(default, skip_serializing_if = "Option::is_none"))]
+    pub edge_support: Option<f64>,
     /// Its score (the region energy's gain per pixel of outline, higher is
     /// better) and contrast (see [`candidates`]); `None` only when the
     /// paper's region stood without any candidate to compare it with.
@@ -661,12 +671,18 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
         let hints = params.hints_for(frame.width, frame.height)?;
         return outlined::outlined(frame, params, &hints, outline);
     }
-    let found = grown_over_rim(frame, find_object(frame, params)?);
+    let (found, stage) = find_object(frame, params)?;
+    let found = grown_over_rim(frame, found);
     // The outline on the object's edge to a fraction of a pixel, where the
     // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
-    Ok(match fitted_to_edge(frame, &found.contour) {
+    let found = match fitted_to_edge(frame, &found.contour) {
         Some((contour, _)) => found.with_contour(contour),
         None => found,
+    };
+    let edge_support = stage.edge_support(&found.contour, [frame.width, frame.height]);
+    Ok(InitResult {
+        edge_support,
+        ..found
     })
 }
 
@@ -729,18 +745,29 @@ fn fitted_cores<const N: usize>(
     }))
 }
 
-/// [`initialise`] up to the rim.
-fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, InitError> {
+/// [`initialise`] up to the rim, with the edge stage it ran.
+fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<(InitResult, EdgeStage), InitError> {
     let hints = params.hints_for(frame.width, frame.height)?;
     let stage = edge_stage(frame, params, &hints)?;
-    let found = |incumbent| prompted::find(frame, params, &hints, &stage, incumbent);
-    let paper = match largest_region(params, &stage) {
+    let found = chosen_region(frame, params, &hints, &stage)?;
+    Ok((found, stage))
+}
+
+/// The region the paper's rule or a candidate makes the object.
+fn chosen_region(
+    frame: &GrayFrame,
+    params: &InitParams,
+    hints: &Hints,
+    stage: &EdgeStage,
+) -> Result<InitResult, InitError> {
+    let found = |incumbent| prompted::find(frame, params, hints, stage, incumbent);
+    let paper = match largest_region(params, stage) {
         Ok((mut paper, border, radius))
-            if paper_fits_box(&paper, &hints)
+            if paper_fits_box(&paper, hints)
                 && !params.exclude.iter().any(|&p| paper.contour.contains(p)) =>
         {
             return Ok(match found(Some((&border, radius))) {
-                Ok(Outcome::Found(better)) => better,
+                Ok(Outcome::Found(better)) => *better,
                 Ok(Outcome::Stands { score, runners_up }) => {
                     paper.score = Some(score);
                     paper.diagnostics.runners_up = runners_up;
@@ -748,8 +775,8 @@ fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, Ini
                 }
                 // No candidate to challenge it: the paper's region stands,
                 // unless it misses the point or the polarity too.
-                Err(e) if !prompted::admits(frame, params, &hints, &stage, (&border, radius)) => {
-                    return Err(hint_matches_nothing(&hints, &paper, &e));
+                Err(e) if !prompted::admits(frame, params, hints, stage, (&border, radius)) => {
+                    return Err(hint_matches_nothing(hints, &paper, &e));
                 }
                 Err(_) => paper,
             });
@@ -766,7 +793,7 @@ fn find_object(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, Ini
         return paper.map(|(found, _, _)| found);
     }
     match (found(None), paper) {
-        (Ok(Outcome::Found(candidate)), _) => Ok(candidate),
+        (Ok(Outcome::Found(candidate)), _) => Ok(*candidate),
         (Err(e), _) if hints.given() => Err(e),
         (_, Err(e)) => Err(e),
         (_, Ok(_)) => Err(InitError::NoPlausibleRegion {
@@ -867,6 +894,7 @@ fn largest_region(
                     centroid,
                     contour,
                     rim_px: 0.0,
+                    edge_support: None,
                     core: None,
                     score: None,
                     source: Source::Edges {
@@ -938,6 +966,35 @@ impl EdgeStage {
     /// The outer regions of the edges dilated by `radii[k]`, largest first.
     pub(super) fn regions(&self, k: usize) -> &[Region] {
         self.regions[k].get_or_init(|| outer_regions(&dilate_disk(&self.edges, self.radii[k])))
+    }
+
+    /// [`InitResult::edge_support`] of `contour` (full-resolution pixels)
+    /// in a frame `[width, height]`: sampled once per working pixel of its
+    /// length; `None` when it runs along the image border only.
+    fn edge_support(&self, contour: &Polygon, [width, height]: [u32; 2]) -> Option<f64> {
+        let reach = self.sigma.ceil() as u8 + 1;
+        let near = dilate_disk(&self.edges, reach);
+        let (w, h) = near.dimensions();
+        let s = f64::from(self.scale);
+        let [x0, y0, ..] = self.area.map(f64::from);
+        let on_border = |[x, y]: [f64; 2]| {
+            x < 0.5 || y < 0.5 || x > f64::from(width) - 1.5 || y > f64::from(height) - 1.5
+        };
+        let (mut samples, mut on_edge) = (0usize, 0usize);
+        for &p in contour
+            .resampled_every(s, 8)
+            .points
+            .iter()
+            .filter(|&&p| !on_border(p))
+        {
+            samples += 1;
+            let [wx, wy] = [((p[0] + 0.5 - x0) / s).floor(), ((p[1] + 0.5 - y0) / s).floor()];
+            let inside = wx >= 0.0 && wy >= 0.0 && wx < f64::from(w) && wy < f64::from(h);
+            if inside && near.get_pixel(wx as u32, wy as u32)[0] != 0 {
+                on_edge += 1;
+            }
+        }
+        (samples > 0).then(|| on_edge as f64 / samples as f64)
     }
 }
 
@@ -1346,6 +1403,43 @@ mod tests {
             e.to_string().contains("cover a point that is not the object"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn the_share_of_an_outline_near_an_edge_is_measured() {
+        let f = disc_frame(320, 240, [150.0, 110.0], 50.0, 50, 170);
+        let params = InitParams::default();
+        let hints = params.hints_for(320, 240).unwrap();
+        let stage = edge_stage(&f, &params, &hints).unwrap();
+        let support = |outline: Vec<Point>| stage.edge_support(&Polygon::new(outline), [320, 240]).unwrap();
+        let on = support(Polygon::circle([150.0, 110.0], 50.0, 360).points);
+        assert!(on >= 0.95, "the disc's own outline: {on:.2}");
+        // A circle over the flat substrate beside it, 30 px from its edge.
+        let off = support(Polygon::circle([260.0, 110.0], 30.0, 360).points);
+        assert!(off <= 0.05, "over bare substrate: {off:.2}");
+        // The disc's left half closed by its diameter: the arc (157 px) on
+        // the edge, the diameter (100 px) across the flat inside.
+        let half: Vec<Point> = (0..=180)
+            .map(|k| {
+                let a = std::f64::consts::FRAC_PI_2 + (k as f64).to_radians();
+                [150.0 + 50.0 * a.cos(), 110.0 - 50.0 * a.sin()]
+            })
+            .collect();
+        let share = support(half);
+        assert!((0.5..=0.72).contains(&share), "half on the edge: {share:.2}");
+        // Found by a point, the disc's outline follows its edge; a drawn
+        // outline is its own evidence.
+        let pointed = InitParams {
+            point: Some([150.0, 110.0]),
+            ..InitParams::default()
+        };
+        let found = initialise(&f, &pointed).unwrap().edge_support.unwrap();
+        assert!(found >= 0.95, "found by a point: {found:.2}");
+        let drawn = InitParams {
+            outline: Some(Polygon::circle([150.0, 110.0], 53.0, 16).points),
+            ..InitParams::default()
+        };
+        assert_eq!(initialise(&f, &drawn).unwrap().edge_support, None);
     }
 
     #[test]

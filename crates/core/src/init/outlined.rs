@@ -89,6 +89,7 @@ pub(super) fn outlined(
         bbox: contour.bounds(),
         contour,
         rim_px: 0.0,
+        edge_support: None,
         core: None,
         score,
         source: Source::Outline,

@@ -96,7 +96,7 @@ const BOX_JOIN_KEEP: f64 = 0.8;
 /// What [`find`] came to.
 pub(super) enum Outcome {
     /// The best candidate: there was no incumbent, or it lost.
-    Found(InitResult),
+    Found(Box<InitResult>),
     /// The incumbent stands, with its own score and the best candidates
     /// that did not beat it.
     Stands { score: Score, runners_up: Vec<RunnerUp> },
@@ -247,12 +247,13 @@ pub(super) fn find(
         params.contour_spacing_px,
     );
     let centroid = contour.centroid();
-    Ok(Outcome::Found(InitResult {
+    Ok(Outcome::Found(Box::new(InitResult {
         area_px: contour.area(),
         bbox: contour.bounds(),
         centroid,
         contour,
         rim_px: 0.0,
+        edge_support: None,
         core: None,
         score: Some(best.score),
         source: best.source,
@@ -273,7 +274,7 @@ pub(super) fn find(
             candidates: candidates.len(),
             runners_up: runners_up(&candidates[usize::from(boxed.is_none())..], scale, area),
         },
-    }))
+    })))
 }
 
 /// The candidates' common ground for a frame and its hints, with the size
