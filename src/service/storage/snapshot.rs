@@ -93,6 +93,8 @@ struct StoredState {
     uncertain_run: bool,
     #[serde(default)]
     first_disparity_std_px: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    edge_support: Option<f64>,
     /// Not [`Phase::Tracking`]'s `velocity_measured`.
     #[serde(default)]
     unmeasured_velocity: bool,
@@ -180,6 +182,7 @@ impl From<&TrackerState> for StoredState {
             unverified_move_px: s.uncertain_run.unwrap_or(0.0),
             uncertain_run: s.uncertain_run.is_some(),
             first_disparity_std_px: s.first_disparity_std_px,
+            edge_support: s.edge_support,
             unmeasured_velocity,
             disparity_run: s
                 .disparity_run
@@ -231,6 +234,7 @@ impl From<StoredState> for TrackerState {
             refused_inits: s.refused_inits,
             uncertain_run: s.uncertain_run.then_some(s.unverified_move_px),
             first_disparity_std_px: s.first_disparity_std_px,
+            edge_support: s.edge_support,
             disparity_run: DisparityRun::from_pairs(s.disparity_run.into_iter().map(|m| Measured {
                 frame: m.frame,
                 disparity_px: m.disparity_px,

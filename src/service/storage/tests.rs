@@ -69,6 +69,7 @@ fn tracker_state(i: u64) -> TrackerState {
         refused_inits: (i % 2) as u32,
         uncertain_run: (i % 2 == 1).then_some(0.5 * f),
         first_disparity_std_px: 0.25 * f,
+        edge_support: (!i.is_multiple_of(3)).then_some(0.125 * f),
         disparity_run: {
             let mut run = DisparityRun::default();
             for k in 0..i % 4 {

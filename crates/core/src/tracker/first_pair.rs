@@ -352,6 +352,7 @@ impl StereoTracker {
             refused_inits: 0,
             uncertain_run: None,
             first_disparity_std_px: 0.0,
+            edge_support: found.edge_support,
             disparity_run: DisparityRun::default(),
         };
         let [left_bands, right_bands] = noise_bands(

@@ -80,6 +80,11 @@ pub struct TrackerState {
     /// object, pixels (0: not known, as in states stored before it was
     /// kept); see [`TrackerParams::max_disparity_std_px`].
     pub first_disparity_std_px: f64,
+    /// The share of the outline as named that follows an edge (see
+    /// [`crate::init::InitResult::edge_support`]; `None` for a drawn
+    /// outline and in states stored before it was kept): below
+    /// [`MIN_EDGE_SUPPORT`] every pair is `uncertain`.
+    pub edge_support: Option<f64>,
     /// The run's last pairs with numbers, whose scatter scales each pair's
     /// standard error (see [`crate::scatter`]); empty in states stored
     /// before it was kept, and after an initialisation.

@@ -30,6 +30,41 @@ fn first_pair_initialises_then_tracks() {
     assert_eq!(tracker.frames(), 3);
 }
 
+/// An object whose outline as named mostly follows no edge
+/// ([`MIN_EDGE_SUPPORT`]) is followed, its pairs withheld as `uncertain`
+/// with the share in the reason; with enough of it on an edge they carry
+/// numbers.
+#[test]
+fn an_outline_mostly_on_no_edge_withholds_its_pairs_and_tracking_goes_on() {
+    let pairs = sequence(Preset::Clean, Shape::Blob, 3, 4);
+    let mut tracker = StereoTracker::new(TrackerParams::default());
+    let first = tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+    assert_eq!(first.status, Status::Initialised, "{first:?}");
+    let support = tracker.state.as_ref().unwrap().edge_support.unwrap();
+    assert!(
+        support >= MIN_EDGE_SUPPORT,
+        "the blob's outline: {support:.2} near an edge"
+    );
+    tracker.state.as_mut().unwrap().edge_support = Some(0.3);
+    for pair in &pairs[1..3] {
+        let r = tracker.process(&pair.left, &pair.right).unwrap();
+        assert_eq!(r.status, Status::Lost, "{r:?}");
+        let reason = r.reason.as_deref().unwrap();
+        assert!(
+            reason.starts_with(UNCERTAIN)
+                && reason.contains("30% of the object's outline")
+                && reason.ends_with(GOES_ON),
+            "{reason}"
+        );
+        assert!(r.disparity_px.is_none() && r.left.is_some(), "{r:?}");
+        let state = tracker.state.as_ref().unwrap();
+        assert!(!state.is_lost() && state.uncertain_run.is_none(), "{state:?}");
+    }
+    tracker.state.as_mut().unwrap().edge_support = Some(MIN_EDGE_SUPPORT);
+    let r = tracker.process(&pairs[3].left, &pairs[3].right).unwrap();
+    assert_eq!(r.status, Status::Tracked, "{r:?}");
+}
+
 /// A fresh initialisation after a loss whose object is unlike the lost
 /// template is refused [`REFUSED_INITS`] times, each followed by
 /// [`REACQUIRE_PAIRS`] template searches; the next is taken as it is.
