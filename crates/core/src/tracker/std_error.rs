@@ -247,7 +247,7 @@ impl StereoTracker {
         // The variance of the masked runs' shift that the noise alone
         // gives (see `measure_std`), relative to the conditional one; the
         // shift, where measured, is with the runs grown by one sector.
-        let difference = if fit.mask_shift_px > 0.0 {
+        let difference = if fit.mask_shift_px != 0.0 {
             let wider = crate::occlusion::grown(&fit.occluded);
             let fewer = sectors.visible_arcs(pose, &either(&unseen, &wider));
             uncertainty::difference_variance(&arcs, &fewer, u)
@@ -300,8 +300,10 @@ impl StereoTracker {
     /// `frames`), times [`PAIR_NOISE_FACTOR`], and adds the surroundings'
     /// lag behind the object ([`substrate::lag`], less its own noise) in
     /// quadrature: sets each fit's `pair_scale` to what the pair's noise
-    /// makes of the noise part of its `axis_std_px` (the masked runs'
-    /// shift stays; at most 1) and the right fit's `lag_px`. A view's own
+    /// makes of the noise part of its `axis_std_px` (at most 1; the
+    /// masked runs' shift stays, except where both views left out the
+    /// same sectors: the difference of their signed shifts then counts
+    /// once, on the right fit) and the right fit's `lag_px`. A view's own
     /// bands count as noise the texture and edges near the outline, which
     /// move with the object when they lie at its height; what the two
     /// views differ by can move the disparity, and texture at another
@@ -341,13 +343,24 @@ impl StereoTracker {
         ) else {
             return;
         };
+        // Where both views masked the same sectors, growing the masked runs
+        // moves both poses alike as far as the views are alike: the
+        // disparity moves by the difference of the two shifts, which the
+        // right view's figure carries; elsewhere each view's shift stays.
+        let same_mask = left.occluded == right.occluded && left.occluded.contains(&true);
+        let pair_bias = (right.mask_shift_px - left.mask_shift_px).abs();
         let scaled = [&*left, &*right].map(|fit| {
             let scale = (PAIR_NOISE_FACTOR * sigma / fit.noise_sigma).min(1.0);
             let noise = (fit.axis_std_px.powi(2) - fit.axis_bias_px.powi(2))
                 .max(0.0)
                 .sqrt();
-            (noise * scale).hypot(fit.axis_bias_px)
+            (noise * scale).hypot(if same_mask { 0.0 } else { fit.axis_bias_px })
         });
+        let scaled = if same_mask {
+            [scaled[0], scaled[1].hypot(pair_bias)]
+        } else {
+            scaled
+        };
         let views = left.axis_std_px.hypot(right.axis_std_px);
         // Where the pair's noise is no smaller than the views' (each view
         // at its cap), no lag can bring the sum below the views' figure:
@@ -379,9 +392,14 @@ impl StereoTracker {
     /// How far `to` lies from `from` along the disparity axis, pixels (0
     /// when not finite).
     pub(super) fn axis_shift(&self, from: Pose, to: Pose) -> f64 {
+        self.signed_axis_shift(from, to).abs()
+    }
+
+    /// [`Self::axis_shift`] with its sign (positive along the axis).
+    pub(super) fn signed_axis_shift(&self, from: Pose, to: Pose) -> f64 {
         let d = axis_component(self.params.tilt_axis_deg, [to.x - from.x, to.y - from.y]);
         if d.is_finite() {
-            d.abs()
+            d
         } else {
             0.0
         }

@@ -48,8 +48,8 @@ pub(super) struct ImageFit {
     /// ([`crate::occlusion::SectorJudgement::hidden`]).
     pub(super) hidden: Vec<bool>,
     /// How far the pose moved along the disparity axis with the masked
-    /// runs grown by a sector, pixels (0 without a mask): a bias the
-    /// noise-based standard error does not include, added to it.
+    /// runs grown by a sector, pixels, signed (0 without a mask): a bias
+    /// the noise-based standard error does not include, added to it.
     pub(super) mask_shift_px: f64,
     /// For a fit with a run of sectors whose contrast rose
     /// ([`crate::occlusion::SectorJudgement::risen`]): how far the pose
@@ -545,7 +545,7 @@ impl StereoTracker {
                 first_step: 1.0,
                 ..search
             };
-            self.axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near))
+            self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near))
         } else {
             0.0
         };
