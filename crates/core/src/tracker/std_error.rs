@@ -343,23 +343,25 @@ impl StereoTracker {
         ) else {
             return;
         };
+        let noise = [&*left, &*right].map(|fit| {
+            let scale = (PAIR_NOISE_FACTOR * sigma / fit.noise_sigma).min(1.0);
+            (fit.axis_std_px.powi(2) - fit.axis_bias_px.powi(2))
+                .max(0.0)
+                .sqrt()
+                * scale
+        });
         // Where both views masked the same sectors, growing the masked runs
         // moves both poses alike as far as the views are alike: the
         // disparity moves by the difference of the two shifts, which the
         // right view's figure carries; elsewhere each view's shift stays.
-        let same_mask = left.occluded == right.occluded && left.occluded.contains(&true);
-        let pair_bias = (right.mask_shift_px - left.mask_shift_px).abs();
-        let scaled = [&*left, &*right].map(|fit| {
-            let scale = (PAIR_NOISE_FACTOR * sigma / fit.noise_sigma).min(1.0);
-            let noise = (fit.axis_std_px.powi(2) - fit.axis_bias_px.powi(2))
-                .max(0.0)
-                .sqrt();
-            (noise * scale).hypot(if same_mask { 0.0 } else { fit.axis_bias_px })
-        });
-        let scaled = if same_mask {
-            [scaled[0], scaled[1].hypot(pair_bias)]
+        let scaled = if left.occluded == right.occluded && left.occluded.contains(&true) {
+            let pair_bias = (right.mask_shift_px - left.mask_shift_px).abs();
+            [noise[0], noise[1].hypot(pair_bias)]
         } else {
-            scaled
+            [
+                noise[0].hypot(left.axis_bias_px),
+                noise[1].hypot(right.axis_bias_px),
+            ]
         };
         let views = left.axis_std_px.hypot(right.axis_std_px);
         // Where the pair's noise is no smaller than the views' (each view
