@@ -655,6 +655,23 @@ mod tests {
     use super::*;
 
     #[test]
+    fn a_3x3_system_is_solved_and_a_singular_one_refused() {
+        let x = solve3(
+            &[[2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 4.0]],
+            &[3.0, 5.0, 5.0],
+            1e-12,
+        )
+        .unwrap();
+        assert!(x.iter().all(|v| (v - 1.0).abs() < 1e-12), "{x:?}");
+        assert!(solve3(
+            &[[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]],
+            &[1.0, 2.0, 3.0],
+            1e-12
+        )
+        .is_none());
+    }
+
+    #[test]
     fn a_carried_point_turns_and_moves_with_its_contour() {
         let carried = CarriedPoint::new([12.0, 5.0], [10.0, 5.0], 0.3);
         // Moved by (3, -1) and turned by a quarter turn.

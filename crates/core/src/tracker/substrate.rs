@@ -15,7 +15,7 @@
 
 use crate::energy::window_of;
 use crate::fit::{place, Pose};
-use crate::geometry::{Point, Polygon};
+use crate::geometry::{solve3, Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::region::PixelRect;
 
@@ -167,14 +167,17 @@ pub(super) fn lag(
                 }
             }
         }
-        let x = solve3(normal, rhs)?;
+        // Singular below a determinant of 1e-12 times the largest element cubed.
+        let scale = normal.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
+        let singular = 1e-12 * scale.powi(3);
+        let x = solve3(&normal, &rhs, singular)?;
         let squares: f64 = samples
             .iter()
             .map(|&[v, r, slope]| (r + slope * x[0] - v * x[1] - x[2]).powi(2))
             .sum();
         let noise = squares / (samples.len() - 3) as f64;
         // The lag's element of the inverse of the normal matrix.
-        let unit = solve3(normal, [1.0, 0.0, 0.0])?[0];
+        let unit = solve3(&normal, &[1.0, 0.0, 0.0], singular)?[0];
         Some((x[0], noise * unit))
     };
     let mut variance = f64::NAN;
@@ -190,28 +193,6 @@ pub(super) fn lag(
         px: lag,
         std_px: variance.max(0.0).sqrt(),
     })
-}
-
-/// The solution of the 3x3 system `a x = b` (Cramer's rule); None when
-/// singular.
-fn solve3(a: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: [[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(a);
-    let scale = a.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
-    if d.is_nan() || d.abs() <= 1e-12 * scale.powi(3) {
-        return None;
-    }
-    let column = |k: usize| {
-        let mut m = a;
-        for (row, &v) in m.iter_mut().zip(&b) {
-            row[k] = v;
-        }
-        det(m) / d
-    };
-    Some([column(0), column(1), column(2)])
 }
 
 #[cfg(test)]
@@ -262,20 +243,5 @@ mod tests {
         }
         let flat = GrayFrame::new(200, 160, 8, vec![70; 200 * 160]).unwrap();
         assert!(lag([&flat, &flat], &points, poses, (20.0, 0.0), [1.0, 0.0]).is_none());
-    }
-
-    #[test]
-    fn a_3x3_system_is_solved_and_a_singular_one_refused() {
-        let x = solve3(
-            [[2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 4.0]],
-            [3.0, 5.0, 5.0],
-        )
-        .unwrap();
-        assert!(x.iter().all(|v| (v - 1.0).abs() < 1e-12), "{x:?}");
-        assert!(solve3(
-            [[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]],
-            [1.0, 2.0, 3.0]
-        )
-        .is_none());
     }
 }
