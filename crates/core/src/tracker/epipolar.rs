@@ -72,9 +72,7 @@ impl StereoTracker {
     ) -> Option<Pose> {
         let energy = &self.params.energy;
         let max_d = self.params.max_disparity_px;
-        let t = self.params.tilt_axis_deg.to_radians();
-        // Unit vector across the tilt axis (the disparity direction).
-        let dir = [t.sin(), -t.cos()];
+        let dir = self.disparity_axis();
         let kept = last_disparity.filter(|_| self.params.epipolar).map(|[dx, dy]| {
             let along = dx * dir[0] + dy * dir[1];
             [dx - along * dir[0], dy - along * dir[1]]

@@ -216,8 +216,7 @@ impl StereoTracker {
         fit: &ImageFit,
         bands: uncertainty::NoiseBands,
     ) -> AxisStd {
-        let t = self.params.tilt_axis_deg.to_radians();
-        let u = [t.sin(), -t.cos()];
+        let u = self.disparity_axis();
         let pose = fit.pose;
         // The outline along the image border or a cut is no edge of the
         // object: its sectors count like occluded ones.
@@ -367,20 +366,20 @@ impl StereoTracker {
         // Where the pair's noise is no smaller than the views' (each view
         // at its cap), no lag can bring the sum below the views' figure:
         // the registration is not made.
-        if scaled[0].hypot(scaled[1]) >= views {
+        let pair = scaled[0].hypot(scaled[1]);
+        if pair >= views {
             return;
         }
-        let t = self.params.tilt_axis_deg.to_radians();
         let reach = (template.margin, bands[0].outer_offset_px);
         let lag = substrate::lag(
             frames,
             &template.points,
             [left.pose, right.pose],
             reach,
-            [t.sin(), -t.cos()],
+            self.disparity_axis(),
         )
         .map_or(0.0, |l| (l.px * l.px - l.std_px * l.std_px).max(0.0).sqrt());
-        if scaled[0].hypot(scaled[1]).hypot(lag) >= views {
+        if pair.hypot(lag) >= views {
             return;
         }
         for (fit, scaled) in [&mut *left, &mut *right].into_iter().zip(scaled) {
@@ -389,6 +388,13 @@ impl StereoTracker {
             }
         }
         right.lag_px = lag;
+    }
+
+    /// The unit vector across the tilt axis, along which the disparity is
+    /// measured (see [`axis_component`]).
+    pub(super) fn disparity_axis(&self) -> Point {
+        let t = self.params.tilt_axis_deg.to_radians();
+        [t.sin(), -t.cos()]
     }
 
     /// How far `to` lies from `from` along the disparity axis, pixels (0

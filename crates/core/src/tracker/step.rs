@@ -253,10 +253,7 @@ impl StereoTracker {
             coarse_step_px: 1.0,
             rotate: self.params.rigid.rotate && self.params.right_rotation,
             // Along the epipolar line, across the tilt axis.
-            line: self.params.epipolar.then(|| {
-                let t = self.params.tilt_axis_deg.to_radians();
-                [t.sin(), -t.cos()]
-            }),
+            line: self.params.epipolar.then(|| self.disparity_axis()),
             last: None,
         };
         // The right view from a left pose: predicted with the last
