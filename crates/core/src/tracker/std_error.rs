@@ -354,7 +354,7 @@ impl StereoTracker {
         // disparity moves by the difference of the two shifts, which the
         // right view's figure carries; elsewhere each view's shift stays.
         let scaled = if left.occluded == right.occluded && left.occluded.contains(&true) {
-            let pair_bias = (right.mask_shift_px - left.mask_shift_px).abs();
+            let pair_bias = (right.mask_shift_line_px - left.mask_shift_line_px).abs();
             [noise[0], noise[1].hypot(pair_bias)]
         } else {
             [

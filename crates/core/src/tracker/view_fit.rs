@@ -51,6 +51,11 @@ pub(super) struct ImageFit {
     /// runs grown by a sector, pixels, signed (0 without a mask): a bias
     /// the noise-based standard error does not include, added to it.
     pub(super) mask_shift_px: f64,
+    /// The same with the pose moved along the disparity axis only, the
+    /// rest of it held, as the right view's fit moves along its epipolar
+    /// line: two alike views give alike shifts so (see
+    /// `StereoTracker::use_pair_noise`).
+    pub(super) mask_shift_line_px: f64,
     /// For a fit with a run of sectors whose contrast rose
     /// ([`crate::occlusion::SectorJudgement::risen`]): how far the pose
     /// moves along the disparity axis without them (and without the masked
@@ -104,6 +109,7 @@ impl ImageFit {
             occluded: Vec::new(),
             hidden: Vec::new(),
             mask_shift_px: 0.0,
+            mask_shift_line_px: 0.0,
             risen_shift_px: 0.0,
             weakest_factor: 1.0,
             weakest_direction: [1.0, 0.0],
@@ -540,14 +546,27 @@ impl StereoTracker {
         // disparity axis when each masked run grows by one more sector
         // measures it.
         let wider = grown(&mask);
-        let mask_shift_px = if wider != mask && fraction(&wider) <= MAX_MASKED_FRACTION {
+        let [mask_shift_px, mask_shift_line_px] = if wider != mask && fraction(&wider) <= MAX_MASKED_FRACTION
+        {
             let near = CompassSearch {
                 first_step: 1.0,
                 ..search
             };
-            self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near))
+            let shift = self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near));
+            // The same along the disparity axis alone, as the right view's
+            // fit moves (for the pair, see `use_pair_noise`).
+            let on_line = if near.only.is_some() {
+                shift
+            } else {
+                let along = CompassSearch {
+                    only: Some(self.disparity_axis()),
+                    ..near
+                };
+                self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &along))
+            };
+            [shift, on_line]
         } else {
-            0.0
+            [0.0; 2]
         };
         let terms = template.energy_at(&sums, pose, energy);
         // Contrast over the visible sectors' bands: the occluder does not
@@ -559,6 +578,7 @@ impl StereoTracker {
             occluded: mask,
             hidden,
             mask_shift_px,
+            mask_shift_line_px,
             ..ImageFit::full(pose, terms)
         };
         (fit, sums)

@@ -670,8 +670,8 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // sectors, and the difference of their masked runs' shifts counts once
     // (each view's had withheld all three pairs).
     ("contact_1 needle from 3", Naming::Point, [0, 0, 0]),
-    ("contact_1 needle", Naming::Box, [0, 3, 5]),
-    ("contact_1 needle", Naming::Point, [0, 3, 5]),
+    ("contact_1 needle", Naming::Box, [0, 2, 4]),
+    ("contact_1 needle", Naming::Point, [0, 2, 4]),
     ("landing ib needle", Naming::Box, [0, 0, 0]),
     ("landing ib needle", Naming::Point, [0, 0, 0]),
     ("static scans needle", Naming::Box, [0, 1, 8]),
