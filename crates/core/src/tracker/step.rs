@@ -54,8 +54,13 @@ pub(super) const CROSS_CHECK_PX: f64 = 1.5;
 pub(super) const DISPARITY_JUMP_PX: f64 = 3.0;
 
 /// Largest standard error of the left pose in its weakest direction,
-/// pixels, at which a pair is tracked: the left centroid is then within 3
-/// px of the truth at two standard errors.
+/// pixels, at which a pair of an object inside the image is tracked: the
+/// left centroid is then within 3 px of the truth at two standard errors.
+/// Not for a template cut by the border (see `StereoTracker::track`): the
+/// real needle in contact with its lamella (contact_1), its tip's and
+/// lower side's sectors left out after a tone change, was fixed to 1.8-5.7
+/// px along its axis while its contour stayed on it and its disparity
+/// within 0.07 px (6 pairs withheld).
 pub(super) const MAX_POSITION_STD_PX: f64 = 1.5;
 
 /// On a pair whose position is fixed only to more than
@@ -493,14 +498,19 @@ impl StereoTracker {
             // next pairs were `tracked` 15-35 px off). A position held by
             // less than MIN_HELD_SHARE of what the seen outline gives in
             // that direction is bias, not noise, whatever its standard
-            // error says: the pair is `uncertain` too.
+            // error says: the pair is `uncertain` too. A template cut by
+            // the border is exempt from the looseness (not from the held
+            // share): a tool is placed along its axis by its tip alone, so
+            // its position is loose along it whenever the tip's sectors
+            // are left out, and its moves along that direction are judged
+            // by the outline's look instead (`unconfirmed_slide`).
             let position_std = left_fit.axis_std_px * left_fit.weakest_factor;
             // The fit's move from the prediction along its weakest
             // direction, and how much of it the poses give back.
             let w = left_fit.weakest_direction;
             let along =
                 (left_fit.pose.x - left_predicted.x) * w[0] + (left_fit.pose.y - left_predicted.y) * w[1];
-            let loose = position_std > MAX_POSITION_STD_PX;
+            let loose = position_std > MAX_POSITION_STD_PX && templates.0.cuts.is_empty();
             let unfixed = left_fit.fixed_share < MIN_HELD_SHARE;
             let given_back = if loose || unfixed {
                 result.mark_lost(if loose {

@@ -670,8 +670,8 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // sectors, and the difference of their masked runs' shifts counts once
     // (each view's had withheld all three pairs).
     ("contact_1 needle from 3", Naming::Point, [0, 0, 0]),
-    ("contact_1 needle", Naming::Box, [0, 2, 4]),
-    ("contact_1 needle", Naming::Point, [0, 2, 4]),
+    ("contact_1 needle", Naming::Box, [0, 0, 2]),
+    ("contact_1 needle", Naming::Point, [0, 0, 1]),
     ("landing ib needle", Naming::Box, [0, 0, 0]),
     ("landing ib needle", Naming::Point, [0, 0, 0]),
     ("static scans needle", Naming::Box, [0, 1, 8]),
@@ -683,7 +683,7 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("landing ib needle, brightness", Naming::Outline, [0, 0, 0]),
     ("landing eb needle, brightness", Naming::Outline, [0, 0, 0]),
     ("contact_1 needle from 3", Naming::Outline, [0, 0, 0]),
-    ("contact_1 needle", Naming::Outline, [0, 2, 4]),
+    ("contact_1 needle", Naming::Outline, [0, 0, 2]),
     ("landing ib needle", Naming::Outline, [0, 0, 0]),
     ("static scans needle", Naming::Outline, [0, 0, 0]),
     ("landing eb needle", Naming::Outline, [0, 0, 1]),
