@@ -94,6 +94,8 @@ pub(super) struct WorkArea<'a> {
     /// The working pixels `[x0, y0, x1, y1)` a candidate may cover (the
     /// roi with a little slack, or everything).
     pub domain: [u32; 4],
+    /// The roi itself in working pixels (the domain without its slack).
+    pub roi_box: [u32; 4],
     /// A working pixel the object must cover (the point hint).
     pub point: Option<[u32; 2]>,
     /// Working pixels the object must not cover (the `exclude` hint; those
@@ -411,6 +413,8 @@ impl WorkArea<'_> {
     /// thickness, see [`WorkArea::prune`]), the part that covers the point
     /// (or the largest) kept, checked and scored again.
     pub fn finish(&self, c: &Candidate, rejected: &mut Rejections) -> Option<Candidate> {
+        let clipped = self.clipped_to_box(c);
+        let c = clipped.as_ref().unwrap_or(c);
         let (width, height) = (c.width, c.height);
         let count = c.area();
         let perimeter = boundary_edges(&c.mask, width, height) as f64 * std::f64::consts::FRAC_PI_4;
@@ -428,6 +432,47 @@ impl WorkArea<'_> {
             },
             rejected,
         )
+    }
+
+    /// A candidate that runs to the outer edge of the roi's slack on a
+    /// side inside the image goes on past the box there: the box frames
+    /// only what lies inside it, so that side is cut at the box instead
+    /// (None when no side is cut).
+    fn clipped_to_box(&self, c: &Candidate) -> Option<Candidate> {
+        let (d, b) = (self.domain, self.roi_box);
+        let [x0, y0] = c.origin;
+        let [x1, y1] = [x0 + c.width, y0 + c.height];
+        let (ww, wh) = (self.width(), self.height());
+        // Per side (left, top, right, bottom): the slack's edge, whether it
+        // lies on the image border, and whether the candidate reaches it.
+        let on_image = [
+            d[0] == 0 && self.image_sides[0],
+            d[1] == 0 && self.image_sides[1],
+            d[2] == ww && self.image_sides[2],
+            d[3] == wh && self.image_sides[3],
+        ];
+        let row_any = |y: u32| (x0..x1).any(|x| c.covers([x, y]));
+        let column_any = |x: u32| (y0..y1).any(|y| c.covers([x, y]));
+        let reaches = [
+            x0 == d[0] && column_any(x0),
+            y0 == d[1] && row_any(y0),
+            x1 == d[2] && column_any(x1 - 1),
+            y1 == d[3] && row_any(y1 - 1),
+        ];
+        let cut: Vec<bool> = (0..4)
+            .map(|k| reaches[k] && !on_image[k] && b[k] != d[k])
+            .collect();
+        if !cut.contains(&true) {
+            return None;
+        }
+        let keep = |x: u32, y: u32| {
+            !(cut[0] && x < b[0] || cut[1] && y < b[1] || cut[2] && x >= b[2] || cut[3] && y >= b[3])
+        };
+        let mask = (0..c.height)
+            .flat_map(|j| (0..c.width).map(move |i| (i, j)))
+            .map(|(i, j)| c.mask[(j * c.width + i) as usize] && keep(x0 + i, y0 + j))
+            .collect();
+        Some(Candidate { mask, ..c.clone() })
     }
 
     /// The candidate trimmed to its pixels, checked (size, spanning,
@@ -1199,6 +1244,7 @@ mod tests {
             scale: 1,
             image_sides: [true; 4],
             domain: [0, 0, n, n],
+            roi_box: [0, 0, n, n],
             point: None,
             exclude: Vec::new(),
             polarity: Polarity::Any,

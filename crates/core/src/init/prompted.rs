@@ -11,8 +11,11 @@
 //! border (a tool entering the field of view; its outline then runs along
 //! the border) and keeps clutter that touches the object out of it (thin
 //! appendages are cut by an opening scaled to the region). A `roi` is taken
-//! as a box drawn around the whole object: a best candidate that leaves one
-//! side of it largely empty is joined to the edge outline beside it (an
+//! as a box drawn around the whole object: the object may reach a little
+//! past it ([`roi_slack`]), and a region that runs on to the slack's edge
+//! is cut at the box there (the box frames only what lies inside it: a
+//! needle's box does not take the lamella welded to its tip). A best
+//! candidate that leaves one side of it largely empty is joined to the edge outline beside it (an
 //! object whose faces differ from each other more than from the substrate,
 //! see [`BOX_GAP_TIGHT`]). A best candidate whose outline shows no edge
 //! (a level line of shaded substrate, whose contrast is measured across
@@ -304,12 +307,14 @@ fn work_area<'a>(
         area[0] + area[2] == frame.width,
         area[1] + area[3] == frame.height,
     ];
+    let [domain, roi_box] = working_domain(hints, area, scale, [w, h]);
     let work_area = WorkArea {
         work,
         blurred,
         scale,
         image_sides,
-        domain: working_domain(hints, area, scale, [w, h]),
+        domain,
+        roi_box,
         point: hints.point.map(|[px, py]| {
             let s = scale as f64;
             [
@@ -457,25 +462,27 @@ pub(super) fn roi_slack(rw: f64, rh: f64) -> f64 {
 
 /// The working pixels `[x0, y0, x1, y1)` an object may cover: those meeting
 /// the roi grown by a little slack (a box drawn tight around the object
-/// leaves it room), or all.
-fn working_domain(hints: &Hints, area: [u32; 4], scale: u32, [w, h]: [u32; 2]) -> [u32; 4] {
+/// leaves it room), or all; and those meeting the roi itself.
+fn working_domain(hints: &Hints, area: [u32; 4], scale: u32, [w, h]: [u32; 2]) -> [[u32; 4]; 2] {
     if !hints.has_roi {
-        return [0, 0, w, h];
+        return [[0, 0, w, h]; 2];
     }
     let s = scale as f64;
     let [rx, ry, rw, rh] = hints.roi.map(f64::from);
-    let slack = roi_slack(rw, rh).max(2.0 * s);
     let to_work = |v: f64, origin: u32| (v - origin as f64) / s;
-    let x0 = to_work(rx - slack, area[0]).floor().max(0.0) as u32;
-    let y0 = to_work(ry - slack, area[1]).floor().max(0.0) as u32;
-    let x1 = (to_work(rx + rw + slack, area[0]).ceil().max(0.0) as u32).min(w);
-    let y1 = (to_work(ry + rh + slack, area[1]).ceil().max(0.0) as u32).min(h);
-    [
-        x0.min(x1.saturating_sub(1)),
-        y0.min(y1.saturating_sub(1)),
-        x1.max(1),
-        y1.max(1),
-    ]
+    let grown = |slack: f64| {
+        let x0 = to_work(rx - slack, area[0]).floor().max(0.0) as u32;
+        let y0 = to_work(ry - slack, area[1]).floor().max(0.0) as u32;
+        let x1 = (to_work(rx + rw + slack, area[0]).ceil().max(0.0) as u32).min(w);
+        let y1 = (to_work(ry + rh + slack, area[1]).ceil().max(0.0) as u32).min(h);
+        [
+            x0.min(x1.saturating_sub(1)),
+            y0.min(y1.saturating_sub(1)),
+            x1.max(1),
+            y1.max(1),
+        ]
+    };
+    [grown(roi_slack(rw, rh).max(2.0 * s)), grown(0.0)]
 }
 
 /// A candidate's bounding box in full-resolution pixels `[x0, y0, x1, y1]`.

@@ -1425,7 +1425,10 @@ fn a_position_held_only_by_the_ends_of_what_is_left_out_is_not_tracked() {
 /// 2.5 px, so a limit of 4 times that, and pair 19 was `tracked` at 3.2 px,
 /// 4.5 px off. Required: no confident wrong pair, and a pair from the
 /// fresh initialisation on (pairs 17-19; measured: 17 and 18, at 1.78 and
-/// 2.57 px) `uncertain` against the first pair's 0.14 px.
+/// 2.57 px) `uncertain` against the first pair's 0.14 px. The box is drawn
+/// with a fifth of the rod's size as margin: with a tenth, the rod had
+/// moved out past the box's slack by then, the fresh region is cut at the
+/// box, and it is refused as unlike the lost object (no numbers either).
 #[test]
 #[ignore = "accuracy suite: cargo test --test accuracy -- --ignored"]
 fn an_object_found_afresh_keeps_the_first_standard_error_as_its_reference() {
@@ -1435,7 +1438,7 @@ fn an_object_found_afresh_keeps_the_first_standard_error_as_its_reference() {
     };
     let first = frames(&config).unwrap().next().unwrap();
     let mut params = TrackerParams::default();
-    params.init.roi = Some(first.truth.left.roi_hint(0.1));
+    params.init.roi = Some(first.truth.left.roi_hint(0.2));
     let (errors, centroids, reasons) = errors_and_reasons(&config, params);
     assert_eq!(
         confident_wrong(&errors, &centroids),
