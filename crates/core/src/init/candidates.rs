@@ -1274,6 +1274,53 @@ mod tests {
     }
 
     #[test]
+    fn a_region_that_runs_on_past_a_box_is_cut_at_the_box() {
+        // A 100 x 60 working image; the box [20, 10, 70, 50) with 5 px of
+        // slack, the slack's left side on the image border.
+        let (w, h) = (100u32, 60u32);
+        let work = FloatImage::new(w, h);
+        let area = WorkArea {
+            work: &work,
+            blurred: &work,
+            scale: 1,
+            image_sides: [true; 4],
+            domain: [0, 5, 75, 55],
+            roi_box: [20, 10, 70, 50],
+            point: None,
+            exclude: Vec::new(),
+            polarity: Polarity::Any,
+            min_area: 0.0,
+            max_area: f64::INFINITY,
+            offset: 1.0 / 255.0,
+            table: SummedArea::new(&work),
+        };
+        let band = |[x0, y0, x1, y1]: [u32; 4]| Candidate {
+            origin: [x0, y0],
+            width: x1 - x0,
+            height: y1 - y0,
+            mask: vec![true; ((x1 - x0) * (y1 - y0)) as usize],
+            source: Source::Edges { dilation_radius: 1 },
+            score: Score {
+                score: 0.0,
+                contrast: 0.0,
+                data: 0.0,
+                outline_px: 0.0,
+                area_px: 0.0,
+            },
+        };
+        // A band from the image's left border to the slack's right edge:
+        // cut at the box's right side, not at its left (the image border).
+        let cut = area.clipped_to_box(&band([0, 20, 75, 30])).expect("cut");
+        let kept = |x: u32| cut.covers([x, 25]);
+        assert!(kept(0) && kept(69) && !kept(70) && !kept(74));
+        // Within the slack on every side: as it was.
+        assert!(area.clipped_to_box(&band([18, 8, 72, 52])).is_none());
+        // Up to the slack's top edge: cut at the box's top.
+        let top = area.clipped_to_box(&band([30, 5, 40, 30])).expect("cut");
+        assert!(!top.covers([35, 9]) && top.covers([35, 10]));
+    }
+
+    #[test]
     fn an_object_shows_its_contrast_at_its_outline_and_a_shaded_patch_does_not() {
         // A disc of 0.6 on 0.4: the bands on either side of its outline
         // differ by its whole contrast.

@@ -15,9 +15,9 @@
 //! past it ([`roi_slack`]), and a region that runs on to the slack's edge
 //! is cut at the box there (the box frames only what lies inside it: a
 //! needle's box does not take the lamella welded to its tip). A best
-//! candidate that leaves one side of it largely empty is joined to the edge outline beside it (an
-//! object whose faces differ from each other more than from the substrate,
-//! see [`BOX_GAP_TIGHT`]). A best candidate whose outline shows no edge
+//! candidate that leaves one side of it largely empty is joined to the
+//! edge outline beside it (an object whose faces differ from each other
+//! more than from the substrate, see [`BOX_GAP_TIGHT`]). A best candidate whose outline shows no edge
 //! (a level line of shaded substrate, whose contrast is measured across
 //! tens of pixels and grows with its size) gives way to one that does
 //! ([`NO_EDGE_SHARE`]).
