@@ -180,6 +180,22 @@ impl Candidate {
         self.mask.iter().filter(|&&m| m).count()
     }
 
+    /// Which sides (left, top, right, bottom) of the box `[x0, y0, x1, y1)`
+    /// the region reaches: its bounding box lies on that side and a pixel
+    /// of it there is inside.
+    pub fn reaches(&self, [x0, y0, x1, y1]: [u32; 4]) -> [bool; 4] {
+        let (cw, ch) = (self.width, self.height);
+        let any_in_column = |x: u32| (0..ch).any(|y| self.mask[(y * cw + x) as usize]);
+        let any_in_row = |y: u32| (0..cw).any(|x| self.mask[(y * cw + x) as usize]);
+        let [bx1, by1] = [self.origin[0] + cw, self.origin[1] + ch];
+        [
+            self.origin[0] == x0 && any_in_column(0),
+            self.origin[1] == y0 && any_in_row(0),
+            bx1 == x1 && any_in_column(cw - 1),
+            by1 == y1 && any_in_row(ch - 1),
+        ]
+    }
+
     /// Whether the working pixel `[x, y]` is inside.
     pub fn covers(&self, [x, y]: [u32; 2]) -> bool {
         let ([x0, y0], w) = (self.origin, self.width);
@@ -441,9 +457,8 @@ impl WorkArea<'_> {
     fn clipped_to_box(&self, c: &Candidate) -> Option<Candidate> {
         let (d, b) = (self.domain, self.roi_box);
         let [x0, y0] = c.origin;
-        let [x1, y1] = [x0 + c.width, y0 + c.height];
         let (ww, wh) = (self.width(), self.height());
-        // Per side (left, top, right, bottom): the slack's edge, whether it
+        // Per side (left, top, right, bottom): whether the slack's edge
         // lies on the image border, and whether the candidate reaches it.
         let on_image = [
             d[0] == 0 && self.image_sides[0],
@@ -451,17 +466,8 @@ impl WorkArea<'_> {
             d[2] == ww && self.image_sides[2],
             d[3] == wh && self.image_sides[3],
         ];
-        let row_any = |y: u32| (x0..x1).any(|x| c.covers([x, y]));
-        let column_any = |x: u32| (y0..y1).any(|y| c.covers([x, y]));
-        let reaches = [
-            x0 == d[0] && column_any(x0),
-            y0 == d[1] && row_any(y0),
-            x1 == d[2] && column_any(x1 - 1),
-            y1 == d[3] && row_any(y1 - 1),
-        ];
-        let cut: Vec<bool> = (0..4)
-            .map(|k| reaches[k] && !on_image[k] && b[k] != d[k])
-            .collect();
+        let reaches = c.reaches(d);
+        let cut = [0, 1, 2, 3].map(|k| reaches[k] && !on_image[k] && b[k] != d[k]);
         if !cut.contains(&true) {
             return None;
         }
@@ -781,23 +787,8 @@ impl WorkArea<'_> {
 
     /// Which image borders (left, top, right, bottom) the region touches.
     pub fn border_sides(&self, c: &Candidate) -> [bool; 4] {
-        let mut sides = [false; 4];
-        let (cw, ch) = (c.width, c.height);
-        let any_in_column = |x: u32| (0..ch).any(|y| c.mask[(y * cw + x) as usize]);
-        let any_in_row = |y: u32| (0..cw).any(|x| c.mask[(y * cw + x) as usize]);
-        if self.image_sides[0] && c.origin[0] == 0 {
-            sides[0] = any_in_column(0);
-        }
-        if self.image_sides[1] && c.origin[1] == 0 {
-            sides[1] = any_in_row(0);
-        }
-        if self.image_sides[2] && c.origin[0] + cw == self.width() {
-            sides[2] = any_in_column(cw - 1);
-        }
-        if self.image_sides[3] && c.origin[1] + ch == self.height() {
-            sides[3] = any_in_row(ch - 1);
-        }
-        sides
+        let reached = c.reaches([0, 0, self.width(), self.height()]);
+        [0, 1, 2, 3].map(|k| self.image_sides[k] && reached[k])
     }
 }
 
@@ -1231,35 +1222,32 @@ pub(super) fn traced_border(c: &Candidate) -> Option<Vec<[i32; 2]>> {
 mod tests {
     use super::*;
 
-    /// The share of its contrast a disc of radius 20 at (60, 60) shows as
-    /// a step at its outline, on the 120 x 120 image `grey(r)`.
-    fn disc_edge_share(grey: impl Fn(f64) -> f32) -> f64 {
-        let n = 120u32;
-        let work = FloatImage::from_fn(n, n, |x, y| {
-            Luma([grey((x as f64 - 60.0).hypot(y as f64 - 60.0))])
-        });
-        let area = WorkArea {
-            work: &work,
-            blurred: &work,
+    /// A work area over `work` at scale 1, every side on the image border,
+    /// with the domain and roi box `[domain, roi_box]` and no other hint.
+    fn work_area(work: &FloatImage, [domain, roi_box]: [[u32; 4]; 2]) -> WorkArea<'_> {
+        WorkArea {
+            work,
+            blurred: work,
             scale: 1,
             image_sides: [true; 4],
-            domain: [0, 0, n, n],
-            roi_box: [0, 0, n, n],
+            domain,
+            roi_box,
             point: None,
             exclude: Vec::new(),
             polarity: Polarity::Any,
             min_area: 0.0,
             max_area: f64::INFINITY,
             offset: 1.0 / 255.0,
-            table: SummedArea::new(&work),
-        };
-        let mask: Vec<bool> = (0..41 * 41)
-            .map(|i| ((i % 41) as f64 - 20.0).hypot((i / 41) as f64 - 20.0) < 20.0)
-            .collect();
-        let disc = Candidate {
-            origin: [40, 40],
-            width: 41,
-            height: 41,
+            table: SummedArea::new(work),
+        }
+    }
+
+    /// An unscored candidate with `mask` (`width` x `height`) at `origin`.
+    fn candidate(origin: [u32; 2], width: u32, height: u32, mask: Vec<bool>) -> Candidate {
+        Candidate {
+            origin,
+            width,
+            height,
             mask,
             source: Source::Edges { dilation_radius: 1 },
             score: Score {
@@ -1269,8 +1257,21 @@ mod tests {
                 outline_px: 0.0,
                 area_px: 0.0,
             },
-        };
-        area.edge_share(&disc).unwrap()
+        }
+    }
+
+    /// The share of its contrast a disc of radius 20 at (60, 60) shows as
+    /// a step at its outline, on the 120 x 120 image `grey(r)`.
+    fn disc_edge_share(grey: impl Fn(f64) -> f32) -> f64 {
+        let n = 120u32;
+        let work = FloatImage::from_fn(n, n, |x, y| {
+            Luma([grey((x as f64 - 60.0).hypot(y as f64 - 60.0))])
+        });
+        let area = work_area(&work, [[0, 0, n, n]; 2]);
+        let mask: Vec<bool> = (0..41 * 41)
+            .map(|i| ((i % 41) as f64 - 20.0).hypot((i / 41) as f64 - 20.0) < 20.0)
+            .collect();
+        area.edge_share(&candidate([40, 40], 41, 41, mask)).unwrap()
     }
 
     #[test]
@@ -1279,34 +1280,14 @@ mod tests {
         // slack, the slack's left side on the image border.
         let (w, h) = (100u32, 60u32);
         let work = FloatImage::new(w, h);
-        let area = WorkArea {
-            work: &work,
-            blurred: &work,
-            scale: 1,
-            image_sides: [true; 4],
-            domain: [0, 5, 75, 55],
-            roi_box: [20, 10, 70, 50],
-            point: None,
-            exclude: Vec::new(),
-            polarity: Polarity::Any,
-            min_area: 0.0,
-            max_area: f64::INFINITY,
-            offset: 1.0 / 255.0,
-            table: SummedArea::new(&work),
-        };
-        let band = |[x0, y0, x1, y1]: [u32; 4]| Candidate {
-            origin: [x0, y0],
-            width: x1 - x0,
-            height: y1 - y0,
-            mask: vec![true; ((x1 - x0) * (y1 - y0)) as usize],
-            source: Source::Edges { dilation_radius: 1 },
-            score: Score {
-                score: 0.0,
-                contrast: 0.0,
-                data: 0.0,
-                outline_px: 0.0,
-                area_px: 0.0,
-            },
+        let area = work_area(&work, [[0, 5, 75, 55], [20, 10, 70, 50]]);
+        let band = |[x0, y0, x1, y1]: [u32; 4]| {
+            candidate(
+                [x0, y0],
+                x1 - x0,
+                y1 - y0,
+                vec![true; ((x1 - x0) * (y1 - y0)) as usize],
+            )
         };
         // A band from the image's left border to the slack's right edge:
         // cut at the box's right side, not at its left (the image border).
