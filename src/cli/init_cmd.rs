@@ -147,6 +147,7 @@ pub fn run(args: InitArgs) -> Result<(), CliError> {
         "score": result.score.map(score_json),
         "source": source_json(result.source),
         "border": result.border,
+        "cut_at_box": result.cut_at_box,
         "diagnostics": diagnostics_json(&result.diagnostics),
         "fitted": is_fitted,
     });

@@ -152,6 +152,9 @@ pub(super) struct Candidate {
     pub mask: Vec<bool>,
     pub source: Source,
     pub score: Score,
+    /// The sides (left, top, right, bottom) where the region was cut at the
+    /// roi's box because it went on past it (see `WorkArea::clipped_to_box`).
+    pub cut_at_box: [bool; 4],
 }
 
 impl Candidate {
@@ -318,6 +321,7 @@ impl WorkArea<'_> {
                         mask,
                         source,
                         score,
+                        cut_at_box: [false; 4],
                     };
                     scored.push((candidate, score));
                 }
@@ -421,6 +425,7 @@ impl WorkArea<'_> {
                 outline_px: 0.0,
                 area_px: 0.0,
             },
+            cut_at_box: [false; 4],
         };
         self.checked(candidate, rejected)
     }
@@ -478,7 +483,11 @@ impl WorkArea<'_> {
             .flat_map(|j| (0..c.width).map(move |i| (i, j)))
             .map(|(i, j)| c.mask[(j * c.width + i) as usize] && keep(x0 + i, y0 + j))
             .collect();
-        Some(Candidate { mask, ..c.clone() })
+        Some(Candidate {
+            mask,
+            cut_at_box: [0, 1, 2, 3].map(|k| cut[k] || c.cut_at_box[k]),
+            ..c.clone()
+        })
     }
 
     /// The candidate trimmed to its pixels, checked (size, spanning,
@@ -1257,6 +1266,7 @@ mod tests {
                 outline_px: 0.0,
                 area_px: 0.0,
             },
+            cut_at_box: [false; 4],
         }
     }
 

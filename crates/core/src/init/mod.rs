@@ -237,6 +237,12 @@ pub struct InitResult {
     /// `bottom`): its outline runs along them there, which is no edge of
     /// the object.
     pub border: Vec<String>,
+    /// The sides of the `roi` (`left`, `top`, `right`, `bottom`) where the
+    /// region was cut at the box because it went on past it: the outline
+    /// runs along the box there, which is no edge of the object, and a fit
+    /// keeps to the box on that side (see [`InitParams::fit_domain`]).
+    #[cfg_attr(feature = "serde", serde(default, skip_serializing_if = "Vec::is_empty"))]
+    pub cut_at_box: Vec<String>,
     /// What the pipeline used and saw, for diagnosis.
     pub diagnostics: InitDiagnostics,
 }
@@ -636,6 +642,28 @@ impl InitParams {
         roi_domain(roi, width, height)
     }
 
+    /// Where a fit may move the outline of an object found with these
+    /// hints in a `width` x `height` image: the [`Self::hinted_domain`],
+    /// narrowed to the `roi`'s own box on the sides `cut_at_box` names
+    /// (the region went on past the box there, so what lies beyond it is
+    /// not the object the box frames).
+    pub fn fit_domain(&self, width: u32, height: u32, cut_at_box: &[String]) -> Option<[f64; 4]> {
+        let mut domain = self.hinted_domain(width, height)?;
+        if let Some([x, y, w, h]) = self.roi {
+            let edges = [x, y, x + w, y + h].map(|e| e as f64 - 0.5);
+            for (k, side) in ["left", "top", "right", "bottom"].iter().enumerate() {
+                if cut_at_box.iter().any(|c| c == side) {
+                    domain[k] = if k < 2 {
+                        domain[k].max(edges[k])
+                    } else {
+                        domain[k].min(edges[k])
+                    };
+                }
+            }
+        }
+        Some(domain)
+    }
+
     /// True when a hint names one region: a `roi`, a `point` or an
     /// `outline`.
     pub fn names_region(&self) -> bool {
@@ -676,7 +704,11 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
     // The outline on the object's edge to a fraction of a pixel, where the
     // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
     let found = match fitted_to_edge(frame, &found.contour) {
-        Some((contour, _)) => found.with_contour(contour),
+        Some((contour, _)) => match params.fit_domain(frame.width, frame.height, &found.cut_at_box) {
+            // No part of it moved past the box where it was cut.
+            Some(b) if !found.cut_at_box.is_empty() => found.with_contour(contour.clipped_to_box(b)),
+            _ => found.with_contour(contour),
+        },
         None => found,
     };
     let edge_support = stage.edge_support(&found.contour, [frame.width, frame.height]);
@@ -901,6 +933,7 @@ fn largest_region(
                         dilation_radius: radius,
                     },
                     border: Vec::new(),
+                    cut_at_box: Vec::new(),
                     diagnostics: InitDiagnostics {
                         scale,
                         noise_sigma: noise_full,

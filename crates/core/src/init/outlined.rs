@@ -94,6 +94,7 @@ pub(super) fn outlined(
         score,
         source: Source::Outline,
         border,
+        cut_at_box: Vec::new(),
         diagnostics: InitDiagnostics {
             scale: stage.scale,
             noise_sigma: stage.noise_work * stage.scale as f32,

@@ -260,12 +260,8 @@ pub(super) fn find(
         core: None,
         score: Some(best.score),
         source: best.source,
-        border: ["left", "top", "right", "bottom"]
-            .iter()
-            .zip(sides)
-            .filter(|(_, on)| *on)
-            .map(|(name, _)| name.to_string())
-            .collect(),
+        border: side_names(sides),
+        cut_at_box: side_names(best.cut_at_box),
         diagnostics: InitDiagnostics {
             scale,
             noise_sigma: noise_work * scale as f32,
@@ -278,6 +274,16 @@ pub(super) fn find(
             runners_up: runners_up(&candidates[usize::from(boxed.is_none())..], scale, area),
         },
     })))
+}
+
+/// The names of the sides (left, top, right, bottom) set in `sides`.
+fn side_names(sides: [bool; 4]) -> Vec<String> {
+    ["left", "top", "right", "bottom"]
+        .iter()
+        .zip(sides)
+        .filter(|(_, on)| *on)
+        .map(|(name, _)| name.to_string())
+        .collect()
 }
 
 /// The candidates' common ground for a frame and its hints, with the size
@@ -388,6 +394,7 @@ fn joined(a: &Candidate, b: &Candidate) -> Candidate {
         width,
         height,
         mask,
+        cut_at_box: [0, 1, 2, 3].map(|k| a.cut_at_box[k] || b.cut_at_box[k]),
         ..a.clone()
     }
 }

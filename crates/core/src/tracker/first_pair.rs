@@ -238,7 +238,9 @@ impl StereoTracker {
         previous_reference: Option<(f64, Option<Point>)>,
     ) -> PairResult {
         let fitted = found.core.as_ref().unwrap_or(&found.contour);
-        let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted) else {
+        let within = (self.params.init).fit_domain(left.width, left.height, &found.cut_at_box);
+        let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted, within)
+        else {
             return PairResult::lost(frame, "initial contour lies outside the image".into());
         };
         if let Some(reason) = self.refuse_unlike_lost(&template) {
@@ -254,7 +256,11 @@ impl StereoTracker {
             // Where its edge cannot be measured (a strong blur), the
             // initialisation's outline, which lies closer to it.
             None => fitted_to_edge(raw_left, &Polygon::new(place(&template.points, left_pose)))
-                .map(|(p, _)| p)
+                .map(|(p, _)| match within {
+                    // No part of it moved past the box where it was cut.
+                    Some(b) if !found.cut_at_box.is_empty() => p.clipped_to_box(b),
+                    _ => p,
+                })
                 .or_else(|| found.border.is_empty().then(|| found.contour.clone())),
         };
         let outline = match outline {
@@ -304,8 +310,12 @@ impl StereoTracker {
                 RigidSearch::settle(),
             );
             if left_fit.terms.energy.is_finite() && right_fit.terms.energy.is_finite() {
-                let right_pose =
-                    self.mirrored_right_pose((left, right), &limited, left_fit.pose, right_fit.pose);
+                let right_pose = self.mirrored_right_pose(
+                    (left, right),
+                    &limited,
+                    [left_fit.pose, right_fit.pose],
+                    within,
+                );
                 (left_fit.pose, left_fit.terms, right_pose)
             } else {
                 (left_pose, left_terms, right_pose)
@@ -419,7 +429,8 @@ impl StereoTracker {
         result
     }
 
-    /// Free fit from `contour` in `frame`: the rigid template of the result
+    /// Free fit from `contour` in `frame`, kept `within` the box where the
+    /// hints put the object (when given): the rigid template of the result
     /// (cut where it runs along the image border), its pose settled on the
     /// rigid energy, the energy there and the tables it was settled on;
     /// `None` when the contour lies outside the image.
@@ -427,6 +438,7 @@ impl StereoTracker {
         &self,
         frame: &'f GrayFrame,
         contour: &Polygon,
+        within: Option<[f64; 4]>,
     ) -> Option<(RigidTemplate, Pose, EnergyTerms, PrefixSums<'f>)> {
         let energy = &self.params.energy;
         let sums = free_fit_tables(frame, contour, energy)?;
@@ -434,8 +446,8 @@ impl StereoTracker {
         // edge of the last pixels' boxes, so that the region takes them in.
         let image = PixelRect::full(frame).extent();
         let on_border = RigidTemplate::ON_BORDER_PX;
-        // A roi or an outline says where the object lies: the fit stays there.
-        let within = self.params.init.hinted_domain(frame.width, frame.height);
+        // A roi or an outline says where the object lies (`within`, see
+        // `InitParams::fit_domain`): the fit stays there.
         let fitted = fit_free_within(
             &sums,
             &contour.snapped_to_box(image, on_border),
@@ -500,8 +512,8 @@ impl StereoTracker {
         &self,
         (left, right): (&GrayFrame, &GrayFrame),
         template: &RigidTemplate,
-        left_pose: Pose,
-        right_pose: Pose,
+        [left_pose, right_pose]: [Pose; 2],
+        within: Option<[f64; 4]>,
     ) -> Pose {
         let placed =
             Polygon::new(place(&template.points, right_pose)).clipped_to_box(PixelRect::full(right).extent());
@@ -511,7 +523,7 @@ impl StereoTracker {
                 .iter()
                 .fold(placed.points, |p, cut| cut.clip(&p)),
         );
-        let Some((mirror, own_pose, _, _)) = self.template_from(right, &placed) else {
+        let Some((mirror, own_pose, _, _)) = self.template_from(right, &placed, within) else {
             return right_pose;
         };
         let start = Pose {

@@ -489,3 +489,38 @@ fn a_border_tools_move_along_its_axis_is_followed_by_how_its_outline_looks() {
         "{withheld:?}"
     );
 }
+
+/// A box whose side cuts through a region (a needle running on into the
+/// lamella welded to its tip) frames the part inside it: the region is cut
+/// at the box there, and the first pair's free fit keeps to the box on that
+/// side instead of running on to the edge of the box's slack.
+#[test]
+fn the_first_fit_keeps_to_the_side_where_the_box_cut_the_region() {
+    // A bright needle tapering from the left border to its tip at x = 90,
+    // welded there to a bright block (x 90..180, y 48..72) on a dark ground.
+    let (w, h) = (200u32, 120u32);
+    let inside = |x: f64, y: f64| {
+        let needle = x < 90.0 && (y - 60.0).abs() < 4.0 + 0.15 * (90.0 - x);
+        let block = (90.0..180.0).contains(&x) && (48.0..72.0).contains(&y);
+        needle || block
+    };
+    let data = (0..h)
+        .flat_map(|y| (0..w).map(move |x| (x, y)))
+        .map(|(x, y)| if inside(x as f64, y as f64) { 180 } else { 60 })
+        .collect();
+    let frame = crate::imageio::GrayFrame::new(w, h, 8, data).unwrap();
+    let params = TrackerParams {
+        init: crate::init::InitParams {
+            roi: Some([0, 30, 100, 60]),
+            ..crate::init::InitParams::default()
+        },
+        ..TrackerParams::default()
+    };
+    let found = crate::init::initialise(&frame, &params.init).unwrap();
+    assert_eq!(found.cut_at_box, vec!["right".to_string()], "{found:?}");
+    assert_eq!(found.border, vec!["left".to_string()]);
+    let outline = StereoTracker::first_outline(&params, &frame, found).unwrap();
+    // The box's right edge lies at x = 99.5; its slack reaches 103.5.
+    let right = outline.bounds()[2];
+    assert!((98.5..=100.0).contains(&right), "right end at {right:.2}");
+}
