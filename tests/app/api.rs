@@ -1152,8 +1152,9 @@ async fn results_without_contours_are_light() {
 /// sample's residual is shown, and correcting or removing an outlier
 /// refits and restores R^2. Every change makes a new version; results keep the version they
 /// used, and every version stays readable, across a restart.
-/// A point on the image corner makes a contour that encloses no area: its
-/// energy has no finite value. The pair is lost with `energy: null`, and the
+/// A point on the image corner with the object said to be brighter there
+/// gives no valid contour position: its energy has no finite value. The
+/// pair is lost with `energy: null`, and the
 /// stored result reads back (a non-finite energy used to be stored as null
 /// and then refused as unreadable by every later read of the results).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1162,7 +1163,11 @@ async fn a_lost_pair_whose_energy_is_not_finite_reads_back() {
     let server = TestServer::start(test_config(&dir.path().join("energy.sqlite3"))).await;
     let base = server.base.clone();
     let http = reqwest::Client::new();
-    let s = post_json(&format!("{base}/v1/sessions"), json!({"init": {"point": [0, 0]}})).await;
+    let s = post_json(
+        &format!("{base}/v1/sessions"),
+        json!({"init": {"point": [0, 0], "polarity": "brighter"}}),
+    )
+    .await;
     let sid = s["id"].as_str().unwrap();
     let config = semdepth_core::synth::SynthConfig {
         frames: 3,

@@ -1419,6 +1419,42 @@ mod tests {
     }
 
     #[test]
+    fn a_point_names_the_part_of_a_region_an_edge_parts_off() {
+        // A bright needle (grey 180) from the left border, its tip welded
+        // to a mid-grey lamella (110, x 100..160) on a dark ground (40):
+        // one threshold takes both, an edge runs between them.
+        let (w, h) = (240u32, 160u32);
+        let needle = |x: f64, y: f64| x < 100.0 && (y - 80.0).abs() < 8.0 + 0.2 * (100.0 - x);
+        let lamella = |x: f64, y: f64| (100.0..160.0).contains(&x) && (62.0..98.0).contains(&y);
+        let grey = |x: f64, y: f64| match (needle(x, y), lamella(x, y)) {
+            (true, _) => 180,
+            (_, true) => 110,
+            _ => 40,
+        };
+        let data = (0..h)
+            .flat_map(|y| (0..w).map(move |x| grey(x as f64, y as f64)))
+            .collect();
+        let f = GrayFrame::new(w, h, 8, data).unwrap();
+        let truth = |inside: &dyn Fn(f64, f64) -> bool| -> Vec<bool> {
+            (0..w * h)
+                .map(|i| inside((i % w) as f64, (i / w) as f64))
+                .collect()
+        };
+        for (point, object, name) in [
+            ([50.0, 80.0], truth(&needle), "needle"),
+            ([130.0, 80.0], truth(&lamella), "lamella"),
+        ] {
+            let params = InitParams {
+                point: Some(point),
+                ..InitParams::default()
+            };
+            let r = initialise(&f, &params).unwrap();
+            let iou = mask_iou(&object, &r.contour.rasterize(w, h));
+            assert!(iou > 0.9, "{name}: IoU {iou:.3}, box {:?}", r.bbox);
+        }
+    }
+
+    #[test]
     fn a_point_that_is_not_the_object_turns_its_region_down() {
         let f = two_discs();
         let not_big = InitParams {
