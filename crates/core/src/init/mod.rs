@@ -664,11 +664,30 @@ impl InitParams {
         Some(domain)
     }
 
+    /// `outline` (found in a `width` x `height` image) kept to the `roi`'s
+    /// box on the sides `cut_at_box` names; as it is without any.
+    pub fn held_at_cut(&self, outline: Polygon, width: u32, height: u32, cut_at_box: &[String]) -> Polygon {
+        match self.fit_domain(width, height, cut_at_box) {
+            Some(b) if !cut_at_box.is_empty() => outline.clipped_to_box(b),
+            _ => outline,
+        }
+    }
+
     /// True when a hint names one region: a `roi`, a `point` or an
     /// `outline`.
     pub fn names_region(&self) -> bool {
         self.roi.is_some() || self.point.is_some() || self.outline.is_some()
     }
+}
+
+/// The names of the sides (left, top, right, bottom) set in `sides`.
+fn side_names(sides: [bool; 4]) -> Vec<String> {
+    ["left", "top", "right", "bottom"]
+        .iter()
+        .zip(sides)
+        .filter(|(_, on)| *on)
+        .map(|(name, _)| name.to_string())
+        .collect()
 }
 
 /// Where an object named by a `roi` `[x, y, w, h]` may lie in a
@@ -704,11 +723,11 @@ pub fn initialise(frame: &GrayFrame, params: &InitParams) -> Result<InitResult, 
     // The outline on the object's edge to a fraction of a pixel, where the
     // pipeline's thresholds left it 0.2-0.5 px outside (see [`edge_fit`]).
     let found = match fitted_to_edge(frame, &found.contour) {
-        Some((contour, _)) => match params.fit_domain(frame.width, frame.height, &found.cut_at_box) {
-            // No part of it moved past the box where it was cut.
-            Some(b) if !found.cut_at_box.is_empty() => found.with_contour(contour.clipped_to_box(b)),
-            _ => found.with_contour(contour),
-        },
+        // No part of it moved past the box where it was cut.
+        Some((contour, _)) => {
+            let held = params.held_at_cut(contour, frame.width, frame.height, &found.cut_at_box);
+            found.with_contour(held)
+        }
         None => found,
     };
     let edge_support = stage.edge_support(&found.contour, [frame.width, frame.height]);

@@ -11,7 +11,8 @@ use crate::imageio::GrayFrame;
 use crate::region::{PixelRect, PrefixSums, RegionSum};
 
 use super::{
-    edge_stage, fitted_to_edge, Hints, InitDiagnostics, InitError, InitParams, InitResult, Score, Source,
+    edge_stage, fitted_to_edge, side_names, Hints, InitDiagnostics, InitError, InitParams, InitResult, Score,
+    Source,
 };
 
 /// Width of the surroundings an outlined region's contrast is measured
@@ -42,16 +43,7 @@ pub(super) fn outlined(
     let (lx, ly) = (frame.width as f64 - 0.5, frame.height as f64 - 0.5);
     let drawn = Polygon::new(outline.to_vec());
     let [x0, y0, x1, y1] = drawn.bounds();
-    let border: Vec<String> = [
-        ("left", x0 < -0.5),
-        ("top", y0 < -0.5),
-        ("right", x1 > lx),
-        ("bottom", y1 > ly),
-    ]
-    .into_iter()
-    .filter(|&(_, crossed)| crossed)
-    .map(|(side, _)| side.to_string())
-    .collect();
+    let border = side_names([x0 < -0.5, y0 < -0.5, x1 > lx, y1 > ly]);
     let mut contour = drawn.clipped_to_box([-0.5, -0.5, lx, ly]);
     // Vertices clockwise on screen, as the found regions' are.
     if contour.signed_area() < 0.0 {

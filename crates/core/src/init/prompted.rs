@@ -25,7 +25,8 @@
 use super::candidates::{finalists, traced_border, Candidate, Rejections, SummedArea, WorkArea};
 use super::morphology::dilate_disk;
 use super::{
-    eroded_regions, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult, RunnerUp, Score,
+    eroded_regions, side_names, EdgeStage, Hints, InitDiagnostics, InitError, InitParams, InitResult,
+    RunnerUp, Score,
 };
 use crate::geometry::{Point, Polygon};
 use crate::imageio::GrayFrame;
@@ -291,16 +292,6 @@ pub(super) fn find(
             runners_up: runners_up(&candidates[usize::from(boxed.is_none())..], scale, area),
         },
     })))
-}
-
-/// The names of the sides (left, top, right, bottom) set in `sides`.
-fn side_names(sides: [bool; 4]) -> Vec<String> {
-    ["left", "top", "right", "bottom"]
-        .iter()
-        .zip(sides)
-        .filter(|(_, on)| *on)
-        .map(|(name, _)| name.to_string())
-        .collect()
 }
 
 /// The candidates' common ground for a frame and its hints, with the size

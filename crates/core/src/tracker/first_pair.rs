@@ -238,7 +238,10 @@ impl StereoTracker {
         previous_reference: Option<(f64, Option<Point>)>,
     ) -> PairResult {
         let fitted = found.core.as_ref().unwrap_or(&found.contour);
-        let within = (self.params.init).fit_domain(left.width, left.height, &found.cut_at_box);
+        let within = self
+            .params
+            .init
+            .fit_domain(left.width, left.height, &found.cut_at_box);
         let Some((template, left_pose, left_terms, left_sums)) = self.template_from(left, fitted, within)
         else {
             return PairResult::lost(frame, "initial contour lies outside the image".into());
@@ -256,10 +259,11 @@ impl StereoTracker {
             // Where its edge cannot be measured (a strong blur), the
             // initialisation's outline, which lies closer to it.
             None => fitted_to_edge(raw_left, &Polygon::new(place(&template.points, left_pose)))
-                .map(|(p, _)| match within {
-                    // No part of it moved past the box where it was cut.
-                    Some(b) if !found.cut_at_box.is_empty() => p.clipped_to_box(b),
-                    _ => p,
+                // No part of it moved past the box where it was cut.
+                .map(|(p, _)| {
+                    self.params
+                        .init
+                        .held_at_cut(p, left.width, left.height, &found.cut_at_box)
                 })
                 .or_else(|| found.border.is_empty().then(|| found.contour.clone())),
         };
