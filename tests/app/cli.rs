@@ -330,6 +330,32 @@ fn hints_take_commas_as_well_as_spaces() {
     assert_input_error(&point, &["--point"]);
 }
 
+/// `semdepth init` names the sides where it cut the region at the box, and
+/// the outline it prints stays within the box there: on the real ion-beam
+/// approach view a box round the needle's tip (its right side beside the
+/// weld) gave a region running on over the welded lamella, whose fitted
+/// outline reached x = 350.3 px (the box's slack) before the cut side held.
+#[test]
+fn init_names_the_sides_it_cut_at_the_box() {
+    let image =
+        crate::common::shared_dir().join("data/real/autoliftout/landing/needle_start_position_2_ib.png");
+    let found = stdout_json(&semdepth(&[
+        "init",
+        image.to_str().unwrap(),
+        "--roi",
+        "80",
+        "890",
+        "260",
+        "134",
+        "--no-contour",
+    ]));
+    assert_eq!(found["cut_at_box"], serde_json::json!(["right"]), "{found}");
+    assert_eq!(found["border"], serde_json::json!(["bottom"]), "{found}");
+    // The box's right edge lies at x = 339.5 (80 + 260 - 0.5).
+    let right = found["bbox"][2].as_f64().unwrap();
+    assert!(right <= 340.0, "right end at {right:.2}");
+}
+
 /// `semdepth init` prints the outline tracking starts from: on a relief
 /// substrate the initialisation's own outline of rod 603 keeps slivers of
 /// substrate beside grain boundaries (IoU 0.913 with the truth when
