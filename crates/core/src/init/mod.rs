@@ -651,7 +651,7 @@ impl InitParams {
         let mut domain = self.hinted_domain(width, height)?;
         if let Some([x, y, w, h]) = self.roi {
             let edges = [x, y, x + w, y + h].map(|e| e as f64 - 0.5);
-            for (k, side) in ["left", "top", "right", "bottom"].iter().enumerate() {
+            for (k, side) in SIDES.iter().enumerate() {
                 if cut_at_box.iter().any(|c| c == side) {
                     domain[k] = if k < 2 {
                         domain[k].max(edges[k])
@@ -667,9 +667,12 @@ impl InitParams {
     /// `outline` (found in a `width` x `height` image) kept to the `roi`'s
     /// box on the sides `cut_at_box` names; as it is without any.
     pub fn held_at_cut(&self, outline: Polygon, width: u32, height: u32, cut_at_box: &[String]) -> Polygon {
+        if cut_at_box.is_empty() {
+            return outline;
+        }
         match self.fit_domain(width, height, cut_at_box) {
-            Some(b) if !cut_at_box.is_empty() => outline.clipped_to_box(b),
-            _ => outline,
+            Some(b) => outline.clipped_to_box(b),
+            None => outline,
         }
     }
 
@@ -680,9 +683,13 @@ impl InitParams {
     }
 }
 
+/// The names of a box's or the image's sides, in the order of the
+/// `[bool; 4]` side sets and `[x0, y0, x1, y1]` boxes.
+const SIDES: [&str; 4] = ["left", "top", "right", "bottom"];
+
 /// The names of the sides (left, top, right, bottom) set in `sides`.
 fn side_names(sides: [bool; 4]) -> Vec<String> {
-    ["left", "top", "right", "bottom"]
+    SIDES
         .iter()
         .zip(sides)
         .filter(|(_, on)| *on)
