@@ -12,6 +12,13 @@ use crate::uncertainty;
 use super::view_fit::{ImageFit, ViewSearch};
 use super::StereoTracker;
 
+/// How far across the epipolar line (and past either end of it) the
+/// right view's search looks, pixels: the tables it fits on reach so far
+/// around the template, and a fit that ends further out is no finding of
+/// the search (a lamella whose energy falls towards a needle beside it slid
+/// 88 px along the line, past the 64 px searched, on the static scans).
+const SEARCH_BAND_PX: f64 = 8.0;
+
 impl StereoTracker {
     /// The right view searched along the whole epipolar line from the left
     /// pose ([`StereoTracker::search_right`]) and fitted in full on the line
@@ -85,7 +92,7 @@ impl StereoTracker {
             },
             None => left,
         };
-        let [x0, y0, x1, y1] = template.reach(left, 8.0);
+        let [x0, y0, x1, y1] = template.reach(left, SEARCH_BAND_PX);
         let (ex, ey) = (dir[0].abs() * max_d, dir[1].abs() * max_d);
         let rect = PixelRect::covering(x0 - ex, y0 - ey, x1 + ex, y1 + ey, right.width, right.height)?;
         let sums = PrefixSums::new(right, rect, INTENSITY_OFFSET);
@@ -111,7 +118,14 @@ impl StereoTracker {
                 let out = fit_rigid(&sums, template, start, energy, &self.params.rigid, search);
                 (out.pose, out.terms)
             })
-            .filter(|(_, terms)| terms.energy.is_finite())
+            .filter(|(pose, terms)| {
+                // Where the search looked: a fit that slid out of the band
+                // found nothing the search can vouch for.
+                let [dx, dy] = [pose.x - left.x, pose.y - left.y];
+                let along = dx * dir[0] + dy * dir[1];
+                let across = (dx - along * dir[0]).hypot(dy - along * dir[1]);
+                terms.energy.is_finite() && along.abs() <= max_d + SEARCH_BAND_PX && across <= SEARCH_BAND_PX
+            })
             .min_by(|a, b| a.1.energy.total_cmp(&b.1.energy))
             .map(|(pose, _)| pose)
     }

@@ -18,7 +18,7 @@ use crate::strips::refit_without_strips;
 
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
-use super::profile::slide_reference;
+use super::profile::{best_shift_along, reliability, slide_reference};
 use super::result::{PairResult, Status, TrackError};
 use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
@@ -50,6 +50,34 @@ pub const REFUSED_INITS: u32 = 3;
 /// Least IoU of a hinted object's freely fitted region with its
 /// initialisation for the fit to be kept (see `StereoTracker::template_from`).
 pub const FREE_FIT_MIN_IOU: f64 = 0.8;
+
+/// A first pair's right view looks like its left view when the correlation
+/// of their outline profiles at its best offset along the disparity axis
+/// ([`best_shift_along`]) reaches this share of the left profile's own
+/// [`reliability`]: views that differ by independent noise alone reach
+/// 0.61-0.77 of it (the static scans), a quartz grain seen at twice the
+/// tilt 0.28 (its profiles' best offset 15 px from the energy's pose,
+/// which is right to 1.3 px).
+pub const ALIKE_SHARE: f64 = 0.5;
+
+/// Where the views look alike, the right view's fit lies within this many
+/// of the disparity's standard errors, plus a pixel (what whole-pixel
+/// shifts refined by a parabola resolve), of where its outline looks most
+/// like the left view's; further, the region energy has placed it on
+/// something else (a low-contrast lamella between a needle and a post,
+/// whose energy along the line changes by 14 units over 20 px: 20 px off
+/// at a reported 3.2 px). On the synthetic suites and the other real pairs
+/// the two lie within 0.8 px, or at most 2.6 standard errors apart.
+pub const APPEARANCE_STDS: f64 = 4.0;
+
+/// A first pair's fit in either view must be a minimum of its energy along
+/// the disparity axis over this many of its standard errors (at least a
+/// pixel, past the sub-pixel tolerance the fit settles to): the standard
+/// error is read off the energy's curvature at the fit, which a fit held
+/// against the edge of its domain, its energy falling beyond it, also has
+/// (a lasso round a lamella whose energy falls towards the needle beside
+/// it: the left view's fit at the lasso, its standard error under 0.01 px).
+pub const BASIN_STDS: f64 = 3.0;
 
 impl StereoTracker {
     /// First pair (or after a loss): find, fit, search the right view. On
@@ -408,7 +436,21 @@ impl StereoTracker {
             &left_fit,
             &right_fit,
         );
-        if let Some(reason) = self.loss_reason(&state, &template, &left_fit, &right_fit) {
+        let reason = self
+            .loss_reason(&state, &template, &left_fit, &right_fit)
+            .or_else(|| {
+                let std = result.disparity_std_px?;
+                self.unlike_left_view([left, right], &sectors, [left_pose, right_pose], std)
+            })
+            .or_else(|| {
+                [
+                    ("left", left, &left_fixed, &left_fit),
+                    ("right", right, &right_fixed, &right_fit),
+                ]
+                .into_iter()
+                .find_map(|(name, frame, fixed, fit)| self.no_basin(name, frame, fixed, fit))
+            });
+        if let Some(reason) = reason {
             result.mark_lost(reason);
             self.state = None;
             self.template = None;
@@ -431,6 +473,67 @@ impl StereoTracker {
         self.state = Some(state);
         self.template = Some((template, sectors));
         result
+    }
+
+    /// Why a first pair's right view is not where it looks like the left
+    /// view, if it is not (see [`APPEARANCE_STDS`]): the views look alike
+    /// ([`ALIKE_SHARE`]) and the right pose lies more than
+    /// [`APPEARANCE_STDS`] standard errors (`std`, the disparity's) plus a
+    /// pixel from where the right outline's profile correlates best with
+    /// the left's. The region energy places the right view; the profile,
+    /// which affine grey changes leave alone, says which object it placed.
+    pub(super) fn unlike_left_view(
+        &self,
+        [left, right]: [&GrayFrame; 2],
+        sectors: &SectorTemplate,
+        [left_pose, right_pose]: [Pose; 2],
+        std: f64,
+    ) -> Option<String> {
+        let u = self.disparity_axis();
+        let reach = self.params.max_disparity_px.ceil() as i64;
+        let [offset, best, here] =
+            best_shift_along([left, right], sectors, [left_pose, right_pose], u, reach)?;
+        let own = reliability(left, sectors, left_pose, u);
+        let limit = APPEARANCE_STDS * std + 1.0;
+        (best >= ALIKE_SHARE * own && offset.abs() > limit).then(|| {
+            format!(
+                "the right view's fit lies {:.1} px along the disparity axis from where its outline looks most like the left view's (limit {limit:.1} px: {APPEARANCE_STDS} standard errors of {std:.2} px and a pixel; profile correlation {here:.2} at the fit against {best:.2} there, and the left view's with itself {own:.2}): the region energy placed it on something else; the object is initialised afresh on the next pair",
+                offset.abs()
+            )
+        })
+    }
+
+    /// Why `fit`'s pose in `frame` (the view `name`) is no minimum of the
+    /// energy of `template` along the disparity axis over the span its
+    /// standard error claims ([`BASIN_STDS`]), if it is not: the energy
+    /// lower at either end of the span than at the fit.
+    pub(super) fn no_basin(
+        &self,
+        name: &str,
+        frame: &GrayFrame,
+        template: &RigidTemplate,
+        fit: &ImageFit,
+    ) -> Option<String> {
+        let std = fit.axis_std_px;
+        if !std.is_finite() {
+            return None;
+        }
+        let span = (BASIN_STDS * std).max(1.0);
+        let u = self.disparity_axis();
+        let sums = self.sums_around(frame, template, fit.pose, span + Self::NEAR_REACH_PX);
+        let at = |d: f64| {
+            let pose = Pose {
+                x: fit.pose.x + d * u[0],
+                y: fit.pose.y + d * u[1],
+                ..fit.pose
+            };
+            template.energy_at(&sums, pose, &self.params.energy).energy
+        };
+        let (centre, minus, plus) = (at(0.0), at(-span), at(span));
+        (minus.min(plus) < centre).then(|| format!(
+            "the {name} view's energy falls {:.1} px along the disparity axis from its fit ({BASIN_STDS} of its standard errors of {std:.2} px, or a pixel): its fit is no minimum of the energy over the span its standard error claims; the object is initialised afresh on the next pair",
+            span
+        ))
     }
 
     /// Free fit from `contour` in `frame`, kept `within` the box where the

@@ -1,7 +1,8 @@
 //! The grey profile across an object's outline: samples along each
-//! vertex's normal, compared between pairs by a correlation weighted by
-//! what each vertex fixes along a direction. Affine changes of the grey
-//! levels leave the correlation unchanged.
+//! vertex's normal, compared between pairs, and between the two views of
+//! a first pair, by a correlation weighted by what each vertex fixes along
+//! a direction. Affine changes of the grey levels leave the correlation
+//! unchanged.
 
 use crate::fit::{Pose, RigidTemplate};
 use crate::geometry::{Point, Polygon};
@@ -105,6 +106,69 @@ pub(super) fn correlation(a: &[f64], b: &[f64], weights: &[f64]) -> f64 {
         bb += w * (y - mean_b) * (y - mean_b);
     }
     ab / (aa * bb).sqrt()
+}
+
+/// Where along the unit direction `u` the outline of `sectors` in `right`
+/// looks most like it does at `left_pose` in `left`: the weighted
+/// correlation of their profiles ([`correlation`], weighted by what each
+/// vertex fixes along `u`) for `right_pose` moved by whole pixels `d` in
+/// `-reach..=reach` along `u`, its peak refined by a parabola. Returns
+/// the peak's offset from `right_pose` along `u`, its correlation and the
+/// correlation at `right_pose` itself; None when no shift has a finite
+/// correlation.
+pub(super) fn best_shift_along(
+    [left, right]: [&GrayFrame; 2],
+    sectors: &SectorTemplate,
+    [left_pose, right_pose]: [Pose; 2],
+    u: Point,
+    reach: i64,
+) -> Option<[f64; 3]> {
+    let reference = profile(left, sectors, left_pose);
+    let weights = weights_along(sectors, left_pose, u);
+    let at = |d: f64| {
+        let moved = Pose {
+            x: right_pose.x + d * u[0],
+            y: right_pose.y + d * u[1],
+            ..right_pose
+        };
+        correlation(&reference, &profile(right, sectors, moved), &weights)
+    };
+    let scan: Vec<(i64, f64)> = (-reach..=reach).map(|d| (d, at(d as f64))).collect();
+    let (k, &(d, peak)) = scan
+        .iter()
+        .enumerate()
+        .filter(|(_, (_, c))| c.is_finite())
+        .max_by(|a, b| a.1 .1.total_cmp(&b.1 .1))?;
+    let side = |j: Option<usize>| j.and_then(|j| scan.get(j)).map(|s| s.1).filter(|c| c.is_finite());
+    let offset = match (side(k.checked_sub(1)), side(Some(k + 1))) {
+        (Some(a), Some(b)) if a + b - 2.0 * peak < 0.0 => 0.5 * (a - b) / (a + b - 2.0 * peak),
+        _ => 0.0,
+    };
+    Some([d as f64 + offset, peak, at(0.0)])
+}
+
+/// How alike the profile of `frame` across the outline at `pose` is to
+/// itself under its own noise: the weighted correlation ([`correlation`],
+/// weights along `u`) of each even vertex's samples with the next vertex's,
+/// which see nearly the same edge with their own noise, raised to the
+/// whole profile's by the Spearman-Brown formula `2 r / (1 + r)`. The
+/// correlation two views that differ only by noise reach at their true
+/// offset; NaN where the correlation is.
+pub(super) fn reliability(frame: &GrayFrame, sectors: &SectorTemplate, pose: Pose, u: Point) -> f64 {
+    let samples = profile(frame, sectors, pose);
+    let weights = weights_along(sectors, pose, u);
+    let n = OFFSETS_PX.len();
+    let vertices = samples.len() / n;
+    let pick = |v: &[f64], first: usize| -> Vec<f64> {
+        (first..vertices.saturating_sub(1 - first))
+            .step_by(2)
+            .flat_map(|k| v[k * n..(k + 1) * n].iter().copied())
+            .collect()
+    };
+    let (even, odd) = (pick(&samples, 0), pick(&samples, 1));
+    let count = even.len().min(odd.len());
+    let half = correlation(&even[..count], &odd[..count], &pick(&weights, 0)[..count]);
+    2.0 * half / (1.0 + half)
 }
 
 /// `frame` at the point `q`, interpolated bilinearly; NaN outside.

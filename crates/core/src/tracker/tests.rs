@@ -524,3 +524,70 @@ fn the_first_fit_keeps_to_the_side_where_the_box_cut_the_region() {
     let right = outline.bounds()[2];
     assert!((98.5..=100.0).contains(&right), "right end at {right:.2}");
 }
+
+/// A low-contrast plate between a brighter needle and a post of its own
+/// grey (a lamella in its gap, as on the static scans): along the
+/// disparity axis its energy falls towards the needle and is flat towards
+/// the post, so no fit places it. Its first pair carries no number rather
+/// than one 20 px off; the plate apart from both, its ends edges of its
+/// own, is measured.
+#[test]
+fn a_plate_whose_energy_fixes_no_position_along_the_axis_gets_no_number() {
+    let scene = |shift: f64, own_edge: bool| {
+        let (w, h) = (360u32, 140u32);
+        let mut noise = 0x2545_f491_4f6c_dd1du64;
+        let data = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64 - shift, (i / w) as f64);
+                // With edges of its own, a gap of the background parts the
+                // plate from the needle and from the post.
+                let gap = if own_edge { 6.0 } else { 0.0 };
+                let grey = if (50.0..90.0).contains(&y) && (60.0..180.0 - gap).contains(&x) {
+                    200.0
+                } else if (55.0..85.0).contains(&y) && (180.0..270.0).contains(&x) || x >= 270.0 + gap {
+                    120.0
+                } else {
+                    40.0
+                };
+                noise ^= noise << 13;
+                noise ^= noise >> 7;
+                noise ^= noise << 17;
+                (grey + (noise % 31) as f64 - 15.0) as u16
+            })
+            .collect();
+        GrayFrame {
+            width: w,
+            height: h,
+            bit_depth: 8,
+            data,
+        }
+    };
+    let outline = vec![[177.0, 52.0], [273.0, 52.0], [273.0, 88.0], [177.0, 88.0]];
+    for own_edge in [false, true] {
+        let mut params = TrackerParams::default();
+        params.init.outline = Some(outline.clone());
+        let mut tracker = StereoTracker::new(params);
+        let r = tracker
+            .process(&scene(0.0, own_edge), &scene(3.0, own_edge))
+            .unwrap();
+        match r.disparity_axis_px {
+            Some(d) => {
+                let std = r.disparity_std_px.unwrap();
+                assert!(
+                    own_edge && (d - 3.0).abs() <= 3.0 * std,
+                    "{own_edge}: {d:.2} +- {std:.2}: {r:?}"
+                );
+            }
+            None => {
+                // Without either check: 38.9 px at a reported 0.50 px.
+                let reason = r.reason.as_deref().unwrap_or_default();
+                assert!(
+                    !own_edge
+                        && (reason.contains("looks most like the left view's")
+                            || reason.contains("no minimum of the energy")),
+                    "{own_edge}: {r:?}"
+                );
+            }
+        }
+    }
+}

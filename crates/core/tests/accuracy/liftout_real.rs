@@ -603,7 +603,7 @@ fn write_overlay(
 /// The rule a withheld pair's reason names (its first clause; a run of
 /// uncertain pairs that ends in a loss is named by the pair's own rule).
 fn rule_of(reason: &str) -> &'static str {
-    const RULES: [(&str, &str); 15] = [
+    const RULES: [(&str, &str); 17] = [
         (
             "the disparity's standard error is",
             "standard error over its limit (max_disparity_std_px)",
@@ -639,6 +639,14 @@ fn rule_of(reason: &str) -> &'static str {
             "first pair: not found in the right view",
         ),
         ("refused:", "first pair: hint refused"),
+        (
+            "looks most like the left view's",
+            "first pair: right view unlike the left at its fit (APPEARANCE_STDS)",
+        ),
+        (
+            "its fit is no minimum of the energy",
+            "first pair: energy falls within the span its std claims (BASIN_STDS)",
+        ),
         ("no valid contour position", "no valid contour position"),
         ("the contour left the", "contour left the image"),
         ("the disparity jumped", "occluded: disparity jumped while hidden"),
@@ -683,10 +691,11 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("landing eb needle", Naming::Point, [0, 0, 1]),
     ("static scans lamella", Naming::Box, [1, 0, 8]),
     // The edges part the lamella from the needle under the point, with a
-    // strip of the dark gap along the post beside it: the right view's
-    // search places it 20 px off at 3.2 px (its first pair), then it is
-    // lost.
-    ("static scans lamella", Naming::Point, [1, 0, 8]),
+    // strip of the dark gap along the post beside it. Its energy fixes no
+    // position along the axis: the right view's search placed it 20 px off
+    // at 3.2 px (its first pair) until the right view had to look like
+    // the left where its fit lies; every pair is withheld.
+    ("static scans lamella", Naming::Point, [0, 0, 9]),
     ("landing ib needle, brightness", Naming::Outline, [0, 0, 0]),
     ("landing eb needle, brightness", Naming::Outline, [0, 0, 0]),
     ("contact_1 needle from 3", Naming::Outline, [0, 0, 0]),
@@ -695,8 +704,10 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("static scans needle", Naming::Outline, [0, 0, 0]),
     ("landing eb needle", Naming::Outline, [0, 0, 1]),
     // The lamella's ends barely differ from the needle and the post beside
-    // them: the right view's search slides it onto the needle, 90 px off,
-    // and every pair is withheld ("the contour left the right image").
+    // them: the right view's search slid it onto the needle, 90 px off;
+    // now its fits are held to the band searched, and every pair is
+    // withheld (the right view unlike the left where its fit lies, or an
+    // energy that falls beside a fit held at the lasso).
     ("static scans lamella", Naming::Outline, [0, 0, 9]),
     // Held out, first measured unseen: the stage moves the needle 300 px
     // (ion beam) or 68 px (electron beam) between the first two pairs. A
