@@ -555,12 +555,7 @@ fn a_plate_whose_energy_fixes_no_position_along_the_axis_gets_no_number() {
                 (grey + (noise % 31) as f64 - 15.0) as u16
             })
             .collect();
-        GrayFrame {
-            width: w,
-            height: h,
-            bit_depth: 8,
-            data,
-        }
+        GrayFrame::new(w, h, 8, data).expect("a valid frame")
     };
     let outline = vec![[177.0, 52.0], [273.0, 52.0], [273.0, 88.0], [177.0, 88.0]];
     for own_edge in [false, true] {
