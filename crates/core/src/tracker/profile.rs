@@ -187,6 +187,54 @@ pub(super) fn bilinear(frame: &GrayFrame, q: Point) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::energy::EnergyParams;
+    use crate::synth::{frames, Preset, Shape, SynthConfig};
+
+    /// The right view's outline is found where the views' profiles agree,
+    /// to a fraction of a pixel, whatever the right view's grey levels; a
+    /// clean view's profile is more alike to itself than a noisy one's.
+    #[test]
+    fn the_best_shift_finds_the_disparity_and_the_reliability_sees_the_noise() {
+        let first = |preset: Preset| {
+            let config = SynthConfig {
+                frames: 1,
+                ..SynthConfig::preset(preset, Shape::Sphere, 3)
+            };
+            frames(&config).unwrap().next().unwrap()
+        };
+        let pair = first(Preset::Clean);
+        let truth = &pair.truth;
+        let (template, left_pose) =
+            RigidTemplate::new(&truth.left.polygon.resampled(120), 48, &EnergyParams::default());
+        let sectors = SectorTemplate::new(&template, 24);
+        let u = [1.0, 0.0];
+        let disparity = truth.right.centroid[0] - truth.left.centroid[0];
+        // The right pose 6 px short of the truth along the axis.
+        let right_pose = Pose {
+            x: left_pose.x + disparity - 6.0,
+            y: left_pose.y + truth.right.centroid[1] - truth.left.centroid[1],
+            ..left_pose
+        };
+        let regraded = GrayFrame {
+            data: pair.right.data.iter().map(|&v| v / 2 + 40).collect(),
+            ..pair.right.clone()
+        };
+        for right in [&pair.right, &regraded] {
+            let [offset, best, here] =
+                best_shift_along([&pair.left, right], &sectors, [left_pose, right_pose], u, 12).unwrap();
+            assert!((offset - 6.0).abs() < 0.3, "offset {offset:.2}");
+            assert!(
+                best > 0.9 && here < best,
+                "{best:.2} against {here:.2} at the pose"
+            );
+        }
+        let clean = reliability(&pair.left, &sectors, left_pose, u);
+        let noisy = reliability(&first(Preset::Noisy).left, &sectors, left_pose, u);
+        assert!(
+            clean > 0.95 && noisy < clean,
+            "clean {clean:.3}, noisy {noisy:.3}"
+        );
+    }
 
     #[test]
     fn the_correlation_ignores_an_affine_grey_change_and_sees_a_different_profile() {
