@@ -36,7 +36,8 @@ pub struct TrackerParams {
     /// calibration's axis instead, the one its `z_um` uses.
     pub tilt_axis_deg: f64,
     /// On the first pair, how far (pixels, along the disparity axis) the
-    /// right view is searched from the left position. Default 64.
+    /// right view is searched from the left position; a fit that ends more
+    /// than 8 px past it (or across the line) is no finding. Default 64.
     pub max_disparity_px: f64,
     /// Vertex spacing of the rigid template, pixels; default null: the free
     /// fit's own outline (vertices `free.spacing_px` apart) is the template.
