@@ -38,6 +38,16 @@ impl Pose {
     pub fn center(&self) -> Point {
         [self.x, self.y]
     }
+
+    /// The pose moved `d` pixels along the unit direction `u`, its rotation
+    /// kept.
+    pub fn moved_along(self, u: Point, d: f64) -> Pose {
+        Pose {
+            x: self.x + d * u[0],
+            y: self.y + d * u[1],
+            ..self
+        }
+    }
 }
 
 /// The template's vertices placed at `pose`.

@@ -110,11 +110,7 @@ pub fn line_polish(
     energy_at: impl Fn(Pose) -> f64,
 ) -> (Pose, f64, usize) {
     const H: f64 = 0.25;
-    let at = |p: Pose, s: f64| Pose {
-        x: p.x + s * u[0],
-        y: p.y + s * u[1],
-        ..p
-    };
+    let at = |p: Pose, s: f64| p.moved_along(u, s);
     let (mut pose, mut best, mut evaluations) = (start, start_energy, 0);
     for _ in 0..2 {
         let (plus, minus) = (energy_at(at(pose, H)), energy_at(at(pose, -H)));
@@ -319,11 +315,7 @@ impl RigidTemplate {
         let scan: Vec<(f64, f64)> = (-steps..=steps)
             .map(|k| {
                 let d = (k as f64 * 2.0).clamp(-max_px, max_px);
-                let pose = Pose {
-                    x: origin.x + d * dir[0],
-                    y: origin.y + d * dir[1],
-                    theta: origin.theta,
-                };
+                let pose = origin.moved_along(dir, d);
                 let placed = place(&self.coarse, pose);
                 (
                     d,

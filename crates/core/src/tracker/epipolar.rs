@@ -110,11 +110,7 @@ impl StereoTracker {
         starts
             .iter()
             .map(|&d| {
-                let start = Pose {
-                    x: left.x + d * dir[0],
-                    y: left.y + d * dir[1],
-                    theta: left.theta,
-                };
+                let start = left.moved_along(dir, d);
                 let out = fit_rigid(&sums, template, start, energy, &self.params.rigid, search);
                 (out.pose, out.terms)
             })

@@ -18,7 +18,7 @@ use crate::strips::refit_without_strips;
 
 use super::border::{free_end_area, shared_view_limits};
 use super::params::TrackerParams;
-use super::profile::{best_shift_along, reliability, slide_reference};
+use super::profile::{best_shift_along, profile, reliability, slide_reference, weights_along};
 use super::result::{PairResult, Status, TrackError};
 use super::state::{Phase, TrackerState};
 use super::std_error::noise_bands;
@@ -491,11 +491,18 @@ impl StereoTracker {
     ) -> Option<String> {
         let u = self.disparity_axis();
         let reach = self.params.max_disparity_px.ceil() as i64;
+        let (reference, weights) = (
+            profile(left, sectors, left_pose),
+            weights_along(sectors, left_pose, u),
+        );
         let [offset, best, here] =
-            best_shift_along([left, right], sectors, [left_pose, right_pose], u, reach)?;
-        let own = reliability(left, sectors, left_pose, u);
+            best_shift_along((&reference, &weights), right, sectors, right_pose, u, reach)?;
         let limit = APPEARANCE_STDS * std + 1.0;
-        (best >= ALIKE_SHARE * own && offset.abs() > limit).then(|| {
+        if offset.abs() <= limit {
+            return None;
+        }
+        let own = reliability(&reference, &weights);
+        (best >= ALIKE_SHARE * own).then(|| {
             format!(
                 "the right view's fit lies {:.1} px along the disparity axis from where its outline looks most like the left view's (limit {limit:.1} px: {APPEARANCE_STDS} standard errors of {std:.2} px and a pixel; profile correlation {here:.2} at the fit against {best:.2} there, and the left view's with itself {own:.2}): the region energy placed it on something else; the object is initialised afresh on the next pair",
                 offset.abs()
@@ -522,12 +529,9 @@ impl StereoTracker {
         let u = self.disparity_axis();
         let sums = self.sums_around(frame, template, fit.pose, span + Self::NEAR_REACH_PX);
         let at = |d: f64| {
-            let pose = Pose {
-                x: fit.pose.x + d * u[0],
-                y: fit.pose.y + d * u[1],
-                ..fit.pose
-            };
-            template.energy_at(&sums, pose, &self.params.energy).energy
+            template
+                .energy_at(&sums, fit.pose.moved_along(u, d), &self.params.energy)
+                .energy
         };
         let (centre, minus, plus) = (at(0.0), at(-span), at(span));
         (minus.min(plus) < centre).then(|| format!(

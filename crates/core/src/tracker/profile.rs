@@ -109,31 +109,28 @@ pub(super) fn correlation(a: &[f64], b: &[f64], weights: &[f64]) -> f64 {
 }
 
 /// Where along the unit direction `u` the outline of `sectors` in `right`
-/// looks most like it does at `left_pose` in `left`: the weighted
-/// correlation of their profiles ([`correlation`], weighted by what each
-/// vertex fixes along `u`) for `right_pose` moved by whole pixels `d` in
-/// `-reach..=reach` along `u`, its peak refined by a parabola. Returns
-/// the peak's offset from `right_pose` along `u`, its correlation and the
-/// correlation at `right_pose` itself; None when no shift has a finite
-/// correlation.
+/// looks most like the `reference` profile (another view's [`profile`],
+/// with its [`weights_along`] `u`): their [`correlation`] for `right_pose`
+/// moved by whole pixels `d` in `-reach..=reach` along `u`, its peak
+/// refined by a parabola. Returns the peak's offset from `right_pose`
+/// along `u`, its correlation and the correlation at `right_pose` itself;
+/// None when no shift has a finite correlation.
 pub(super) fn best_shift_along(
-    [left, right]: [&GrayFrame; 2],
+    (reference, weights): (&[f64], &[f64]),
+    right: &GrayFrame,
     sectors: &SectorTemplate,
-    [left_pose, right_pose]: [Pose; 2],
+    right_pose: Pose,
     u: Point,
     reach: i64,
 ) -> Option<[f64; 3]> {
-    let reference = profile(left, sectors, left_pose);
-    let weights = weights_along(sectors, left_pose, u);
-    let at = |d: f64| {
-        let moved = Pose {
-            x: right_pose.x + d * u[0],
-            y: right_pose.y + d * u[1],
-            ..right_pose
-        };
-        correlation(&reference, &profile(right, sectors, moved), &weights)
+    let at = |d: i64| {
+        correlation(
+            reference,
+            &profile(right, sectors, right_pose.moved_along(u, d as f64)),
+            weights,
+        )
     };
-    let scan: Vec<(i64, f64)> = (-reach..=reach).map(|d| (d, at(d as f64))).collect();
+    let scan: Vec<(i64, f64)> = (-reach..=reach).map(|d| (d, at(d))).collect();
     let (k, &(d, peak)) = scan
         .iter()
         .enumerate()
@@ -144,19 +141,18 @@ pub(super) fn best_shift_along(
         (Some(a), Some(b)) if a + b - 2.0 * peak < 0.0 => 0.5 * (a - b) / (a + b - 2.0 * peak),
         _ => 0.0,
     };
-    Some([d as f64 + offset, peak, at(0.0)])
+    // Shift 0 is the scan's middle.
+    Some([d as f64 + offset, peak, scan[reach as usize].1])
 }
 
-/// How alike the profile of `frame` across the outline at `pose` is to
-/// itself under its own noise: the weighted correlation ([`correlation`],
-/// weights along `u`) of each even vertex's samples with the next vertex's,
+/// How alike a [`profile`] (`samples`, with its [`weights_along`] a
+/// direction) is to itself under its own noise: the weighted
+/// [`correlation`] of each even vertex's samples with the next vertex's,
 /// which see nearly the same edge with their own noise, raised to the
 /// whole profile's by the Spearman-Brown formula `2 r / (1 + r)`. The
 /// correlation two views that differ only by noise reach at their true
 /// offset; NaN where the correlation is.
-pub(super) fn reliability(frame: &GrayFrame, sectors: &SectorTemplate, pose: Pose, u: Point) -> f64 {
-    let samples = profile(frame, sectors, pose);
-    let weights = weights_along(sectors, pose, u);
+pub(super) fn reliability(samples: &[f64], weights: &[f64]) -> f64 {
     let n = OFFSETS_PX.len();
     let vertices = samples.len() / n;
     let pick = |v: &[f64], first: usize| -> Vec<f64> {
@@ -165,9 +161,9 @@ pub(super) fn reliability(frame: &GrayFrame, sectors: &SectorTemplate, pose: Pos
             .flat_map(|k| v[k * n..(k + 1) * n].iter().copied())
             .collect()
     };
-    let (even, odd) = (pick(&samples, 0), pick(&samples, 1));
+    let (even, odd) = (pick(samples, 0), pick(samples, 1));
     let count = even.len().min(odd.len());
-    let half = correlation(&even[..count], &odd[..count], &pick(&weights, 0)[..count]);
+    let half = correlation(&even[..count], &odd[..count], &pick(weights, 0)[..count]);
     2.0 * half / (1.0 + half)
 }
 
@@ -219,17 +215,25 @@ mod tests {
             data: pair.right.data.iter().map(|&v| v / 2 + 40).collect(),
             ..pair.right.clone()
         };
+        let left = |frame: &GrayFrame| {
+            (
+                profile(frame, &sectors, left_pose),
+                weights_along(&sectors, left_pose, u),
+            )
+        };
+        let (reference, weights) = left(&pair.left);
         for right in [&pair.right, &regraded] {
             let [offset, best, here] =
-                best_shift_along([&pair.left, right], &sectors, [left_pose, right_pose], u, 12).unwrap();
+                best_shift_along((&reference, &weights), right, &sectors, right_pose, u, 12).unwrap();
             assert!((offset - 6.0).abs() < 0.3, "offset {offset:.2}");
             assert!(
                 best > 0.9 && here < best,
                 "{best:.2} against {here:.2} at the pose"
             );
         }
-        let clean = reliability(&pair.left, &sectors, left_pose, u);
-        let noisy = reliability(&first(Preset::Noisy).left, &sectors, left_pose, u);
+        let clean = reliability(&reference, &weights);
+        let (noisy_samples, noisy_weights) = left(&first(Preset::Noisy).left);
+        let noisy = reliability(&noisy_samples, &noisy_weights);
         assert!(
             clean > 0.95 && noisy < clean,
             "clean {clean:.3}, noisy {noisy:.3}"

@@ -266,11 +266,7 @@ impl StereoTracker {
         let Some(sigma) = uncertainty::band_sigma(frame, &arcs, outward(template), bands) else {
             return measured;
         };
-        let shifted = |d: f64| Pose {
-            x: pose.x + d * u[0],
-            y: pose.y + d * u[1],
-            ..pose
-        };
+        let shifted = |d: f64| pose.moved_along(u, d);
         let m_ref = sums.reference_mean();
         let s = uncertainty::weighted_length(&arcs, u);
         let std = if occluded {
