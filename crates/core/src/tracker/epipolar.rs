@@ -80,10 +80,14 @@ impl StereoTracker {
         let energy = &self.params.energy;
         let max_d = self.params.max_disparity_px;
         let dir = self.disparity_axis();
-        let kept = last_disparity.filter(|_| self.params.epipolar).map(|[dx, dy]| {
+        // A displacement's component along the axis, and the rest of it.
+        let split = |[dx, dy]: Point| {
             let along = dx * dir[0] + dy * dir[1];
-            [dx - along * dir[0], dy - along * dir[1]]
-        });
+            (along, [dx - along * dir[0], dy - along * dir[1]])
+        };
+        let kept = last_disparity
+            .filter(|_| self.params.epipolar)
+            .map(|d| split(d).1);
         let left = match kept {
             Some([ox, oy]) => Pose {
                 x: left.x + ox,
@@ -117,10 +121,10 @@ impl StereoTracker {
             .filter(|(pose, terms)| {
                 // Where the search looked: a fit that slid out of the band
                 // found nothing the search can vouch for.
-                let [dx, dy] = [pose.x - left.x, pose.y - left.y];
-                let along = dx * dir[0] + dy * dir[1];
-                let across = (dx - along * dir[0]).hypot(dy - along * dir[1]);
-                terms.energy.is_finite() && along.abs() <= max_d + SEARCH_BAND_PX && across <= SEARCH_BAND_PX
+                let (along, [ax, ay]) = split([pose.x - left.x, pose.y - left.y]);
+                terms.energy.is_finite()
+                    && along.abs() <= max_d + SEARCH_BAND_PX
+                    && ax.hypot(ay) <= SEARCH_BAND_PX
             })
             .min_by(|a, b| a.1.energy.total_cmp(&b.1.energy))
             .map(|(pose, _)| pose)
