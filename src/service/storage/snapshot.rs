@@ -73,6 +73,10 @@ struct StoredState {
     left_sector_inner: Vec<f64>,
     #[serde(default)]
     right_sector_inner: Vec<f64>,
+    /// Left and right; a state whose lists are not as long as this
+    /// build's quantiles reads as one stored before they were kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    grey_quantiles: Option<[Vec<f64>; 2]>,
     #[serde(default)]
     template_cuts: Vec<StoredHalfPlane>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -167,6 +171,7 @@ impl From<&TrackerState> for StoredState {
             right_sector_contrasts: s.right_sector_contrasts.clone(),
             left_sector_inner: s.left_sector_inner.clone(),
             right_sector_inner: s.right_sector_inner.clone(),
+            grey_quantiles: s.grey_quantiles.map(|[l, r]| [l.to_vec(), r.to_vec()]),
             template_cuts: s
                 .template_cuts
                 .iter()
@@ -221,6 +226,9 @@ impl From<StoredState> for TrackerState {
             right_sector_contrasts: s.right_sector_contrasts,
             left_sector_inner: s.left_sector_inner,
             right_sector_inner: s.right_sector_inner,
+            grey_quantiles: s
+                .grey_quantiles
+                .and_then(|[l, r]| Some([l.try_into().ok()?, r.try_into().ok()?])),
             template_cuts: s
                 .template_cuts
                 .into_iter()
@@ -552,6 +560,35 @@ mod tests {
         let decoded = decode(stored, Some(r#"{"templ": []}"#), 4).unwrap();
         assert_eq!(decoded.objects[0].tracker_state, None);
         assert!(decoded.notes.iter().any(|n| n.contains("tracker state")));
+    }
+
+    /// The first pair's grey deciles are kept; lists of another length
+    /// (a build with other quantiles) read as a state stored before they
+    /// were kept, not as an error.
+    #[test]
+    fn grey_quantiles_round_trip_and_other_lengths_read_as_none() {
+        let state = crate::service::storage::tests::tracker_state(1);
+        assert!(state.grey_quantiles.is_some());
+        let mut stored = serde_json::to_value(StoredState::from(&state)).unwrap();
+        let back: TrackerState = serde_json::from_value::<StoredState>(stored.clone())
+            .unwrap()
+            .into();
+        assert_eq!(back.grey_quantiles, state.grey_quantiles);
+        stored["grey_quantiles"] = serde_json::json!([[60.0, 70.0, 80.0], [60.0, 70.0, 80.0]]);
+        let back: TrackerState = serde_json::from_value::<StoredState>(stored.clone())
+            .unwrap()
+            .into();
+        assert_eq!(back.grey_quantiles, None);
+        assert_eq!(
+            TrackerState {
+                grey_quantiles: None,
+                ..back
+            },
+            TrackerState {
+                grey_quantiles: None,
+                ..state
+            }
+        );
     }
 
     #[test]

@@ -30,7 +30,7 @@ fn calibration_record(id: &str, created_at: &str, pixel_size_um: f64) -> Calibra
 }
 
 /// A tracker state that differs for every `i`.
-fn tracker_state(i: u64) -> TrackerState {
+pub(super) fn tracker_state(i: u64) -> TrackerState {
     let f = i as f64;
     TrackerState {
         template: vec![[-3.0, -2.0], [3.0, -2.0], [0.0, 4.0 + 0.125 * f]],
@@ -63,6 +63,10 @@ fn tracker_state(i: u64) -> TrackerState {
         right_sector_contrasts: vec![0.3, f],
         left_sector_inner: vec![120.5, 99.0 + f, 0.0],
         right_sector_inner: vec![101.25, f],
+        grey_quantiles: (i % 4 != 3).then_some([
+            [60.5 + f, 62.0, 63.5, 65.0, 66.25, 67.0, 69.5, 72.0, 90.0 + f],
+            [61.0; 9],
+        ]),
         template_cuts: vec![HalfPlane::new([1.0, 0.0], -3.5 - f)],
         outline: vec![[-4.0, -3.0], [4.0, -3.0], [0.0, 5.0 + 0.125 * f]],
         prefilter_sigma_px: 0.5 * f,

@@ -10,7 +10,7 @@ use crate::fit::{
 use crate::geometry::{polygon_iou, Point, Polygon};
 use crate::imageio::GrayFrame;
 use crate::init::{edge_width, fitted_to_edge, initialise, InitError, InitResult};
-use crate::occlusion::SectorTemplate;
+use crate::occlusion::{grey_quantiles, SectorTemplate};
 use crate::prefilter;
 use crate::region::{PixelRect, PrefixSums};
 use crate::scatter::DisparityRun;
@@ -389,6 +389,7 @@ impl StereoTracker {
             right_sector_contrasts: reference(right_look.contrasts),
             left_sector_inner: reference(left_look.inner),
             right_sector_inner: reference(right_look.inner),
+            grey_quantiles: Some([grey_quantiles(left), grey_quantiles(right)]),
             outline,
             prefilter_sigma_px,
             refused_inits: 0,

@@ -5,7 +5,7 @@
 use crate::energy::INTENSITY_OFFSET;
 use crate::fit::{fit_rigid, Pose, RigidSearch, RigidTemplate};
 use crate::imageio::GrayFrame;
-use crate::occlusion::{grey_change, judge_look, SectorReference, SectorTemplate};
+use crate::occlusion::{grey_change, grey_quantiles, judge_look, GreyMap, SectorReference, SectorTemplate};
 use crate::region::{PixelRect, PrefixSums};
 
 use super::result::{PairResult, Status, REACQUIRED};
@@ -50,7 +50,10 @@ pub(super) const SEARCH_MINIMA: [usize; 2] = [5, 15];
 
 impl StereoTracker {
     /// Whether the template at `pose` shows the object as on the first pair
-    /// (`reference`: that pair's sector contrasts in this view): no sector
+    /// (`reference`: that pair's sector contrasts in this view; `map`: the
+    /// change of grey levels since, through which the look at `pose` is
+    /// mapped back before it is compared, so that the microscope's
+    /// automatic brightness and contrast change nothing): no sector
     /// hidden (its inside changed), at most [`REACQUIRE_OCCLUDED_FRACTION`]
     /// of them with a changed contrast, the median sector within 0.7-1.43
     /// of its first contrast, its grey against its surroundings within
@@ -66,11 +69,15 @@ impl StereoTracker {
         &self,
         sums: &PrefixSums,
         sectors: &SectorTemplate,
-        reference: SectorReference,
+        (reference, map): (SectorReference, Option<GreyMap>),
         pose: Pose,
     ) -> bool {
         let occlusion = &self.params.occlusion;
         let look = sectors.look(sums, pose);
+        let look = match map {
+            Some(m) => m.look_back(&look),
+            None => look,
+        };
         let judged = judge_look(
             reference,
             &look,
@@ -117,7 +124,7 @@ impl StereoTracker {
         &self,
         frame: &GrayFrame,
         templates: &(RigidTemplate, SectorTemplate),
-        reference: SectorReference,
+        reference: (SectorReference, Option<GreyMap>),
         theta: f64,
     ) -> Option<Pose> {
         let [x, y, w, h] = self.params.init.hints_for(frame.width, frame.height).ok()?.roi;
@@ -134,7 +141,7 @@ impl StereoTracker {
         &self,
         frame: &GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
-        reference: SectorReference,
+        reference: (SectorReference, Option<GreyMap>),
         theta: f64,
         [x, y, w, h]: [u32; 4],
     ) -> Option<Pose> {
@@ -176,7 +183,7 @@ impl StereoTracker {
         &self,
         sums: &PrefixSums,
         (template, sectors): (&RigidTemplate, &SectorTemplate),
-        reference: SectorReference,
+        reference: (SectorReference, Option<GreyMap>),
         starts: &[Pose],
         step: f64,
     ) -> Option<Pose> {
@@ -214,13 +221,21 @@ impl StereoTracker {
         templates: &(RigidTemplate, SectorTemplate),
     ) -> PairResult {
         let (template, sectors) = templates;
+        // The first pair's look in each view, seen through the change of
+        // grey levels since (the looks' contrasts and grey ratios are
+        // invariant to a gain, not to an offset).
+        let [left_map, right_map] = [(0, left), (1, right)].map(|(view, frame)| {
+            state
+                .grey_quantiles
+                .and_then(|q| GreyMap::between(&q[view], &grey_quantiles(frame)))
+        });
         let found = self
-            .search_template(left, templates, state.left_look(), state.left.theta)
+            .search_template(left, templates, (state.left_look(), left_map), state.left.theta)
             .and_then(|left_pose| {
                 let last = state.disparity();
                 let pose = self.search_right(right, template, left_pose, Some(last))?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-                self.shows_object(&sums, sectors, state.right_look(), pose)
+                self.shows_object(&sums, sectors, (state.right_look(), right_map), pose)
                     .then_some((left_pose, pose))
             });
         let Some((left_pose, right_pose)) = found else {

@@ -3,7 +3,7 @@
 
 use crate::fit::{Pose, RigidTemplate};
 use crate::geometry::{HalfPlane, Point, Polygon};
-use crate::occlusion::{SectorReference, SectorTemplate};
+use crate::occlusion::{SectorReference, SectorTemplate, GREY_QUANTILES};
 use crate::scatter::DisparityRun;
 
 use super::params::TrackerParams;
@@ -52,6 +52,12 @@ pub struct TrackerState {
     pub left_sector_inner: Vec<f64>,
     /// The same for the right view.
     pub right_sector_inner: Vec<f64>,
+    /// The grey levels' deciles ([`crate::occlusion::grey_quantiles`]) of
+    /// the left and right frames the first pair's look was taken on (None
+    /// in states stored before they were kept): a search after a loss reads
+    /// from them how the microscope's brightness and contrast changed
+    /// since.
+    pub grey_quantiles: Option<[[f64; GREY_QUANTILES]; 2]>,
     /// Where the image border cut the object when the template was made
     /// (template coordinates; empty for an object inside the image).
     pub template_cuts: Vec<HalfPlane>,

@@ -879,3 +879,68 @@ fn a_needle_whose_frame_gets_darker_then_harsher_keeps_being_tracked() {
         assert!(e.abs() < 0.1, "pair {k}: disparity {e:+.3} px off (limit 0.1 px)");
     }
 }
+
+/// Item 3 of issue #64, after a loss: the lift-out needle named by a box,
+/// lost on a pair whose right view is blank, is found again by its
+/// template on the next pair, whose grey levels the microscope's
+/// automatic brightness and contrast changed: harsher (1.3 v - 80), darker
+/// (v - 60), brighter (v + 40), darker and flatter (0.6 v + 20). Its
+/// contour on the needle (IoU at least 0.9 of the first pair's) and its
+/// disparity within 0.1 px of the known one. Before the search read the
+/// change of grey levels off the frames, only the last was found again:
+/// its look checks are invariant to a gain, not to an offset. (A change
+/// that saturates the needle, 2 v - 100, is not affine, and it stays
+/// lost.)
+#[test]
+fn a_lost_needle_is_found_again_on_the_next_pair_through_a_change_of_brightness() {
+    use semdepth_core::tracker::REACQUIRED;
+    let seq = sequences()
+        .into_iter()
+        .find(|s| s.name == "landing ib needle, brightness")
+        .expect("sequence");
+    let frame = load(&seq.frames[0]);
+    let key = (seq.outlines[0].clone(), seq.object.to_string());
+    let reference = outlines()[&key].clone();
+    let blank = GrayFrame::new(
+        frame.width,
+        frame.height,
+        frame.bit_depth,
+        vec![frame.max_value() / 4; frame.data.len()],
+    )
+    .expect("same size");
+    for grade in [(1.3, -80.0), (1.0, -60.0), (1.0, 40.0), (0.6, 20.0)] {
+        let mut params = TrackerParams::default();
+        params.init.roi = Some(seq.roi);
+        let mut tracker = StereoTracker::new(params);
+        let (d0, d2) = (known_disparity(0), known_disparity(2));
+        let first = tracker
+            .process(&frame, &shifted_x(&frame, d0))
+            .expect("first pair");
+        assert_eq!(first.status, Status::Initialised, "{:?}", first.reason);
+        let first_iou = judge(&first, &reference, d0, frame.width, frame.height).iou;
+        let lost = tracker.process(&frame, &blank).expect("blank pair");
+        assert_eq!(lost.status, Status::Lost, "{:?}", lost.reason);
+        let left = regraded(&frame, grade);
+        let again = tracker
+            .process(&left, &shifted_x(&left, d2))
+            .expect("pair after the loss");
+        assert_eq!(
+            again.status,
+            Status::Tracked,
+            "grey {grade:?}: {:?}",
+            again.reason
+        );
+        assert_eq!(again.reason.as_deref(), Some(REACQUIRED), "grey {grade:?}");
+        let j = judge(&again, &reference, d2, frame.width, frame.height);
+        assert!(
+            j.iou >= 0.9 * first_iou,
+            "grey {grade:?}: IoU {:.3} against {first_iou:.3}",
+            j.iou
+        );
+        let e = j.error.expect("a number");
+        assert!(
+            e.abs() < 0.1,
+            "grey {grade:?}: disparity {e:+.3} px off (limit 0.1 px)"
+        );
+    }
+}
