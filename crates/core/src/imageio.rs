@@ -181,6 +181,19 @@ impl GrayFrame {
         }
     }
 
+    /// This frame with its grey levels changed to `gain * v + offset`,
+    /// rounded and clipped to the range: what a microscope's automatic
+    /// brightness and contrast do between frames (useful for tests).
+    pub fn regraded(&self, gain: f64, offset: f64) -> Self {
+        let max = f64::from(self.max_value());
+        let data = self
+            .data
+            .iter()
+            .map(|&v| (gain * f64::from(v) + offset).round().clamp(0.0, max) as u16)
+            .collect();
+        Self { data, ..*self }
+    }
+
     /// Largest representable sample: 255 or 65535.
     pub fn max_value(&self) -> u16 {
         if self.bit_depth == 8 {

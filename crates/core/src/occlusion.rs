@@ -1064,13 +1064,7 @@ mod prediction_tests {
             // No grey level clipped: the change stays affine.
             let range = [darkest, brightest].map(|v| gain * f64::from(v) + offset);
             assert!(range[0] >= 0.0 && range[1] <= 255.0, "{range:?}");
-            let data = pair
-                .left
-                .data
-                .iter()
-                .map(|&v| (gain * f64::from(v) + offset).round().clamp(0.0, 255.0) as u16)
-                .collect();
-            let changed = GrayFrame::new(pair.left.width, pair.left.height, 8, data).unwrap();
+            let changed = pair.left.regraded(gain, offset);
             let after = look_in(&changed);
             let map = GreyMap::between(&grey_quantiles(&pair.left), &grey_quantiles(&changed)).unwrap();
             assert!(

@@ -596,15 +596,6 @@ fn a_plate_whose_energy_fixes_no_position_along_the_axis_gets_no_number() {
 /// within half a pixel of the truth's disparity.
 #[test]
 fn a_lost_object_is_found_again_through_a_change_of_brightness_and_contrast() {
-    let regraded = |f: &GrayFrame, gain: f64, offset: f64| {
-        let max = f64::from(f.max_value());
-        let data = f
-            .data
-            .iter()
-            .map(|&v| (gain * f64::from(v) + offset).round().clamp(0.0, max) as u16)
-            .collect();
-        GrayFrame::new(f.width, f.height, f.bit_depth, data).unwrap()
-    };
     for shape in [Shape::Sphere, Shape::Blob, Shape::Rod] {
         let pairs = sequence(Preset::Clean, shape, 4, 2);
         for (gain, offset) in [(1.0, -30.0), (1.4, -50.0), (0.6, 20.0), (1.0, 40.0), (2.0, -60.0)] {
@@ -617,8 +608,8 @@ fn a_lost_object_is_found_again_through_a_change_of_brightness_and_contrast() {
             );
             let again = tracker
                 .process(
-                    &regraded(&pairs[1].left, gain, offset),
-                    &regraded(&pairs[1].right, gain, offset),
+                    &pairs[1].left.regraded(gain, offset),
+                    &pairs[1].right.regraded(gain, offset),
                 )
                 .unwrap();
             let case = format!("{shape:?}, gain {gain}, offset {offset}");

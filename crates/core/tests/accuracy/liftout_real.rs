@@ -101,17 +101,6 @@ pub struct Sequence {
     pub grey: Vec<(f64, f64)>,
 }
 
-/// `frame` with its grey levels changed to `gain * v + offset`, clipped.
-pub fn regraded(frame: &GrayFrame, (gain, offset): (f64, f64)) -> GrayFrame {
-    let max = f64::from(frame.max_value());
-    let data = frame
-        .data
-        .iter()
-        .map(|&v| (gain * f64::from(v) + offset).round().clamp(0.0, max) as u16)
-        .collect();
-    GrayFrame::new(frame.width, frame.height, frame.bit_depth, data).expect("same size")
-}
-
 /// The known disparity (x, pixels) given to pair `k`'s right view.
 pub fn known_disparity(k: usize) -> f64 {
     // Sub-pixel and changing from pair to pair: 3.00, 3.45, 3.90, ...
@@ -501,7 +490,7 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
     let mut counts = Counts::default();
     for (k, rel) in seq.frames.iter().enumerate() {
         let left = match seq.grey.get(k) {
-            Some(&grade) => regraded(&load(rel), grade),
+            Some(&(gain, offset)) => load(rel).regraded(gain, offset),
             None => load(rel),
         };
         let d = known_disparity(k);
@@ -908,7 +897,7 @@ fn a_lost_needle_is_found_again_on_the_next_pair_through_a_change_of_brightness(
         vec![frame.max_value() / 4; frame.data.len()],
     )
     .expect("same size");
-    for grade in [(1.3, -80.0), (1.0, -60.0), (1.0, 40.0), (0.6, 20.0)] {
+    for grade @ (gain, offset) in [(1.3, -80.0), (1.0, -60.0), (1.0, 40.0), (0.6, 20.0)] {
         let mut params = TrackerParams::default();
         params.init.roi = Some(seq.roi);
         let mut tracker = StereoTracker::new(params);
@@ -920,7 +909,7 @@ fn a_lost_needle_is_found_again_on_the_next_pair_through_a_change_of_brightness(
         let first_iou = judge(&first, &reference, d0, frame.width, frame.height).iou;
         let lost = tracker.process(&frame, &blank).expect("blank pair");
         assert_eq!(lost.status, Status::Lost, "{:?}", lost.reason);
-        let left = regraded(&frame, grade);
+        let left = frame.regraded(gain, offset);
         let again = tracker
             .process(&left, &shifted_x(&left, d2))
             .expect("pair after the loss");
