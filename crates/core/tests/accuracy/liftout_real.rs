@@ -114,6 +114,14 @@ fn frames(folder: &str, names: &[&str]) -> Vec<String> {
         .collect()
 }
 
+/// The real sequence called `name`.
+fn sequence(name: &str) -> Sequence {
+    sequences()
+        .into_iter()
+        .find(|s| s.name == name)
+        .unwrap_or_else(|| panic!("no sequence {name}"))
+}
+
 /// Every real sequence with its references.
 pub fn sequences() -> Vec<Sequence> {
     let contact: Vec<String> = (0..7).map(|k| format!("frame_{k:02}.png")).collect();
@@ -856,10 +864,7 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
 /// disparity, none confident wrong.
 #[test]
 fn a_needle_whose_frame_gets_darker_then_harsher_keeps_being_tracked() {
-    let seq = sequences()
-        .into_iter()
-        .find(|s| s.name == "landing ib needle, brightness")
-        .expect("sequence");
+    let seq = sequence("landing ib needle, brightness");
     let (judged, counts) = run(&seq, Naming::Box, &TrackerParams::default());
     assert_eq!(counts.confident_wrong, 0, "{judged:#?}");
     assert_eq!(counts.with_number, counts.pairs, "pairs withheld: {judged:#?}");
@@ -883,10 +888,7 @@ fn a_needle_whose_frame_gets_darker_then_harsher_keeps_being_tracked() {
 #[test]
 fn a_lost_needle_is_found_again_on_the_next_pair_through_a_change_of_brightness() {
     use semdepth_core::tracker::REACQUIRED;
-    let seq = sequences()
-        .into_iter()
-        .find(|s| s.name == "landing ib needle, brightness")
-        .expect("sequence");
+    let seq = sequence("landing ib needle, brightness");
     let frame = load(&seq.frames[0]);
     let key = (seq.outlines[0].clone(), seq.object.to_string());
     let reference = outlines()[&key].clone();
