@@ -12,7 +12,7 @@
 //! - [`meta`]: pixel size, stage tilt and working distance from the microscope's TIFF tags (FEI, ZEISS, TESCAN).
 //! - [`geometry`]: closed polygons (length, area, centroid, orientation, resampling, rasterisation).
 //! - [`prefilter`]: the Gaussian smoothing matched to a blurred edge, before the rigid fits.
-//! - [`occlusion`]: per-sector detection of partial occlusion and a band energy over the visible sectors.
+//! - [`occlusion`]: per-sector detection of partial occlusion and a band energy over the visible sectors; the change of grey levels between two frames.
 //! - [`region`]: region sums in O(contour length) (Green's theorem on row prefix sums), window sums.
 //! - `synth` (feature `synth`): synthetic SEM stereo sequences with ground truth.
 //! - [`energy`]: the region energy E = lambda L^k/A - D (two-region Poisson likelihood ratio).

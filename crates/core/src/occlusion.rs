@@ -18,6 +18,10 @@
 //! typical contrast ([`judge_look`]).
 //! The rigid shape then keeps the centroid right from the visible part of the
 //! outline (the paper's claim, method note section 2, "Robustness").
+//! A look compared with the first pair's across a change of the microscope's
+//! brightness and contrast is first mapped back through that change, an
+//! affine map of grey levels read off the two frames' deciles
+//! ([`GreyMap`]): the contrasts' ratios hold under a gain, not an offset.
 
 use crate::energy::{data_term, michelson, INTENSITY_OFFSET};
 use crate::fit::{place, Pose, RigidTemplate};
