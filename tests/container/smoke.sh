@@ -50,6 +50,17 @@ if ! command -v docker >/dev/null 2>&1 || { ! docker info >/dev/null 2>&1 && ! c
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq docker.io >/dev/null
 fi
 if ! docker info >/dev/null 2>&1; then
+    # A daemon that died (the machine restarted) leaves its containerd's pid
+    # file behind; once another process has that pid, a new dockerd takes
+    # containerd for running, waits on it and gives up ("containerd is still
+    # running ... timeout waiting for containerd to start").
+    for pidfile in /var/run/docker/containerd/containerd.pid /var/run/docker.pid; do
+        name=$(basename "$pidfile" .pid)
+        if [ -f "$pidfile" ] && [ "$(ps -p "$(cat "$pidfile")" -o comm= 2>/dev/null)" != "$name" ]; then
+            echo "removing the stale $pidfile (no $name has its pid)"
+            rm -f "$pidfile"
+        fi
+    done
     # No bridge: containers use the host network and talk over loopback.
     (dockerd --bridge=none --iptables=false >/tmp/semdepth-dockerd.log 2>&1 &)
     for _ in $(seq 1 60); do docker info >/dev/null 2>&1 && break; sleep 1; done
