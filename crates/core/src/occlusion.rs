@@ -1046,7 +1046,7 @@ mod prediction_tests {
 
     /// A frame's grey levels changed affinely (as a microscope's automatic
     /// brightness and contrast do): the sectors' look there, mapped back
-    /// through the change read off the two frames' grey scales, is the
+    /// through the change read off the two frames' deciles, is the
     /// look in the frame as it was; unmapped, its contrasts are not.
     #[test]
     fn a_look_through_a_change_of_grey_levels_is_mapped_back() {
