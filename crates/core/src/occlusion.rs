@@ -484,6 +484,12 @@ pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_rat
     )
 }
 
+/// A sector's outer band mean from its inner band mean `inner` and its
+/// Michelson contrast `contrast` (what a [`SectorLook`] keeps).
+fn outer_mean(inner: f64, contrast: f64) -> f64 {
+    inner * (1.0 - contrast) / (1.0 + contrast)
+}
+
 /// The change of the object's grey relative to its surroundings' since
 /// `reference`: the median over the sectors seen in both of the inner
 /// band's ratio (current / reference), divided by the median of the outer
@@ -491,15 +497,13 @@ pub fn judge_sectors(reference: &[f64], current: &[f64], min_ratio: f64, max_rat
 /// charging); the grey of something else in the object's place (a brighter
 /// bar) moves it. `None` when fewer than 3 sectors are seen in both.
 pub fn grey_change(reference: SectorReference, current: &SectorLook) -> Option<f64> {
-    // The outer band's mean from the inner one and the Michelson contrast.
-    let outer = |a: f64, m: f64| a * (1.0 - m) / (1.0 + m);
     let (mut inner, mut outside) = (Vec::new(), Vec::new());
     for k in 0..reference.contrasts.len().min(current.contrasts.len()) {
         let (Some(&ri), Some(&ci)) = (reference.inner.get(k), current.inner.get(k)) else {
             continue;
         };
         let (rc, cc) = (reference.contrasts[k], current.contrasts[k]);
-        let (ro, co) = (outer(ri, rc), outer(ci, cc));
+        let (ro, co) = (outer_mean(ri, rc), outer_mean(ci, cc));
         if [ri, ci, ro, co].iter().all(|v| v.is_finite() && *v > 0.0) {
             inner.push(ci / ri);
             outside.push(co / ro);
@@ -595,7 +599,7 @@ impl GreyMap {
             .iter()
             .zip(&look.inner)
             .map(|(&m, &a)| {
-                let b = a * (1.0 - m) / (1.0 + m);
+                let b = outer_mean(a, m);
                 let (a, b) = (back(a), back(b));
                 if a > 0.0 && b > 0.0 {
                     ((a - b) / (a + b), a)
@@ -753,15 +757,13 @@ pub fn overhanging(
     {
         return vec![false; n];
     }
-    // The outer band's mean from the inner one and the Michelson contrast.
-    let outer = |a: f64, m: f64| a * (1.0 - m) / (1.0 + m);
     // Per sector: the reference's outer grey, the current inner and outer.
     let greys = |k: usize| {
         let (ri, ci) = (reference.inner[k], current.inner[k]);
         let g = [
-            outer(ri, reference.contrasts[k]),
+            outer_mean(ri, reference.contrasts[k]),
             ci,
-            outer(ci, current.contrasts[k]),
+            outer_mean(ci, current.contrasts[k]),
         ];
         g.iter().all(|v| v.is_finite() && *v > 0.0).then_some(g)
     };
