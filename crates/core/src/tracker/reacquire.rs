@@ -223,19 +223,25 @@ impl StereoTracker {
         let (template, sectors) = templates;
         // The first pair's look in each view, seen through the change of
         // grey levels since (the looks' contrasts and grey ratios are
-        // invariant to a gain, not to an offset).
-        let [left_map, right_map] = [(0, left), (1, right)].map(|(view, frame)| {
+        // invariant to a gain, not to an offset); the right view's only
+        // once the left view has shown the object.
+        let map = |view: usize, frame: &GrayFrame| {
             state
                 .grey_quantiles
                 .and_then(|q| GreyMap::between(&q[view], &grey_quantiles(frame)))
-        });
+        };
         let found = self
-            .search_template(left, templates, (state.left_look(), left_map), state.left.theta)
+            .search_template(
+                left,
+                templates,
+                (state.left_look(), map(0, left)),
+                state.left.theta,
+            )
             .and_then(|left_pose| {
                 let last = state.disparity();
                 let pose = self.search_right(right, template, left_pose, Some(last))?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-                self.shows_object(&sums, sectors, (state.right_look(), right_map), pose)
+                self.shows_object(&sums, sectors, (state.right_look(), map(1, right)), pose)
                     .then_some((left_pose, pose))
             });
         let Some((left_pose, right_pose)) = found else {
