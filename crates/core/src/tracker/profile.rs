@@ -211,10 +211,7 @@ mod tests {
             y: left_pose.y + truth.right.centroid[1] - truth.left.centroid[1],
             ..left_pose
         };
-        let regraded = GrayFrame {
-            data: pair.right.data.iter().map(|&v| v / 2 + 40).collect(),
-            ..pair.right.clone()
-        };
+        let regraded = pair.right.regraded(0.5, 40.0);
         let left = |frame: &GrayFrame| {
             (
                 profile(frame, &sectors, left_pose),
