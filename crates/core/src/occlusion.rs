@@ -365,16 +365,45 @@ pub const MIN_RISEN_RUN: usize = 3;
 /// Unlike [`SectorJudgement::risen`], not against the median sector, which
 /// falls when most of the outline loses its contrast (a tool over a
 /// particle), and including sectors risen beyond `max_ratio`. Sectors
-/// whose reference contrast is weak (below a quarter of the median) or not
-/// seen are never marked.
+/// whose reference contrast is weak (below [`WEAK_SECTOR_SHARE`] of the
+/// median) or not seen are never marked.
 pub fn risen_on_their_own(reference: &[f64], current: &SectorLook) -> Vec<bool> {
     let typical = median_magnitude(reference);
     let marks: Vec<bool> = reference
         .iter()
         .zip(&current.contrasts)
-        .map(|(r, c)| r.is_finite() && *r != 0.0 && r.abs() >= 0.25 * typical && c / r > RISEN_RATIO)
+        .map(|(r, c)| {
+            r.is_finite() && *r != 0.0 && r.abs() >= WEAK_SECTOR_SHARE * typical && c / r > RISEN_RATIO
+        })
         .collect();
     grown(&runs_at_least(&marks, MIN_RISEN_RUN))
+}
+
+/// A sector whose reference contrast is below this share of the median
+/// sector's carries too little signal to judge (the looks leave it out).
+pub const WEAK_SECTOR_SHARE: f64 = 0.25;
+
+/// Per sector of a reference look, whether it was seen (a finite, non-zero
+/// contrast) but shows no edge of the object: its contrast below
+/// [`WEAK_SECTOR_SHARE`] of the median sector's, or of the other sign than
+/// the object's (the median sector's).
+/// Such a sector faces something as bright as the object or brighter (a
+/// lamella's end welded to a needle's tip, a plate's end against a post of
+/// its own grey): in a region energy it pulls the outline towards that
+/// neighbour instead of holding it to the object's edge.
+pub fn edgeless(reference: &[f64]) -> Vec<bool> {
+    let typical = median_magnitude(reference);
+    let mut signed: Vec<f64> = reference
+        .iter()
+        .copied()
+        .filter(|&r| r.is_finite() && r != 0.0)
+        .collect();
+    signed.sort_by(|a, b| a.total_cmp(b));
+    let sign = signed.get(signed.len() / 2).copied().unwrap_or(0.0).signum();
+    reference
+        .iter()
+        .map(|&r| r.is_finite() && r != 0.0 && (r * sign <= 0.0 || r.abs() < WEAK_SECTOR_SHARE * typical))
+        .collect()
 }
 
 /// The median magnitude of the seen reference contrasts (0 when none is
@@ -640,7 +669,7 @@ pub fn judge_look(
     let strong: Vec<bool> = reference
         .iter()
         .zip(current)
-        .map(|(r, c)| r.is_finite() && c.is_finite() && r.abs() >= 0.25 * typical && *r != 0.0)
+        .map(|(r, c)| r.is_finite() && c.is_finite() && r.abs() >= WEAK_SECTOR_SHARE * typical && *r != 0.0)
         .collect();
     let ratios: Vec<f64> = reference
         .iter()
@@ -935,6 +964,26 @@ mod tests {
         let mut unseen = look(150.0, 60.0);
         unseen.inner[2..].fill(f64::NAN);
         assert_eq!(grey_change(reference, &unseen), None);
+    }
+
+    #[test]
+    fn sectors_facing_something_as_bright_or_brighter_show_no_edge() {
+        // A lamella (brighter than the void round it) welded to a needle's
+        // tip at sectors 1-3: one reversed, two weak; sector 5 not seen.
+        let mut reference = vec![0.45; 12];
+        reference[1] = -0.06;
+        reference[2] = 0.03;
+        reference[3] = 0.1;
+        reference[4] = 0.2;
+        reference[5] = 0.0;
+        reference[6] = f64::NAN;
+        let marks = edgeless(&reference);
+        let expected: Vec<bool> = (0..12).map(|k| (1..=3).contains(&k)).collect();
+        assert_eq!(marks, expected);
+        // A darker object the same way round: its sign is the median's.
+        let darker: Vec<f64> = reference.iter().map(|r| -r).collect();
+        assert_eq!(edgeless(&darker), expected);
+        assert!(!edgeless(&[0.3; 12]).contains(&true));
     }
 
     #[test]

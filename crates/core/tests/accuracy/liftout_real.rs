@@ -730,9 +730,16 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("approach eb needle", Naming::Box, [0, 0, 0]),
     ("approach eb needle", Naming::Point, [0, 0, 0]),
     ("approach eb needle", Naming::Outline, [0, 0, 0]),
-    ("approach eb lamella", Naming::Box, [0, 0, 3]),
-    ("approach eb lamella", Naming::Point, [0, 0, 3]),
-    ("approach eb lamella", Naming::Outline, [0, 0, 3]),
+    // The lamella, welded to the needle's tip, carried 68 px by the move:
+    // the search's full fits stopped 28 px along the needle (the full
+    // energy hardly changes as the template slides towards the needle's
+    // brighter tip) until a fit the look refuses is fitted again by the
+    // sectors that showed the lamella's own edge (`occlusion::edgeless`;
+    // made looking at these frames): found again on the pair after the
+    // loss by every naming.
+    ("approach eb lamella", Naming::Box, [0, 0, 2]),
+    ("approach eb lamella", Naming::Point, [0, 0, 1]),
+    ("approach eb lamella", Naming::Outline, [0, 0, 1]),
 ];
 
 /// Least IoU of the initialisation's outline with the hand-drawn reference
