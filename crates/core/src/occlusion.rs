@@ -969,7 +969,7 @@ mod tests {
     #[test]
     fn sectors_facing_something_as_bright_or_brighter_show_no_edge() {
         // A lamella (brighter than the void round it) welded to a needle's
-        // tip at sectors 1-3: one reversed, two weak; sector 5 not seen.
+        // tip at sectors 1-3: one reversed, two weak; sectors 5-6 not seen.
         let mut reference = vec![0.45; 12];
         reference[1] = -0.06;
         reference[2] = 0.03;

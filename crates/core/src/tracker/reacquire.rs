@@ -183,11 +183,12 @@ impl StereoTracker {
     /// ([`Self::shows_object`]). A fit that does not is fitted again from
     /// its pose, by the band energy of the sectors that showed an edge of
     /// the object on the first pair ([`edgeless`] ones left out, from half
-    /// a grid step): beside something as bright as the object the full
-    /// energy hardly changes as the template slides towards it, and the rest
-    /// of the outline places it (a lamella on a needle's tip, carried about
-    /// 68 px by a stage move: every full fit stopped 28 px along the needle,
-    /// the lamella's far end on the void).
+    /// a grid step, as far as that energy leads: the look judges where it
+    /// lands, ranked by the full energy there): beside something as bright
+    /// as the object the full energy hardly changes as the template slides
+    /// towards it, and the rest of the outline places it (a lamella on a
+    /// needle's tip, carried about 68 px by a stage move: every full fit
+    /// stopped 28 px along the needle, the lamella's far end on the void).
     pub(super) fn best_shown(
         &self,
         sums: &PrefixSums,
