@@ -11,7 +11,9 @@
 //!   are paired two by two (one scene, independent noise), with the right
 //!   scan also moved by a known disparity, and the object's own motion
 //!   between the scans measured by registering each scan to the mean of the
-//!   others over the object ([`object_positions`]).
+//!   others over the object ([`object_positions`]); two shifted sequences
+//!   again with independent noise added to each view ([`with_noise`]), as a
+//!   tilt pair's two scans have.
 //!
 //! A pair is
 //! - *on the object* when its left contour's IoU with the reference is at
@@ -99,12 +101,43 @@ pub struct Sequence {
     /// offset, in grey levels; clipped to the range), as the microscope's
     /// automatic brightness and contrast make: empty for none.
     pub grey: Vec<(f64, f64)>,
+    /// Standard deviation of independent Gaussian noise added to each view
+    /// of every pair, grey levels (as two scans of a tilt pair have): 0 for
+    /// none. The frame's own noise stays shared by both views.
+    pub noise: f64,
 }
 
 /// The known disparity (x, pixels) given to pair `k`'s right view.
 pub fn known_disparity(k: usize) -> f64 {
     // Sub-pixel and changing from pair to pair: 3.00, 3.45, 3.90, ...
     3.0 + 0.45 * k as f64
+}
+
+/// The noise of the `noisy views` sequences, grey levels: about the
+/// contact_1 frames' own pixel noise (19-20 from the differences of
+/// neighbouring pixels, median absolute deviation).
+pub const NOISY_VIEWS_SIGMA: f64 = 20.0;
+
+/// `frame` with independent Gaussian noise of `sigma` grey levels
+/// (Box-Muller on a xorshift stream from `seed`), rounded and clipped.
+pub fn with_noise(frame: &GrayFrame, sigma: f64, seed: u64) -> GrayFrame {
+    let mut state = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
+    let mut uniform = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    let top = f64::from((1u32 << frame.bit_depth) - 1);
+    let data = frame
+        .data
+        .iter()
+        .map(|&v| {
+            let gauss = (-2.0 * uniform().ln()).sqrt() * (std::f64::consts::TAU * uniform()).cos();
+            (f64::from(v) + sigma * gauss).round().clamp(0.0, top) as u16
+        })
+        .collect();
+    GrayFrame::new(frame.width, frame.height, frame.bit_depth, data).expect("same size")
 }
 
 fn frames(folder: &str, names: &[&str]) -> Vec<String> {
@@ -169,6 +202,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [400.0, 850.0],
             held_out: false,
             grey: regrade.clone(),
+            noise: 0.0,
         },
         Sequence {
             name: "landing eb needle, brightness",
@@ -180,6 +214,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [250.0, 420.0],
             held_out: true,
             grey: regrade,
+            noise: 0.0,
         },
         Sequence {
             name: "contact_1 needle from 3",
@@ -191,17 +226,19 @@ pub fn sequences() -> Vec<Sequence> {
             point: [200.0, 600.0],
             held_out: false,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "contact_1 needle",
             object: "needle",
             outlines: contact.clone(),
-            frames: contact,
+            frames: contact.clone(),
             rights: None,
             roi: [0, 255, 500, 462],
             point: [200.0, 600.0],
             held_out: false,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "landing ib needle",
@@ -213,6 +250,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [400.0, 850.0],
             held_out: false,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "static scans needle",
@@ -224,6 +262,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [50.0, 265.0],
             held_out: false,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "landing eb needle",
@@ -235,6 +274,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [250.0, 420.0],
             held_out: true,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "static scans lamella",
@@ -246,6 +286,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [200.0, 270.0],
             held_out: true,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "approach ib needle",
@@ -257,6 +298,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [250.0, 990.0],
             held_out: true,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "approach ib lamella",
@@ -268,6 +310,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [430.0, 925.0],
             held_out: true,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "approach eb needle",
@@ -279,9 +322,35 @@ pub fn sequences() -> Vec<Sequence> {
             point: [120.0, 500.0],
             held_out: true,
             grey: Vec::new(),
+            noise: 0.0,
         },
         Sequence {
             name: "approach eb lamella",
+            object: "lamella",
+            outlines: approach_eb.clone(),
+            frames: approach_eb.clone(),
+            rights: None,
+            roi: [238, 460, 220, 107],
+            point: [350.0, 513.0],
+            held_out: true,
+            grey: Vec::new(),
+            noise: 0.0,
+        },
+        // As a tilt pair's two scans: each view with noise of its own.
+        Sequence {
+            name: "contact_1 needle, noisy views",
+            object: "needle",
+            outlines: contact.clone(),
+            frames: contact,
+            rights: None,
+            roi: [0, 255, 500, 462],
+            point: [200.0, 600.0],
+            held_out: false,
+            grey: Vec::new(),
+            noise: NOISY_VIEWS_SIGMA,
+        },
+        Sequence {
+            name: "approach eb lamella, noisy views",
             object: "lamella",
             outlines: approach_eb.clone(),
             frames: approach_eb,
@@ -290,6 +359,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [350.0, 513.0],
             held_out: true,
             grey: Vec::new(),
+            noise: NOISY_VIEWS_SIGMA,
         },
     ]
 }
@@ -509,6 +579,15 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
                 let moved = positions[k + 1][0] - positions[k][0];
                 (shifted_x(&load(&rights[k]), d), d + moved)
             }
+        };
+        let (left, right) = if seq.noise > 0.0 {
+            let seed = 2 * k as u64;
+            (
+                with_noise(&left, seq.noise, seed),
+                with_noise(&right, seq.noise, seed + 1),
+            )
+        } else {
+            (left, right)
         };
         // A hint that names nothing is refused: the pair has no number.
         let result = match tracker.process(&left, &right) {
@@ -740,6 +819,16 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("approach eb lamella", Naming::Box, [0, 0, 2]),
     ("approach eb lamella", Naming::Point, [0, 0, 1]),
     ("approach eb lamella", Naming::Outline, [0, 0, 1]),
+    // Each view with noise of its own, as a tilt pair's two scans have
+    // (added 2026-12-07, measured as they stand): the disparity's standard
+    // error reads 2-3.6 times its error (RMS error/std 0.28-0.52), so
+    // contact_1's pairs go over the `uncertain` limit while right.
+    ("contact_1 needle, noisy views", Naming::Box, [0, 2, 6]),
+    ("contact_1 needle, noisy views", Naming::Point, [0, 3, 6]),
+    ("contact_1 needle, noisy views", Naming::Outline, [0, 1, 3]),
+    ("approach eb lamella, noisy views", Naming::Box, [0, 0, 2]),
+    ("approach eb lamella, noisy views", Naming::Point, [0, 0, 1]),
+    ("approach eb lamella, noisy views", Naming::Outline, [0, 0, 1]),
 ];
 
 /// Least IoU of the initialisation's outline with the hand-drawn reference
@@ -755,7 +844,10 @@ const LASSO_IOU: f64 = 0.9;
 #[test]
 fn a_lasso_names_the_object_on_every_real_sequence() {
     let outlines = outlines();
-    for seq in sequences().into_iter().filter(|s| s.grey.is_empty()) {
+    for seq in sequences()
+        .into_iter()
+        .filter(|s| s.grey.is_empty() && s.noise == 0.0)
+    {
         let (name, min_iou) = (seq.name, LASSO_IOU);
         let left = load(&seq.frames[0]);
         let reference = &outlines[&(seq.outlines[0].clone(), seq.object.to_string())];
