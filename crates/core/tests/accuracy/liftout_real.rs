@@ -81,6 +81,7 @@ pub fn lasso(reference: &[Point]) -> Vec<Point> {
 }
 
 /// One object through one real sequence.
+#[derive(Clone)]
 pub struct Sequence {
     pub name: &'static str,
     /// Key of the object's outlines in the fixture.
@@ -191,7 +192,7 @@ pub fn sequences() -> Vec<Sequence> {
         frames("landing", &[&before, &after, &after, &after])
     };
     let (approach_ib, approach_eb) = (approach("ib"), approach("eb"));
-    vec![
+    let mut all = vec![
         Sequence {
             name: "landing ib needle, brightness",
             object: "needle",
@@ -232,7 +233,7 @@ pub fn sequences() -> Vec<Sequence> {
             name: "contact_1 needle",
             object: "needle",
             outlines: contact.clone(),
-            frames: contact.clone(),
+            frames: contact,
             rights: None,
             roi: [0, 255, 500, 462],
             point: [200.0, 600.0],
@@ -328,7 +329,7 @@ pub fn sequences() -> Vec<Sequence> {
             name: "approach eb lamella",
             object: "lamella",
             outlines: approach_eb.clone(),
-            frames: approach_eb.clone(),
+            frames: approach_eb,
             rights: None,
             roi: [238, 460, 220, 107],
             point: [350.0, 513.0],
@@ -336,32 +337,21 @@ pub fn sequences() -> Vec<Sequence> {
             grey: Vec::new(),
             noise: 0.0,
         },
-        // As a tilt pair's two scans: each view with noise of its own.
-        Sequence {
-            name: "contact_1 needle, noisy views",
-            object: "needle",
-            outlines: contact.clone(),
-            frames: contact,
-            rights: None,
-            roi: [0, 255, 500, 462],
-            point: [200.0, 600.0],
-            held_out: false,
-            grey: Vec::new(),
+    ];
+    // As a tilt pair's two scans: each view with noise of its own.
+    for (base, name) in [
+        ("contact_1 needle", "contact_1 needle, noisy views"),
+        ("approach eb lamella", "approach eb lamella, noisy views"),
+    ] {
+        let base = all.iter().find(|s| s.name == base).expect("a base sequence");
+        let noisy = Sequence {
+            name,
             noise: NOISY_VIEWS_SIGMA,
-        },
-        Sequence {
-            name: "approach eb lamella, noisy views",
-            object: "lamella",
-            outlines: approach_eb.clone(),
-            frames: approach_eb,
-            rights: None,
-            roi: [238, 460, 220, 107],
-            point: [350.0, 513.0],
-            held_out: true,
-            grey: Vec::new(),
-            noise: NOISY_VIEWS_SIGMA,
-        },
-    ]
+            ..base.clone()
+        };
+        all.push(noisy);
+    }
+    all
 }
 
 fn real_path(rel: &str) -> PathBuf {
