@@ -129,7 +129,7 @@ pub fn with_noise(frame: &GrayFrame, sigma: f64, seed: u64) -> GrayFrame {
         state ^= state << 17;
         ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
     };
-    let top = f64::from((1u32 << frame.bit_depth) - 1);
+    let top = f64::from(frame.max_value());
     let data = frame
         .data
         .iter()
@@ -138,7 +138,7 @@ pub fn with_noise(frame: &GrayFrame, sigma: f64, seed: u64) -> GrayFrame {
             (f64::from(v) + sigma * gauss).round().clamp(0.0, top) as u16
         })
         .collect();
-    GrayFrame::new(frame.width, frame.height, frame.bit_depth, data).expect("same size")
+    GrayFrame { data, ..*frame }
 }
 
 fn frames(folder: &str, names: &[&str]) -> Vec<String> {
