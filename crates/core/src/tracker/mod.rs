@@ -271,7 +271,7 @@ impl StereoTracker {
                 } else {
                     (left, right)
                 };
-                let result = self.track(frame, (left, right), bands, state, &templates);
+                let result = self.track(frame, (left, right), bands, state, &templates, false);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
                 result

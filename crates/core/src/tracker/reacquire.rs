@@ -296,6 +296,7 @@ impl StereoTracker {
             [left_bands, right_bands],
             candidate,
             templates,
+            true,
         );
         if self.state.as_ref().is_none_or(|s| s.is_lost()) {
             state.miss();

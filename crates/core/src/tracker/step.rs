@@ -118,7 +118,8 @@ pub(super) fn hidden_end(sectors: &SectorTemplate, fit: &ImageFit, w: Point) -> 
 }
 
 impl StereoTracker {
-    /// A later pair: rigid fits from the predicted poses.
+    /// A later pair: rigid fits from the predicted poses (`from_search`:
+    /// the poses a search over this pair found, not the last pair's).
     pub(super) fn track(
         &mut self,
         frame: u64,
@@ -126,6 +127,7 @@ impl StereoTracker {
         [left_bands, right_bands]: [uncertainty::NoiseBands; 2],
         mut state: TrackerState,
         templates: &(RigidTemplate, SectorTemplate),
+        from_search: bool,
     ) -> PairResult {
         let template = &templates.0;
         let v = state.left_velocity;
@@ -533,9 +535,13 @@ impl StereoTracker {
                         0.0
                     },
                 )
-            } else if let Some([at_fit, at_prediction]) =
-                self.unconfirmed_slide(left, left_templates, &state, (left_fit.pose, w), along)
-            {
+            } else if let Some([at_fit, at_prediction]) = self.unconfirmed_slide(
+                left,
+                left_templates,
+                (&state, from_search),
+                (left_fit.pose, w),
+                along,
+            ) {
                 // A tool cut by the border is placed along its axis by its
                 // tip alone: a fit that left the prediction along that axis
                 // for a pose where its outline looks less like the last
@@ -582,16 +588,28 @@ impl StereoTracker {
     /// tip's look at the prediction better than where it went. No
     /// reference (a restored tracker, or one given new parameters, before
     /// its first followed pair): not confirmed. The correlation ignores
-    /// affine grey changes between the pairs.
+    /// affine grey changes between the pairs. Not judged on the pair after
+    /// an initialisation (`from_search` false and no velocity measured),
+    /// whose prediction is only the last pose.
     pub(super) fn unconfirmed_slide(
         &self,
         left: &GrayFrame,
         (template, sectors): &(RigidTemplate, SectorTemplate),
-        state: &TrackerState,
+        (state, from_search): (&TrackerState, bool),
         (pose, w): (Pose, Point),
         along: f64,
     ) -> Option<[f64; 2]> {
-        if template.cuts.is_empty() || along.abs() <= FAR_MOVE_PX {
+        // The pair after an initialisation predicts the last pose, which
+        // the whole object's outline placed: a move from it is the
+        // object's own motion as much as a slide (`bound_unverified_moves`
+        // counts it alike). A pose a search found, by the template's match
+        // alone, is judged.
+        let unpredicted = state.phase
+            == Phase::Tracking {
+                velocity_measured: false,
+            }
+            && !from_search;
+        if template.cuts.is_empty() || along.abs() <= FAR_MOVE_PX || unpredicted {
             return None;
         }
         let weights = weights_along(sectors, pose, w);

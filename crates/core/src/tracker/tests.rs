@@ -451,12 +451,13 @@ fn invalid_parameters_are_named() {
 }
 
 /// A tool entering from the border moves along its axis by 5-20 px a
-/// pair, unpredicted on the pair after its first: the move is followed
-/// because its outline looks more like the first pair's where it was fitted
-/// than at the prediction. A tracker restored from the same state has no
-/// such pair to compare with and withholds the move as `uncertain`.
+/// pair, unpredicted on the pair after its first: with no velocity
+/// measured the prediction is only the last pose, so the move is the
+/// tool's own motion, followed, and not judged as a slide (a tracker
+/// restored from the same state, which has no last profile to compare
+/// with, follows it alike).
 #[test]
-fn a_border_tools_move_along_its_axis_is_followed_by_how_its_outline_looks() {
+fn a_border_tools_move_on_the_pair_after_its_first_is_followed() {
     let pairs = sequence(Preset::BorderTool, Shape::Tip, 300, 2);
     let params = TrackerParams::default();
     let mut tracker = StereoTracker::new(params.clone());
@@ -468,26 +469,21 @@ fn a_border_tools_move_along_its_axis_is_followed_by_how_its_outline_looks() {
     );
     let mut restored = StereoTracker::from_state(params, tracker.state().cloned(), tracker.frames());
     let before = tracker.state().unwrap().left;
-    let followed = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
-    assert_eq!(followed.status, Status::Tracked, "{followed:?}");
     // The template's pose moves as the whole tool does (its centroid,
     // outside the image included).
     let [t0, t1] = [0, 1].map(|k| pairs[k].truth.left.centroid);
     let moved = [t1[0] - t0[0], t1[1] - t0[1]];
-    let after = tracker.state().unwrap().left;
-    let off = (after.x - before.x - moved[0]).hypot(after.y - before.y - moved[1]);
     assert!(moved[0].hypot(moved[1]) > 4.0, "the tool moved {moved:?}");
-    assert!(off < 1.0, "followed {off:.2} px off the tool's move {moved:?}");
-    let withheld = restored.process(&pairs[1].left, &pairs[1].right).unwrap();
-    assert_eq!(withheld.status, Status::Lost, "{withheld:?}");
-    assert!(
-        withheld
-            .reason
-            .as_deref()
-            .unwrap()
-            .contains("along its weakest direction"),
-        "{withheld:?}"
-    );
+    for (name, tracker) in [("live", &mut tracker), ("restored", &mut restored)] {
+        let followed = tracker.process(&pairs[1].left, &pairs[1].right).unwrap();
+        assert_eq!(followed.status, Status::Tracked, "{name}: {followed:?}");
+        let after = tracker.state().unwrap().left;
+        let off = (after.x - before.x - moved[0]).hypot(after.y - before.y - moved[1]);
+        assert!(
+            off < 1.0,
+            "{name}: followed {off:.2} px off the tool's move {moved:?}"
+        );
+    }
 }
 
 /// A box whose side cuts through a region (a needle running on into the
