@@ -845,11 +845,19 @@ mod tests {
         })
     }
 
-    /// The pair's noise is what differs between its views: a textured
-    /// disc and substrate moved 3 px together, the right view darker and
-    /// flatter (0.8 v + 30), show the white noise (5 grey levels) where
-    /// one view's bands show the texture; the substrate lagging the disc
-    /// by 2 px shows as noise.
+    /// The closed outline of a disc of radius 30 centred at (`x`, 100), as
+    /// one arc.
+    fn disc_outline(x: f64) -> Vec<Vec<Point>> {
+        let mut arc = Polygon::circle([x, 100.0], 30.0, 96).points;
+        arc.push(arc[0]);
+        vec![arc]
+    }
+
+    /// The sign of [`disc_outline`]'s signed area.
+    fn disc_outward() -> f64 {
+        Polygon::circle([0.0, 0.0], 30.0, 96).signed_area().signum()
+    }
+
     /// Both views carry noise: the map between their grey levels is fitted
     /// across, not along, so heavy noise does not shrink its gain and
     /// leave the scene's own grey levels, which vary slowly along the
@@ -857,12 +865,7 @@ mod tests {
     /// it, 30 grey levels of noise in each view, 3 px apart).
     #[test]
     fn heavy_noise_in_both_views_reads_as_itself() {
-        let outline = |x: f64| {
-            let mut arc = Polygon::circle([x, 100.0], 30.0, 96).points;
-            arc.push(arc[0]);
-            vec![arc]
-        };
-        let outward = Polygon::circle([0.0, 0.0], 30.0, 96).signed_area().signum();
+        let (outline, outward) = (disc_outline, disc_outward());
         let scene = |cx: f64, seed: u64| {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
             let noise = Normal::new(0.0, 30.0).unwrap();
@@ -885,14 +888,14 @@ mod tests {
         assert!((25.0..36.0).contains(&sigma), "{sigma:.1} grey levels");
     }
 
+    /// The pair's noise is what differs between its views: a textured
+    /// disc and substrate moved 3 px together, the right view darker and
+    /// flatter (0.8 v + 30), show the white noise (5 grey levels) where
+    /// one view's bands show the texture; the substrate lagging the disc
+    /// by 2 px shows as noise.
     #[test]
     fn the_pairs_noise_is_what_differs_between_its_views() {
-        let outline = |x: f64| {
-            let mut arc = Polygon::circle([x, 100.0], 30.0, 96).points;
-            arc.push(arc[0]);
-            vec![arc]
-        };
-        let outward = Polygon::circle([0.0, 0.0], 30.0, 96).signed_area().signum();
+        let (outline, outward) = (disc_outline, disc_outward());
         let left = textured(90.0, 90.0, [1.0, 0.0], 1);
         let (l, r) = (outline(90.0), outline(93.0));
         let view = band_sigma(&left, &l, outward, NoiseBands::default()).unwrap();
