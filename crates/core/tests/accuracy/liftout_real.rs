@@ -704,7 +704,7 @@ fn write_overlay(
 /// The rule a withheld pair's reason names (its first clause; a run of
 /// uncertain pairs that ends in a loss is named by the pair's own rule).
 fn rule_of(reason: &str) -> &'static str {
-    const RULES: [(&str, &str); 17] = [
+    const RULES: [(&str, &str); 18] = [
         (
             "the disparity's standard error is",
             "standard error over its limit (max_disparity_std_px)",
@@ -750,6 +750,10 @@ fn rule_of(reason: &str) -> &'static str {
         ),
         ("no valid contour position", "no valid contour position"),
         ("the contour left the", "contour left the image"),
+        (
+            "of the object is left in the",
+            "too little of the object left in the image",
+        ),
         ("the disparity jumped", "occluded: disparity jumped while hidden"),
         (
             "outline as named follows an edge",
