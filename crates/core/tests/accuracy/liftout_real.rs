@@ -857,8 +857,8 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // orthogonal least squares (`uncertainty::pair_sigma`; regressed one
     // on the other it read twice the noise here, and the pairs after the
     // first went over the `uncertain` limit while right). The rest from
-    // pair 2 on, as the needle's tip reaches the trench's edge: a left fit
-    // with 3 sectors left out, their runs' shift 2.5 px.
+    // pair 2 on: a left fit with 3 sectors left out before a changed
+    // backdrop, their runs' shift 2.5 px.
     ("contact_1 needle, noisy views", Naming::Box, [0, 1, 5]),
     ("contact_1 needle, noisy views", Naming::Point, [0, 1, 4]),
     ("contact_1 needle, noisy views", Naming::Outline, [0, 1, 3]),
