@@ -102,13 +102,12 @@ pub struct Sequence {
     /// offset, in grey levels; clipped to the range), as the microscope's
     /// automatic brightness and contrast make: empty for none.
     pub grey: Vec<(f64, f64)>,
-    /// Standard deviation of independent Gaussian noise added to each view
-    /// of every pair, grey levels (as two scans of a tilt pair have): 0 for
-    /// none. The frame's own noise stays shared by both views.
-    pub noise: f64,
-    /// Which draw of that noise: pair `k`'s views take the seeds
-    /// `2 k + 100 draw` and the next.
-    pub noise_draw: u64,
+    /// Independent Gaussian noise of [`NOISY_VIEWS_SIGMA`] added to each
+    /// view of every pair (as two scans of a tilt pair have), in this
+    /// draw: pair `k`'s views take the seeds `2 k + 100 draw` and the
+    /// next. None for none; the frame's own noise stays shared by both
+    /// views.
+    pub noise_draw: Option<u64>,
 }
 
 /// The known disparity (x, pixels) given to pair `k`'s right view.
@@ -206,8 +205,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [400.0, 850.0],
             held_out: false,
             grey: regrade.clone(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "landing eb needle, brightness",
@@ -219,8 +217,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [250.0, 420.0],
             held_out: true,
             grey: regrade,
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "contact_1 needle from 3",
@@ -232,8 +229,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [200.0, 600.0],
             held_out: false,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "contact_1 needle",
@@ -245,8 +241,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [200.0, 600.0],
             held_out: false,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "landing ib needle",
@@ -258,8 +253,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [400.0, 850.0],
             held_out: false,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "static scans needle",
@@ -271,8 +265,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [50.0, 265.0],
             held_out: false,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "landing eb needle",
@@ -284,8 +277,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [250.0, 420.0],
             held_out: true,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "static scans lamella",
@@ -297,8 +289,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [200.0, 270.0],
             held_out: true,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "approach ib needle",
@@ -310,8 +301,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [250.0, 990.0],
             held_out: true,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "approach ib lamella",
@@ -323,8 +313,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [430.0, 925.0],
             held_out: true,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "approach eb needle",
@@ -336,8 +325,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [120.0, 500.0],
             held_out: true,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
         Sequence {
             name: "approach eb lamella",
@@ -349,8 +337,7 @@ pub fn sequences() -> Vec<Sequence> {
             point: [350.0, 513.0],
             held_out: true,
             grey: Vec::new(),
-            noise: 0.0,
-            noise_draw: 0,
+            noise_draw: None,
         },
     ];
     // As a tilt pair's two scans: each view with noise of its own, in four
@@ -380,8 +367,7 @@ pub fn sequences() -> Vec<Sequence> {
         let base = all.iter().find(|s| s.name == base).expect("a base sequence");
         let noisy = Sequence {
             name,
-            noise: NOISY_VIEWS_SIGMA,
-            noise_draw,
+            noise_draw: Some(noise_draw),
             ..base.clone()
         };
         all.push(noisy);
@@ -605,14 +591,15 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
                 (shifted_x(&load(&rights[k]), d), d + moved)
             }
         };
-        let (left, right) = if seq.noise > 0.0 {
-            let seed = 2 * k as u64 + 100 * seq.noise_draw;
-            (
-                with_noise(&left, seq.noise, seed),
-                with_noise(&right, seq.noise, seed + 1),
-            )
-        } else {
-            (left, right)
+        let (left, right) = match seq.noise_draw {
+            Some(draw) => {
+                let seed = 2 * k as u64 + 100 * draw;
+                (
+                    with_noise(&left, NOISY_VIEWS_SIGMA, seed),
+                    with_noise(&right, NOISY_VIEWS_SIGMA, seed + 1),
+                )
+            }
+            None => (left, right),
         };
         // A hint that names nothing is refused: the pair has no number.
         let result = match tracker.process(&left, &right) {
@@ -940,7 +927,7 @@ fn a_lasso_names_the_object_on_every_real_sequence() {
     let outlines = outlines();
     for seq in sequences()
         .into_iter()
-        .filter(|s| s.grey.is_empty() && s.noise == 0.0)
+        .filter(|s| s.grey.is_empty() && s.noise_draw.is_none())
     {
         let (name, min_iou) = (seq.name, LASSO_IOU);
         let left = load(&seq.frames[0]);
