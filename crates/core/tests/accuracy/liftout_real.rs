@@ -850,7 +850,7 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // pair 2 on: a left fit with 3 sectors left out before a changed
     // backdrop, their runs' shift 2.5 px. The surroundings' lag, registered
     // on bilinear samples, locked onto half pixels under the added noise
-    // and withheld right pairs here (0.46-0.62 px on pairs within 0.2 px).
+    // and withheld right pairs here (0.56-0.62 px on pairs within 0.2 px).
     ("contact_1 needle, noisy views", Naming::Box, [0, 1, 5]),
     ("contact_1 needle, noisy views", Naming::Point, [0, 1, 4]),
     ("contact_1 needle, noisy views", Naming::Outline, [0, 0, 2]),
@@ -861,8 +861,8 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // they stand): the false alarms were mostly pairs whose standard error
     // went over the `uncertain` limit, and the runs of `uncertain` pairs
     // that follow them, until the surroundings' lag stopped locking onto
-    // half pixels (15 of them fewer). Those left: slides along the
-    // needle, the masked runs' shift, and runs of `uncertain` pairs.
+    // half pixels (19 -> 5 over these draws). Those left: slides along
+    // the needle and standard errors over the limit.
     ("contact_1 needle, noisy views, draw 2", Naming::Box, [0, 1, 3]),
     ("contact_1 needle, noisy views, draw 2", Naming::Point, [0, 0, 1]),
     (
