@@ -428,6 +428,23 @@ pub fn difference_variance(arcs: &[Vec<Point>], fewer: &[Vec<Point>], u: Point) 
     (quadratic_form(all, u) * (inverse_form(information_matrix(fewer), u) - inverse_form(all, u))).max(0.0)
 }
 
+/// [`difference_variance`] for positions fitted along `u` alone, the rest
+/// of the pose held (as the right view's fit moves along its epipolar
+/// line): `J_uu(arcs) / J_uu(fewer) - 1`, the conditional variances'
+/// difference in the same units. Infinite when `fewer` fixes no position
+/// along `u`.
+pub fn line_difference_variance(arcs: &[Vec<Point>], fewer: &[Vec<Point>], u: Point) -> f64 {
+    let (all, few) = (
+        quadratic_form(information_matrix(arcs), u),
+        quadratic_form(information_matrix(fewer), u),
+    );
+    if few > 0.0 {
+        (all / few - 1.0).max(0.0)
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// How poorly the `arcs` fix a rigid pose's rotation about `centre`: the
 /// rotation's entry of the inverse of the information matrix of (x, y,
 /// theta), the integral of `J J^T` with `J = (n_x, n_y, (p - centre) x n)`
@@ -575,10 +592,24 @@ mod tests {
             let d = difference_variance(&whole, &half, u);
             assert!((d - 1.0).abs() < 1e-3, "{u:?}: {d}");
             assert!(difference_variance(&whole, &whole, u).abs() < 1e-9);
+            // Along `u` alone: a half circle has half the information
+            // along any direction, as in the free fit.
+            let line = line_difference_variance(&whole, &half, u);
+            assert!((line - 1.0).abs() < 1e-3, "{u:?}: along the line {line}");
+            assert!(line_difference_variance(&whole, &whole, u).abs() < 1e-9);
         }
+        // A quarter circle places a fit held to x better than a free one,
+        // which trades x against y.
+        let quarter = [arc(0.0, pi / 2.0)];
+        let (free, line) = (
+            difference_variance(&whole, &quarter, [1.0, 0.0]),
+            line_difference_variance(&whole, &quarter, [1.0, 0.0]),
+        );
+        assert!(line.is_finite() && line < free, "free {free}, along x {line}");
         // Two straight sides along x fix nothing along x.
         let sides = [vec![[-10.0, -3.0], [10.0, -3.0]], vec![[10.0, 3.0], [-10.0, 3.0]]];
         assert!(difference_variance(&whole, &sides, [1.0, 0.0]).is_infinite());
+        assert!(line_difference_variance(&whole, &sides, [1.0, 0.0]).is_infinite());
     }
 
     #[test]

@@ -157,6 +157,9 @@ pub(super) struct AxisStd {
     /// the masked runs' shift relative to `std`'s square
     /// ([`uncertainty::difference_variance`]).
     difference: f64,
+    /// The same for the shift along the axis alone
+    /// ([`uncertainty::line_difference_variance`]).
+    line_difference: f64,
     /// The noise `std` was measured with ([`uncertainty::band_sigma`]),
     /// grey levels; NaN when unmeasured.
     sigma: f64,
@@ -198,6 +201,7 @@ impl StereoTracker {
             .sqrt();
         fit.axis_std_px = m.std.hypot(bias);
         fit.axis_bias_px = bias;
+        fit.line_difference = m.line_difference;
         fit.noise_sigma = m.sigma;
         fit.measured_without = m.left_out;
         fit.weakest_factor = m.weakest_factor;
@@ -246,16 +250,20 @@ impl StereoTracker {
         // The variance of the masked runs' shift that the noise alone
         // gives (see `measure_std`), relative to the conditional one; the
         // shift, where measured, is with the runs grown by one sector.
-        let difference = if fit.mask_shift_px != 0.0 {
+        let (difference, line_difference) = if fit.mask_shift_px != 0.0 {
             let wider = crate::occlusion::grown(&fit.occluded);
             let fewer = sectors.visible_arcs(pose, &either(&unseen, &wider));
-            uncertainty::difference_variance(&arcs, &fewer, u)
+            (
+                uncertainty::difference_variance(&arcs, &fewer, u),
+                uncertainty::line_difference_variance(&arcs, &fewer, u),
+            )
         } else {
-            0.0
+            (0.0, 0.0)
         };
         let measured = AxisStd {
             std: f64::NAN,
             difference,
+            line_difference,
             sigma: f64::NAN,
             // Relative to the marginal standard error this returns.
             weakest_factor: uncertainty::weakest_direction_factor(&arcs, u) / marginal,
@@ -348,9 +356,14 @@ impl StereoTracker {
         // Where both views masked the same sectors, growing the masked runs
         // moves both poses alike as far as the views are alike: the
         // disparity moves by the difference of the two shifts, which the
-        // right view's figure carries; elsewhere each view's shift stays.
+        // right view's figure carries, less what the pair's noise alone
+        // moves it by (each view's as in `measure_std`); elsewhere each
+        // view's shift stays.
         let scaled = if left.occluded == right.occluded && left.occluded.contains(&true) {
-            let pair_bias = (right.mask_shift_line_px - left.mask_shift_line_px).abs();
+            let by_noise = left.line_difference * noise[0].powi(2) + right.line_difference * noise[1].powi(2);
+            let pair_bias = ((right.mask_shift_line_px - left.mask_shift_line_px).powi(2) - by_noise)
+                .max(0.0)
+                .sqrt();
             [noise[0], noise[1].hypot(pair_bias)]
         } else {
             [

@@ -91,6 +91,10 @@ pub(super) struct ImageFit {
     pub(super) pair_scale: f64,
     /// The masked runs' shift in `axis_std_px` (0: none).
     pub(super) axis_bias_px: f64,
+    /// The variance the noise alone gives `mask_shift_line_px`, relative to
+    /// the square of the noise part of `axis_std_px`
+    /// ([`uncertainty::line_difference_variance`]; 0: none).
+    pub(super) line_difference: f64,
     /// On the right view's fit, how far the surroundings lag the object
     /// from the left view, the most their texture can pull the disparity
     /// by, counted in its standard error with the pair's noise (see
@@ -119,6 +123,7 @@ impl ImageFit {
             measured_without: Vec::new(),
             pair_scale: 1.0,
             axis_bias_px: 0.0,
+            line_difference: 0.0,
             lag_px: 0.0,
         }
     }

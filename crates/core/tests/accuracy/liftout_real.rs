@@ -863,7 +863,7 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // that follow them, until the surroundings' lag stopped locking onto
     // half pixels (19 -> 5 over these draws). Those left: slides along
     // the needle and standard errors over the limit.
-    ("contact_1 needle, noisy views, draw 2", Naming::Box, [0, 1, 3]),
+    ("contact_1 needle, noisy views, draw 2", Naming::Box, [0, 0, 2]),
     ("contact_1 needle, noisy views, draw 2", Naming::Point, [0, 0, 1]),
     (
         "contact_1 needle, noisy views, draw 2",
