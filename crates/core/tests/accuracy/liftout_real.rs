@@ -861,8 +861,10 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     // they stand): the false alarms were mostly pairs whose standard error
     // went over the `uncertain` limit, and the runs of `uncertain` pairs
     // that follow them, until the surroundings' lag stopped locking onto
-    // half pixels (19 -> 5 over these draws). Those left: slides along
-    // the needle and standard errors over the limit.
+    // half pixels (19 -> 5 over these draws), and one more when the
+    // difference of the views' masked runs' shifts counted only its excess
+    // over the pair's noise. Those left: slides along the needle and
+    // standard errors over the limit.
     ("contact_1 needle, noisy views, draw 2", Naming::Box, [0, 0, 2]),
     ("contact_1 needle, noisy views, draw 2", Naming::Point, [0, 0, 1]),
     (
