@@ -65,11 +65,7 @@ struct Smoothed<'a> {
     frame: &'a GrayFrame,
 }
 
-impl<'a> Smoothed<'a> {
-    fn new(frame: &'a GrayFrame) -> Self {
-        Self { frame }
-    }
-
+impl Smoothed<'_> {
     /// The frame at `q`; NaN where the 4x4 pixels leave it.
     fn at(&self, q: Point) -> f64 {
         self.around(q, [0, 0])
@@ -243,12 +239,12 @@ pub(super) fn lag(
     // solved afresh) and the step's variance from the residual. Both views
     // are sampled half the lag either way, so that the sampling smooths
     // both alike (sampled in one view only, bilinearly, it biased a
-    // sub-pixel lag by up to 0.2 px). The difference's slope in the lag is taken afresh at each
-    // step, by central differences a pixel either way: their noise is then
-    // uncorrelated with the residual's at any lag (taken once, where the
-    // search started, the noise they shared pulled the lag towards that
-    // start).
-    let (left_s, right_s) = (Smoothed::new(left), Smoothed::new(right));
+    // sub-pixel lag by up to 0.2 px). The difference's slope in the lag is
+    // taken afresh at each step, by central differences a pixel either
+    // way: their noise is then uncorrelated with the residual's at any lag
+    // (taken once, where the search started, the noise they shared pulled
+    // the lag towards that start).
+    let (left_s, right_s) = (Smoothed { frame: left }, Smoothed { frame: right });
     let step_from = |lag: f64| -> Option<(f64, f64)> {
         let h = 0.5 * lag;
         let samples: Vec<[f64; 3]> = pixels
@@ -376,7 +372,7 @@ mod tests {
     #[test]
     fn samples_along_an_axis_are_the_samples_one_by_one() {
         let frame = noisy(&scene(90.0, 90.0, 1.0), 20.0, 3);
-        let smoothed = Smoothed::new(&frame);
+        let smoothed = Smoothed { frame: &frame };
         for u in [[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [1.0, -6e-17]] {
             for q in [[40.3, 50.8], [100.0, 31.25], [2.5, 2.5]] {
                 let three = smoothed.along(q, u);
@@ -390,7 +386,7 @@ mod tests {
             }
         }
         let flat = GrayFrame::new(20, 20, 8, vec![70; 400]).unwrap();
-        let value = Smoothed::new(&flat).at([7.3, 9.9]);
+        let value = Smoothed { frame: &flat }.at([7.3, 9.9]);
         assert!((value - 70.0).abs() < 1e-9, "{value}");
     }
 
