@@ -135,17 +135,6 @@ pub(super) fn rim_offset(state: &TrackerState) -> f64 {
     ((outline.area() - template.area()) / template.length().max(1.0)).max(0.0)
 }
 
-/// How much more a fit scatters than the sandwich figure of
-/// [`uncertainty::axis_std`] says with the pair's noise
-/// ([`StereoTracker::use_pair_noise`]), by which that noise is multiplied:
-/// at these signal-to-noise ratios the first-order figure is too small,
-/// which a view's own bands, counting texture as noise, made up for.
-/// Measured 2.2 on the static scans' needle named by a lasso (one scene,
-/// independent heavy noise; `docs/real/README.md`) and 2.1 on the
-/// generator's clean tool-in-front condition; on its other conditions the
-/// view's own figure, the ceiling, is the smaller.
-pub(super) const PAIR_NOISE_FACTOR: f64 = 2.0;
-
 /// What [`StereoTracker::axis_std`] measures of a fit.
 #[derive(Clone, Debug)]
 pub(super) struct AxisStd {
@@ -300,8 +289,8 @@ impl StereoTracker {
     /// Measures the noise of both fits' share of the disparity's standard
     /// error on the pair itself ([`uncertainty::pair_sigma`] over the
     /// bands both standard errors were measured on, at the fitted poses in
-    /// `frames`), times [`PAIR_NOISE_FACTOR`], and adds the surroundings'
-    /// lag behind the object ([`substrate::lag`], less its own noise) in
+    /// `frames`), and adds the surroundings' lag behind the object
+    /// ([`substrate::lag`], less its own noise and the disparity's) in
     /// quadrature: sets each fit's `pair_scale` to what the pair's noise
     /// makes of the noise part of its `axis_std_px` (at most 1; the
     /// masked runs' shift stays, except where both views left out the
@@ -347,7 +336,7 @@ impl StereoTracker {
             return;
         };
         let noise = [&*left, &*right].map(|fit| {
-            let scale = (PAIR_NOISE_FACTOR * sigma / fit.noise_sigma).min(1.0);
+            let scale = (sigma / fit.noise_sigma).min(1.0);
             (fit.axis_std_px.powi(2) - fit.axis_bias_px.powi(2))
                 .max(0.0)
                 .sqrt()
@@ -379,6 +368,11 @@ impl StereoTracker {
         if pair >= views {
             return;
         }
+        // The lag registered at the fitted poses carries the disparity's
+        // own error with its sign turned (surroundings that moved with the
+        // object lag by what the fits missed), whose variance `pair` is:
+        // only its excess over that and over its own noise counts, as for
+        // the masked runs' shifts.
         let reach = (template.margin, bands[0].outer_offset_px);
         let lag = substrate::lag(
             frames,
@@ -387,7 +381,9 @@ impl StereoTracker {
             reach,
             self.disparity_axis(),
         )
-        .map_or(0.0, |l| (l.px * l.px - l.std_px * l.std_px).max(0.0).sqrt());
+        .map_or(0.0, |l| {
+            (l.px * l.px - l.std_px * l.std_px - pair * pair).max(0.0).sqrt()
+        });
         if pair.hypot(lag) >= views {
             return;
         }

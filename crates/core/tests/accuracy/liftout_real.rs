@@ -780,12 +780,12 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("landing ib needle", Naming::Point, [0, 0, 0]),
     ("static scans needle", Naming::Box, [0, 0, 2]),
     // The edges part the needle under the point from its shaded lower
-    // third (IoU 0.66, 0.99 of it on the needle); every pair carries a
-    // number. Narrowly: the first pair's figure (0.54 px, with the
-    // surroundings' lag, -0.49 +- 0.38 px under these scans' noise) sets
-    // the `uncertain` limit that scans 1-6 (0.48-0.86 px, 0.14-1.06 px
-    // off) stay under; where it read 0.45 px they were withheld.
-    ("static scans needle", Naming::Point, [0, 0, 0]),
+    // third (IoU 0.66, 0.99 of it on the needle, not on the object by the
+    // suite's measure). Scans 1-6 (0.14-1.06 px off) are withheld by the
+    // `uncertain` limit (0.58-0.86 px); they had numbers while the first
+    // pair's figure read 0.54 px (the surroundings' lag counted whole,
+    // though it carried that pair's own error) and raised the limit.
+    ("static scans needle", Naming::Point, [0, 0, 6]),
     ("landing eb needle", Naming::Box, [0, 0, 1]),
     ("landing eb needle", Naming::Point, [0, 0, 1]),
     ("static scans lamella", Naming::Box, [1, 0, 8]),
@@ -890,7 +890,7 @@ const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
         Naming::Outline,
         [0, 1, 3],
     ),
-    ("approach eb lamella, noisy views, draw 3", Naming::Box, [0, 1, 3]),
+    ("approach eb lamella, noisy views, draw 3", Naming::Box, [0, 0, 1]),
     (
         "approach eb lamella, noisy views, draw 3",
         Naming::Point,
@@ -954,12 +954,18 @@ fn a_lasso_names_the_object_on_every_real_sequence() {
     }
 }
 
+/// Least RMS of error over standard error over the development and the
+/// held-out pairs with a number on the object (see
+/// [`liftout_sequences_count_confident_wrong_and_false_alarms`]).
+const MIN_OVER_REPORT: f64 = 0.6;
+
 /// Tracks every sequence named by a box and by a point, prints the table
 /// of docs/real/README.md (development and held-out sequences marked),
 /// holds each to its [`CEILINGS`] and the standard errors on real noise
 /// to their errors: over the development static scans' pairs with a
 /// number whose contour is on the object, the RMS of error over standard
-/// error within a factor of 1.5 of 1.
+/// error within a factor of 1.5 of 1, and over all the development and
+/// held-out ones at least [`MIN_OVER_REPORT`].
 #[test]
 fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     let params = TrackerParams::default();
@@ -1031,6 +1037,18 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
         "static scans: RMS error/std {calibration:.2} over {} pairs (expected within a factor 1.5 of 1, 8 pairs or more)",
         z_scores[2].len()
     );
+    // Not yet within the factor: the pairs with a number over-report
+    // on the shifted sequences (their views share noise and texture) and
+    // on the noisy ones; held at what is measured (0.64 and 0.66; 0.52 and
+    // 0.47 while the pair's noise counted twice and the surroundings' lag
+    // whole), so that no change makes it worse unnoticed.
+    for (set, z) in ["development", "held out"].iter().zip(&z_scores) {
+        assert!(
+            rms(z) >= MIN_OVER_REPORT,
+            "{set}: RMS error/std {:.2} (at least {MIN_OVER_REPORT})",
+            rms(z)
+        );
+    }
     for (name, _, naming, c) in &report {
         let &(_, _, [wrong, alarms, withheld]) = CEILINGS
             .iter()
