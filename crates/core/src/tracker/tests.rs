@@ -616,3 +616,63 @@ fn a_lost_object_is_found_again_through_a_change_of_brightness_and_contrast() {
         }
     }
 }
+
+/// A bright disc (radius 25, its edge a ramp 2.5 px wide) at (`disc_x`,
+/// 80) on a substrate whose texture (+-40 grey levels) moves with it, plus
+/// white Gaussian noise of `sigma` grey levels drawn from `seed`.
+fn textured_disc(disc_x: f64, sigma: f64, seed: u64) -> GrayFrame {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let normal = Normal::new(0.0, sigma).unwrap();
+    let (w, h) = (220u32, 160u32);
+    let data = (0..w * h)
+        .map(|i| {
+            let (x, y) = (f64::from(i % w), f64::from(i / w));
+            let inside = ((25.0 - (x - disc_x).hypot(y - 80.0)) / 2.5 + 0.5).clamp(0.0, 1.0);
+            let substrate = 70.0 + 40.0 * (0.45 * (x - disc_x)).sin() * (0.3 * y).cos();
+            let v = inside * 180.0 + (1.0 - inside) * substrate + normal.sample(&mut rng);
+            v.round().clamp(0.0, 255.0) as u16
+        })
+        .collect();
+    GrayFrame::new(w, h, 8, data).unwrap()
+}
+
+/// Issue #64 item 4 on a scene whose texture moves with the object (as on
+/// a shifted real frame) and whose two views carry noise of their own (as
+/// a tilt pair's scans): the reported standard error within a factor of
+/// 1.5 of the errors (RMS of error over standard error, 6 draws of 6
+/// pairs; 0.90). A view's own figure counts the texture as noise; the
+/// pair's noise does not, and the surroundings' lag registered at the
+/// fitted poses is the disparity's own error: counted whole, with the
+/// pair's noise taken twice, the figure was 1.53 times the errors (0.65).
+/// With the edge a pixel wide the errors of one sub-pixel disparity share
+/// a bias of up to 0.1 px, which no noise figure sees.
+#[test]
+fn texture_that_moves_with_the_object_and_noise_of_each_view_give_a_calibrated_standard_error() {
+    let mut z = Vec::new();
+    for draw in 0..6u64 {
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        for k in 0..6u64 {
+            let (x, d) = (70.0 + 1.7 * k as f64, 2.3 + 0.13 * k as f64);
+            let seed = 100 * draw + 2 * k;
+            let left = textured_disc(x, 16.0, seed);
+            let right = textured_disc(x + d, 16.0, seed + 1);
+            let result = tracker.process(&left, &right).unwrap();
+            assert!(
+                matches!(result.status, Status::Initialised | Status::Tracked),
+                "draw {draw}, pair {k}: {:?} {:?}",
+                result.status,
+                result.reason
+            );
+            let (disparity, std) = (result.disparity_px.unwrap()[0], result.disparity_std_px.unwrap());
+            z.push((disparity - d) / std);
+        }
+    }
+    let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len() as f64).sqrt();
+    assert!(
+        (1.0 / 1.5..=1.5).contains(&rms),
+        "RMS error/std {rms:.2} over {} pairs (expected within a factor 1.5 of 1): {z:.2?}",
+        z.len()
+    );
+}
