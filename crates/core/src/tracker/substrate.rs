@@ -319,6 +319,7 @@ pub(super) fn lag(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::tracker::tests::noisy;
 
     /// A bright disc of radius 25 at (`disc_x`, 80) on a substrate whose
     /// texture is placed at `substrate_x`, its grey levels mapped by
@@ -388,20 +389,6 @@ mod tests {
         let flat = GrayFrame::new(20, 20, 8, vec![70; 400]).unwrap();
         let value = Smoothed { frame: &flat }.at([7.3, 9.9]);
         assert!((value - 70.0).abs() < 1e-9, "{value}");
-    }
-
-    /// `frame` plus white Gaussian noise of `sigma` grey levels, rounded.
-    fn noisy(frame: &GrayFrame, sigma: f64, seed: u64) -> GrayFrame {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, Normal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-        let normal = Normal::new(0.0, sigma).unwrap();
-        let data = frame
-            .data
-            .iter()
-            .map(|&v| (f64::from(v) + normal.sample(&mut rng)).round().clamp(0.0, 255.0) as u16)
-            .collect();
-        GrayFrame { data, ..*frame }
     }
 
     /// Two views with noise of their own, about as heavy as the texture's
