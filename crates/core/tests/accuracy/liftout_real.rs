@@ -1142,3 +1142,71 @@ fn a_lost_needle_is_found_again_on_the_next_pair_through_a_change_of_brightness(
         );
     }
 }
+
+/// Draws of each view's noise per pair in
+/// [`repeated_noise_draws_keep_the_honesty_counts`].
+const DRAWS: u64 = 30;
+
+/// Issue #64 items 2 and 4 with the statistics of many draws at one real
+/// pair: contact_1's needle named by a box, its first pair tracked once
+/// (one draw), then pairs 1 and 2 each tracked from that state in
+/// [`DRAWS`] draws of independent noise of [`NOISY_VIEWS_SIGMA`] in each
+/// view. Per pair: no confident wrong draw, at most 10% of the draws
+/// false alarms (withheld while on the object within 0.2 px), and over the
+/// draws with a number the RMS of error over standard error within a
+/// factor of 1.5 of 1 (measured 0.74 and 0.73, over 25 and 30 draws). The
+/// draws withheld on pair 1 (5 of 30) are the surroundings' lag seeing
+/// fits 0.9-1.3 px off.
+#[test]
+#[ignore = "full accuracy suite"]
+fn repeated_noise_draws_keep_the_honesty_counts() {
+    let seq = sequence("contact_1 needle");
+    let outlines = outlines();
+    let mut params = TrackerParams::default();
+    params.init.roi = Some(seq.roi);
+    let pair = |k: usize, seed: u64| {
+        let left = load(&seq.frames[k]);
+        let right = shifted_x(&left, known_disparity(k));
+        (
+            with_noise(&left, NOISY_VIEWS_SIGMA, seed),
+            with_noise(&right, NOISY_VIEWS_SIGMA, seed + 1),
+        )
+    };
+    let mut tracker = StereoTracker::new(params.clone());
+    let (left, right) = pair(0, 7);
+    let first = tracker.process(&left, &right).expect("the first pair");
+    assert_eq!(first.status, Status::Initialised, "{:?}", first.reason);
+    let (state, frames) = (tracker.state().cloned(), tracker.frames());
+    for k in 1..=2 {
+        let key = (seq.outlines[k].clone(), seq.object.to_string());
+        let reference = &outlines[&key];
+        let (mut z, mut wrong, mut alarms) = (Vec::new(), 0, 0);
+        for draw in 0..DRAWS {
+            let (left, right) = pair(k, 1000 + 2 * draw);
+            let result = StereoTracker::from_state(params.clone(), state.clone(), frames)
+                .process(&left, &right)
+                .expect("a pair");
+            let j = judge(&result, reference, known_disparity(k), left.width, left.height);
+            wrong += j.confident_wrong as usize;
+            alarms += j.false_alarm as usize;
+            if let (Some(e), Some(s)) = (j.error, j.std) {
+                z.push(e / s);
+            }
+        }
+        let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
+        eprintln!(
+            "contact_1 pair {k}, {DRAWS} draws: {} with a number, {wrong} confident wrong, {alarms} false alarms, RMS error/std {rms:.2}",
+            z.len()
+        );
+        assert_eq!(wrong, 0, "pair {k}: confident wrong draws");
+        assert!(
+            10 * alarms <= DRAWS as usize,
+            "pair {k}: {alarms} false alarms of {DRAWS}"
+        );
+        assert!(
+            (1.0 / 1.5..=1.5).contains(&rms),
+            "pair {k}: RMS error/std {rms:.2} over {} draws (expected within a factor 1.5 of 1)",
+            z.len()
+        );
+    }
+}
