@@ -143,6 +143,21 @@ pub fn with_noise(frame: &GrayFrame, sigma: f64, seed: u64) -> GrayFrame {
     GrayFrame { data, ..*frame }
 }
 
+/// The two views of a `noisy views` pair, each with its own noise of
+/// [`NOISY_VIEWS_SIGMA`]: the left one's drawn from `seed`, the right
+/// one's from the next.
+fn noisy_views(left: &GrayFrame, right: &GrayFrame, seed: u64) -> (GrayFrame, GrayFrame) {
+    (
+        with_noise(left, NOISY_VIEWS_SIGMA, seed),
+        with_noise(right, NOISY_VIEWS_SIGMA, seed + 1),
+    )
+}
+
+/// Root mean square of `v` (0 for none).
+fn rms(v: &[f64]) -> f64 {
+    (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt()
+}
+
 fn frames(folder: &str, names: &[&str]) -> Vec<String> {
     names
         .iter()
@@ -592,13 +607,7 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
             }
         };
         let (left, right) = match seq.noise_draw {
-            Some(draw) => {
-                let seed = 2 * k as u64 + 100 * draw;
-                (
-                    with_noise(&left, NOISY_VIEWS_SIGMA, seed),
-                    with_noise(&right, NOISY_VIEWS_SIGMA, seed + 1),
-                )
-            }
+            Some(draw) => noisy_views(&left, &right, 2 * k as u64 + 100 * draw),
             None => (left, right),
         };
         // A hint that names nothing is refused: the pair has no number.
@@ -1003,7 +1012,6 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     eprintln!("\n| sequence | held out | named by | pairs | with a number | confident wrong | withheld | of them false alarms | RMS error px | RMS error/std |");
     eprintln!("|---|---|---|---|---|---|---|---|---|---|");
     for (name, held, naming, c) in &report {
-        let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
         eprintln!(
             "| {name} | {} | {naming:?} | {} | {} | {} | {} | {} | {:.3} | {:.2} |",
             if *held { "yes" } else { "no" },
@@ -1021,7 +1029,6 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     for (rule, [w, f, hw, hf]) in &by_rule {
         eprintln!("| {rule} | {w} | {f} | {hw} | {hf} |");
     }
-    let rms = |z: &[f64]| (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
     for (set, z) in ["development", "held out", "static scans"].iter().zip(&z_scores) {
         eprintln!(
             "{set}: RMS error/std {:.2} over {} pairs with a number on the object",
@@ -1166,11 +1173,7 @@ fn repeated_noise_draws_keep_the_honesty_counts() {
     params.init.roi = Some(seq.roi);
     let pair = |k: usize, seed: u64| {
         let left = load(&seq.frames[k]);
-        let right = shifted_x(&left, known_disparity(k));
-        (
-            with_noise(&left, NOISY_VIEWS_SIGMA, seed),
-            with_noise(&right, NOISY_VIEWS_SIGMA, seed + 1),
-        )
+        noisy_views(&left, &shifted_x(&left, known_disparity(k)), seed)
     };
     let mut tracker = StereoTracker::new(params.clone());
     let (left, right) = pair(0, 7);
@@ -1193,9 +1196,9 @@ fn repeated_noise_draws_keep_the_honesty_counts() {
                 z.push(e / s);
             }
         }
-        let rms = (z.iter().map(|z| z * z).sum::<f64>() / z.len().max(1) as f64).sqrt();
+        let ratio = rms(&z);
         eprintln!(
-            "contact_1 pair {k}, {DRAWS} draws: {} with a number, {wrong} confident wrong, {alarms} false alarms, RMS error/std {rms:.2}",
+            "contact_1 pair {k}, {DRAWS} draws: {} with a number, {wrong} confident wrong, {alarms} false alarms, RMS error/std {ratio:.2}",
             z.len()
         );
         assert_eq!(wrong, 0, "pair {k}: confident wrong draws");
@@ -1204,8 +1207,8 @@ fn repeated_noise_draws_keep_the_honesty_counts() {
             "pair {k}: {alarms} false alarms of {DRAWS}"
         );
         assert!(
-            (1.0 / 1.5..=1.5).contains(&rms),
-            "pair {k}: RMS error/std {rms:.2} over {} draws (expected within a factor 1.5 of 1)",
+            (1.0 / 1.5..=1.5).contains(&ratio),
+            "pair {k}: RMS error/std {ratio:.2} over {} draws (expected within a factor 1.5 of 1)",
             z.len()
         );
     }
