@@ -108,12 +108,27 @@ pub struct Sequence {
     /// next. None for none; the frame's own noise stays shared by both
     /// views.
     pub noise_draw: Option<u64>,
+    /// The first pair's known disparity (see [`known_disparity_from`]).
+    pub first_disparity: f64,
 }
 
-/// The known disparity (x, pixels) given to pair `k`'s right view.
+/// The first pair's known disparity in the sequence table's two runs,
+/// pixels: a whole pixel, where the region sums' box pixels place an edge
+/// along the pixel grid exactly, and half a pixel more, where they place
+/// it worst (docs/real/README.md, "What fails"). The other tests take the
+/// first.
+pub const FIRST_DISPARITIES: [f64; 2] = [3.0, 3.5];
+
+/// The known disparity (x, pixels) given to pair `k`'s right view when the
+/// first pair's is `first`: sub-pixel and changing from pair to pair by
+/// 0.45 px (3.00, 3.45, 3.90, ... from 3).
+pub fn known_disparity_from(first: f64, k: usize) -> f64 {
+    first + 0.45 * k as f64
+}
+
+/// [`known_disparity_from`] the first of [`FIRST_DISPARITIES`].
 pub fn known_disparity(k: usize) -> f64 {
-    // Sub-pixel and changing from pair to pair: 3.00, 3.45, 3.90, ...
-    3.0 + 0.45 * k as f64
+    known_disparity_from(FIRST_DISPARITIES[0], k)
 }
 
 /// The noise of the `noisy views` sequences, grey levels: about the
@@ -221,6 +236,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: regrade.clone(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "landing eb needle, brightness",
@@ -233,6 +249,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: regrade,
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "contact_1 needle from 3",
@@ -245,6 +262,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "contact_1 needle",
@@ -257,6 +275,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "landing ib needle",
@@ -269,6 +288,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "static scans needle",
@@ -281,6 +301,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "landing eb needle",
@@ -293,6 +314,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "static scans lamella",
@@ -305,6 +327,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach ib needle",
@@ -317,6 +340,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach ib lamella",
@@ -329,6 +353,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach eb needle",
@@ -341,6 +366,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach eb lamella",
@@ -353,6 +379,7 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
+            first_disparity: FIRST_DISPARITIES[0],
         },
     ];
     // As a tilt pair's two scans: each view with noise of its own, in four
@@ -383,6 +410,7 @@ pub fn sequences() -> Vec<Sequence> {
         let noisy = Sequence {
             name,
             noise_draw: Some(noise_draw),
+            first_disparity: FIRST_DISPARITIES[0],
             ..base.clone()
         };
         all.push(noisy);
@@ -597,7 +625,7 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
             Some(&(gain, offset)) => load(rel).regraded(gain, offset),
             None => load(rel),
         };
-        let d = known_disparity(k);
+        let d = known_disparity_from(seq.first_disparity, k);
         let (right, truth) = match &seq.rights {
             None => (shifted_x(&left, d), d),
             Some(rights) => {
@@ -689,7 +717,13 @@ fn write_overlay(
         }
         (frame, overlays)
     });
-    let name = format!("{}_{:?}_{k:02}.png", seq.name.replace(' ', "_"), naming).to_lowercase();
+    // The run from a whole pixel keeps the names docs/real/ links to.
+    let from = if seq.first_disparity == FIRST_DISPARITIES[0] {
+        String::new()
+    } else {
+        format!("_from_{:.2}", seq.first_disparity)
+    };
+    let name = format!("{}_{:?}{from}_{k:02}.png", seq.name.replace(' ', "_"), naming).to_lowercase();
     write_side_by_side(
         dir,
         &name,
@@ -767,7 +801,8 @@ fn rule_of(reason: &str) -> &'static str {
 /// no confident wrong pair and at most 10% false alarms per sequence; these
 /// are the figures measured when the suite was made (docs/real/README.md),
 /// so that no change makes a real scene worse unnoticed. Lower them as the
-/// tracker improves.
+/// tracker improves. For the run whose first pair's disparity is a whole
+/// pixel; [`HALF_PIXEL_CEILINGS`] for the other.
 const CEILINGS: &[(&str, Naming, [usize; 3])] = &[
     ("landing ib needle, brightness", Naming::Box, [0, 0, 0]),
     ("landing ib needle, brightness", Naming::Point, [0, 0, 0]),
@@ -963,6 +998,115 @@ fn a_lasso_names_the_object_on_every_real_sequence() {
     }
 }
 
+/// [`CEILINGS`] for the run whose first pair's disparity is half a pixel
+/// past a whole one (3.5 px), measured when that run was added: there the
+/// box pixels' placing of edges along the grid is no longer exact on the
+/// first pair, which every later pair of a run shares (at 3.0 px the
+/// first pairs of the shifted sequences without added noise are off by
+/// 0.013 px RMS, from 3.1-3.6 px by 0.06-0.11 px, up to 0.28 px).
+/// contact_1's needle named by a point: pair 2 is withheld at 0.41 px
+/// (limit 0.40 px; the right view's masked runs' shift), and the views'
+/// own figure, which a run of `uncertain` pairs keeps, withholds the next
+/// two (1.8 and 3.8 px).
+const HALF_PIXEL_CEILINGS: &[(&str, Naming, [usize; 3])] = &[
+    ("landing ib needle, brightness", Naming::Box, [0, 0, 0]),
+    ("landing ib needle, brightness", Naming::Point, [0, 0, 0]),
+    ("landing ib needle, brightness", Naming::Outline, [0, 0, 0]),
+    ("landing eb needle, brightness", Naming::Box, [0, 0, 0]),
+    ("landing eb needle, brightness", Naming::Point, [0, 0, 1]),
+    ("landing eb needle, brightness", Naming::Outline, [0, 0, 0]),
+    ("contact_1 needle from 3", Naming::Box, [0, 1, 1]),
+    ("contact_1 needle from 3", Naming::Point, [0, 0, 0]),
+    ("contact_1 needle from 3", Naming::Outline, [0, 0, 0]),
+    ("contact_1 needle", Naming::Box, [0, 0, 2]),
+    ("contact_1 needle", Naming::Point, [0, 3, 5]),
+    ("contact_1 needle", Naming::Outline, [0, 0, 2]),
+    ("landing ib needle", Naming::Box, [0, 0, 0]),
+    ("landing ib needle", Naming::Point, [0, 0, 0]),
+    ("landing ib needle", Naming::Outline, [0, 0, 0]),
+    ("static scans needle", Naming::Box, [0, 0, 2]),
+    ("static scans needle", Naming::Point, [0, 0, 0]),
+    ("static scans needle", Naming::Outline, [0, 0, 0]),
+    ("landing eb needle", Naming::Box, [0, 0, 1]),
+    ("landing eb needle", Naming::Point, [0, 0, 1]),
+    ("landing eb needle", Naming::Outline, [0, 0, 1]),
+    ("static scans lamella", Naming::Box, [1, 0, 8]),
+    ("static scans lamella", Naming::Point, [0, 0, 9]),
+    ("static scans lamella", Naming::Outline, [0, 0, 9]),
+    ("approach ib needle", Naming::Box, [0, 0, 1]),
+    ("approach ib needle", Naming::Point, [0, 0, 1]),
+    ("approach ib needle", Naming::Outline, [0, 0, 1]),
+    ("approach ib lamella", Naming::Box, [0, 0, 3]),
+    ("approach ib lamella", Naming::Point, [0, 0, 3]),
+    ("approach ib lamella", Naming::Outline, [0, 0, 3]),
+    ("approach eb needle", Naming::Box, [0, 0, 0]),
+    ("approach eb needle", Naming::Point, [0, 0, 0]),
+    ("approach eb needle", Naming::Outline, [0, 0, 0]),
+    ("approach eb lamella", Naming::Box, [0, 0, 1]),
+    ("approach eb lamella", Naming::Point, [0, 0, 1]),
+    ("approach eb lamella", Naming::Outline, [0, 0, 1]),
+    ("contact_1 needle, noisy views", Naming::Box, [0, 2, 5]),
+    ("contact_1 needle, noisy views", Naming::Point, [0, 0, 4]),
+    ("contact_1 needle, noisy views", Naming::Outline, [0, 0, 2]),
+    ("approach eb lamella, noisy views", Naming::Box, [0, 0, 1]),
+    ("approach eb lamella, noisy views", Naming::Point, [0, 0, 1]),
+    ("approach eb lamella, noisy views", Naming::Outline, [0, 0, 1]),
+    ("contact_1 needle, noisy views, draw 2", Naming::Box, [0, 0, 2]),
+    ("contact_1 needle, noisy views, draw 2", Naming::Point, [0, 0, 1]),
+    (
+        "contact_1 needle, noisy views, draw 2",
+        Naming::Outline,
+        [0, 1, 5],
+    ),
+    ("approach eb lamella, noisy views, draw 2", Naming::Box, [0, 1, 1]),
+    (
+        "approach eb lamella, noisy views, draw 2",
+        Naming::Point,
+        [0, 0, 1],
+    ),
+    (
+        "approach eb lamella, noisy views, draw 2",
+        Naming::Outline,
+        [0, 0, 1],
+    ),
+    ("contact_1 needle, noisy views, draw 3", Naming::Box, [0, 0, 1]),
+    ("contact_1 needle, noisy views, draw 3", Naming::Point, [0, 0, 1]),
+    (
+        "contact_1 needle, noisy views, draw 3",
+        Naming::Outline,
+        [0, 1, 3],
+    ),
+    ("approach eb lamella, noisy views, draw 3", Naming::Box, [0, 1, 3]),
+    (
+        "approach eb lamella, noisy views, draw 3",
+        Naming::Point,
+        [0, 0, 3],
+    ),
+    (
+        "approach eb lamella, noisy views, draw 3",
+        Naming::Outline,
+        [0, 0, 1],
+    ),
+    ("contact_1 needle, noisy views, draw 4", Naming::Box, [0, 0, 2]),
+    ("contact_1 needle, noisy views, draw 4", Naming::Point, [0, 2, 5]),
+    (
+        "contact_1 needle, noisy views, draw 4",
+        Naming::Outline,
+        [0, 0, 1],
+    ),
+    ("approach eb lamella, noisy views, draw 4", Naming::Box, [0, 0, 1]),
+    (
+        "approach eb lamella, noisy views, draw 4",
+        Naming::Point,
+        [0, 0, 1],
+    ),
+    (
+        "approach eb lamella, noisy views, draw 4",
+        Naming::Outline,
+        [0, 0, 1],
+    ),
+];
+
 /// Least RMS of error over standard error over the development and the
 /// held-out pairs with a number on the object (see
 /// [`liftout_sequences_count_confident_wrong_and_false_alarms`]).
@@ -974,9 +1118,24 @@ const MIN_OVER_REPORT: f64 = 0.6;
 /// to their errors: over the development static scans' pairs with a
 /// number whose contour is on the object, the RMS of error over standard
 /// error within a factor of 1.5 of 1, and over all the development and
-/// held-out ones at least [`MIN_OVER_REPORT`].
+/// held-out ones at least [`MIN_OVER_REPORT`]. The first pair's disparity
+/// a whole pixel ([`FIRST_DISPARITIES`]).
 #[test]
 fn liftout_sequences_count_confident_wrong_and_false_alarms() {
+    count_sequences(FIRST_DISPARITIES[0], CEILINGS);
+}
+
+/// [`liftout_sequences_count_confident_wrong_and_false_alarms`] with the
+/// first pair's disparity half a pixel past a whole one, held to
+/// [`HALF_PIXEL_CEILINGS`].
+#[test]
+fn liftout_sequences_from_half_a_pixel_count_confident_wrong_and_false_alarms() {
+    count_sequences(FIRST_DISPARITIES[1], HALF_PIXEL_CEILINGS);
+}
+
+/// The sequence table's run with the first pair's disparity `first`, held
+/// to `ceilings` (see [`liftout_sequences_count_confident_wrong_and_false_alarms`]).
+fn count_sequences(first: f64, ceilings: &[(&str, Naming, [usize; 3])]) {
     let params = TrackerParams::default();
     let mut report = Vec::new();
     // Per rule: pairs withheld and false alarms, development and held out.
@@ -987,6 +1146,10 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     // each view).
     let mut z_scores: [Vec<f64>; 3] = Default::default();
     for seq in sequences() {
+        let seq = Sequence {
+            first_disparity: first,
+            ..seq
+        };
         for naming in [Naming::Box, Naming::Point, Naming::Outline] {
             let (judged, c) = run(&seq, naming, &params);
             let on_object: Vec<f64> = judged
@@ -1009,6 +1172,7 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
             report.push((seq.name, seq.held_out, naming, c));
         }
     }
+    eprintln!("\nThe first pair's disparity {first:.2} px:");
     eprintln!("\n| sequence | held out | named by | pairs | with a number | confident wrong | withheld | of them false alarms | RMS error px | RMS error/std |");
     eprintln!("|---|---|---|---|---|---|---|---|---|---|");
     for (name, held, naming, c) in &report {
@@ -1041,7 +1205,7 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     let calibration = rms(&z_scores[2]);
     assert!(
         z_scores[2].len() >= 8 && (1.0 / 1.5..=1.5).contains(&calibration),
-        "static scans: RMS error/std {calibration:.2} over {} pairs (expected within a factor 1.5 of 1, 8 pairs or more)",
+        "static scans from {first} px: RMS error/std {calibration:.2} over {} pairs (expected within a factor 1.5 of 1, 8 pairs or more)",
         z_scores[2].len()
     );
     // Not yet within the factor: the pairs with a number over-report
@@ -1052,18 +1216,18 @@ fn liftout_sequences_count_confident_wrong_and_false_alarms() {
     for (set, z) in ["development", "held out"].iter().zip(&z_scores) {
         assert!(
             rms(z) >= MIN_OVER_REPORT,
-            "{set}: RMS error/std {:.2} (at least {MIN_OVER_REPORT})",
+            "{set} from {first} px: RMS error/std {:.2} (at least {MIN_OVER_REPORT})",
             rms(z)
         );
     }
     for (name, _, naming, c) in &report {
-        let &(_, _, [wrong, alarms, withheld]) = CEILINGS
+        let &(_, _, [wrong, alarms, withheld]) = ceilings
             .iter()
             .find(|(n, m, _)| n == name && m == naming)
             .unwrap_or_else(|| panic!("no ceiling for {name} [{naming:?}]"));
         assert!(
             c.confident_wrong <= wrong && c.false_alarms <= alarms && c.pairs - c.with_number <= withheld,
-            "{name} [{naming:?}]: {} confident wrong (at most {wrong}), {} false alarms (at most {alarms}), {} withheld (at most {withheld})",
+            "{name} [{naming:?}] from {first} px: {} confident wrong (at most {wrong}), {} false alarms (at most {alarms}), {} withheld (at most {withheld})",
             c.confident_wrong,
             c.false_alarms,
             c.pairs - c.with_number
