@@ -410,7 +410,6 @@ pub fn sequences() -> Vec<Sequence> {
         let noisy = Sequence {
             name,
             noise_draw: Some(noise_draw),
-            first_disparity: FIRST_DISPARITIES[0],
             ..base.clone()
         };
         all.push(noisy);
