@@ -108,8 +108,6 @@ pub struct Sequence {
     /// next. None for none; the frame's own noise stays shared by both
     /// views.
     pub noise_draw: Option<u64>,
-    /// The first pair's known disparity (see [`known_disparity_from`]).
-    pub first_disparity: f64,
 }
 
 /// The first pair's known disparity in the sequence table's two runs,
@@ -236,7 +234,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: regrade.clone(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "landing eb needle, brightness",
@@ -249,7 +246,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: regrade,
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "contact_1 needle from 3",
@@ -262,7 +258,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "contact_1 needle",
@@ -275,7 +270,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "landing ib needle",
@@ -288,7 +282,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "static scans needle",
@@ -301,7 +294,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: false,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "landing eb needle",
@@ -314,7 +306,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "static scans lamella",
@@ -327,7 +318,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach ib needle",
@@ -340,7 +330,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach ib lamella",
@@ -353,7 +342,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach eb needle",
@@ -366,7 +354,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
         Sequence {
             name: "approach eb lamella",
@@ -379,7 +366,6 @@ pub fn sequences() -> Vec<Sequence> {
             held_out: true,
             grey: Vec::new(),
             noise_draw: None,
-            first_disparity: FIRST_DISPARITIES[0],
         },
     ];
     // As a tilt pair's two scans: each view with noise of its own, in four
@@ -596,8 +582,15 @@ fn judge(result: &PairResult, reference: &[Point], truth: f64, w: u32, h: u32) -
 }
 
 /// Tracks `seq` with the object named by `naming`, judges every pair and
-/// writes overlays to `$SEMDEPTH_REAL_OVERLAYS` when set.
+/// writes overlays to `$SEMDEPTH_REAL_OVERLAYS` when set; the first pair's
+/// disparity the first of [`FIRST_DISPARITIES`].
 pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judged>, Counts) {
+    run_from(seq, naming, params, FIRST_DISPARITIES[0])
+}
+
+/// [`run`] with the first pair's known disparity `first` (see
+/// [`known_disparity_from`]).
+pub fn run_from(seq: &Sequence, naming: Naming, params: &TrackerParams, first: f64) -> (Vec<Judged>, Counts) {
     let outlines = outlines();
     let mut params = params.clone();
     match naming {
@@ -624,7 +617,7 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
             Some(&(gain, offset)) => load(rel).regraded(gain, offset),
             None => load(rel),
         };
-        let d = known_disparity_from(seq.first_disparity, k);
+        let d = known_disparity_from(first, k);
         let (right, truth) = match &seq.rights {
             None => (shifted_x(&left, d), d),
             Some(rights) => {
@@ -657,7 +650,17 @@ pub fn run(seq: &Sequence, naming: Naming, params: &TrackerParams) -> (Vec<Judge
         counts.confident_wrong += j.confident_wrong as usize;
         counts.false_alarms += j.false_alarm as usize;
         if let Ok(dir) = std::env::var("SEMDEPTH_REAL_OVERLAYS") {
-            write_overlay(&dir, seq, naming, k, [&left, &right], reference, truth, &result);
+            write_overlay(
+                &dir,
+                seq,
+                naming,
+                first,
+                k,
+                [&left, &right],
+                reference,
+                truth,
+                &result,
+            );
         }
         eprintln!(
             "{} [{:?}] pair {k}: {} {} IoU {:.3} (inside {:.2}){} err {} std {} contour err {}{}{}",
@@ -687,6 +690,7 @@ fn write_overlay(
     dir: &str,
     seq: &Sequence,
     naming: Naming,
+    first: f64,
     k: usize,
     [left, right]: [&GrayFrame; 2],
     reference: &[Point],
@@ -717,10 +721,10 @@ fn write_overlay(
         (frame, overlays)
     });
     // The run from a whole pixel keeps the names docs/real/ links to.
-    let from = if seq.first_disparity == FIRST_DISPARITIES[0] {
+    let from = if first == FIRST_DISPARITIES[0] {
         String::new()
     } else {
-        format!("_from_{:.2}", seq.first_disparity)
+        format!("_from_{first:.2}")
     };
     let name = format!("{}_{:?}{from}_{k:02}.png", seq.name.replace(' ', "_"), naming).to_lowercase();
     write_side_by_side(
@@ -1132,12 +1136,8 @@ fn count_sequences(which: usize) {
     // each view).
     let mut z_scores: [Vec<f64>; 3] = Default::default();
     for seq in sequences() {
-        let seq = Sequence {
-            first_disparity: first,
-            ..seq
-        };
         for naming in [Naming::Box, Naming::Point, Naming::Outline] {
-            let (judged, c) = run(&seq, naming, &params);
+            let (judged, c) = run_from(&seq, naming, &params, first);
             let on_object: Vec<f64> = judged
                 .iter()
                 .filter(|j| j.iou >= ON_OBJECT_IOU)
