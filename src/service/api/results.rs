@@ -115,7 +115,10 @@ pub struct PairResult {
     /// What happened.
     pub status: Status,
     /// Why the pair is lost, or `reacquired` on a tracked pair whose object
-    /// was found again by its template after a loss; null otherwise.
+    /// was found again by its template after a loss, or `found afresh where
+    /// it was last seen, after a change of tone` on an initialised pair
+    /// whose object was lost and then initialised afresh after the
+    /// microscope changed its tone curve; null otherwise.
     pub reason: Option<String>,
     /// The left contour (null when nothing was found).
     pub left: Option<ImageResult>,

@@ -38,7 +38,7 @@ use crate::scatter::Measured;
 pub use first_pair::{ELONGATED, FREE_FIT_MIN_IOU, MIN_SPREAD_RATIO, REFUSED_INITS};
 pub use params::{TrackerParams, STD_GROWTH};
 pub use result::{
-    ImageResult, PairResult, Status, TrackError, DISPARITY_STD_FLOOR_PX, REACQUIRED, UNCERTAIN,
+    ImageResult, PairResult, Status, TrackError, DISPARITY_STD_FLOOR_PX, FOUND_AFRESH, REACQUIRED, UNCERTAIN,
 };
 pub use state::REACQUIRE_PAIRS;
 pub use state::{Phase, TrackerState};
@@ -285,7 +285,12 @@ impl StereoTracker {
                 let result = self.reacquire(frame, (left, right), smoothed, state, &templates);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
-                result
+                // Not found by its template: after a change of tone, afresh
+                // where it was last seen.
+                match result.status {
+                    Status::Lost => self.found_afresh_where_lost(frame, left, right).unwrap_or(result),
+                    _ => result,
+                }
             }
             (_, templates) => {
                 self.template = templates;

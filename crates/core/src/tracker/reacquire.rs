@@ -1,16 +1,19 @@
 //! After a loss: the object sought by its own template over the hint box,
 //! then the whole image, and taken where both views show it as on its
-//! first pair.
+//! first pair; after a change of the frame's tone curve that no gain and
+//! offset explain, initialised afresh where it was last seen.
 
 use crate::energy::INTENSITY_OFFSET;
-use crate::fit::{fit_rigid, Pose, RigidSearch, RigidTemplate};
+use crate::fit::{fit_rigid, place, Pose, RigidSearch, RigidTemplate};
+use crate::geometry::{polygon_iou, Polygon};
 use crate::imageio::GrayFrame;
+use crate::init::initialise;
 use crate::occlusion::{
     edgeless, grey_change, grey_quantiles, judge_look, GreyMap, SectorReference, SectorTemplate,
 };
 use crate::region::{PixelRect, PrefixSums};
 
-use super::result::{PairResult, Status, REACQUIRED};
+use super::result::{PairResult, Status, FOUND_AFRESH, REACQUIRED};
 use super::state::{Phase, TrackerState, REACQUIRE_PAIRS};
 use super::std_error::{fixed_share, noise_bands};
 use super::view_fit::{either, fraction, masked_fit, ImageFit};
@@ -42,6 +45,21 @@ pub(super) const REACQUIRE_OCCLUDED_FRACTION: f64 = 0.4;
 /// search looks everywhere, with no prediction to hold the pose: a needle's
 /// shank matched along its axis, its tip inside the shank, keeps 9-21%.
 pub(super) const MIN_FIXED_SHARE: f64 = 0.25;
+
+/// Largest share of a frame's grey levels that a gain and offset from the
+/// template's first pair may leave unexplained ([`GreyMap::unexplained`])
+/// before a lost object the search does not find is initialised afresh
+/// where it was last seen ([`StereoTracker::found_afresh_where_lost`]):
+/// between the real sequences' frames 0.011 at most, after a regrade of
+/// 8-bit levels 0.012; after the contact sequence's tone change
+/// 0.079-0.104.
+pub const MAX_UNEXPLAINED_GREY: f64 = 0.03;
+
+/// Least IoU of an object initialised afresh after a failed search with
+/// the outline it was last seen with
+/// ([`StereoTracker::found_afresh_where_lost`]): the usual overlap at which
+/// two regions name one object.
+pub const AFRESH_MIN_IOU: f64 = 0.5;
 
 /// How many of the lowest local minima of the template's energy over the
 /// image the search after a loss fits: the first count, then up to the
@@ -305,5 +323,78 @@ impl StereoTracker {
             result.reason = Some(REACQUIRED.into());
         }
         result
+    }
+
+    /// A pair on which the search found no template, after a change of the
+    /// frame's grey levels since the template's first pair that no gain
+    /// and offset explain ([`GreyMap::unexplained`] over
+    /// [`MAX_UNEXPLAINED_GREY`]): the looks the search judges by cannot be
+    /// mapped back, and the template may no longer be the object's shape
+    /// in grey (the real needle after the microscope's tone change, darker
+    /// now than the substrate below it: its template, shaped by the first
+    /// frame's light and shade, matched elsewhere, and the box the person
+    /// drew on the first frame then framed the trench). The object is
+    /// initialised afresh from the outline it was last seen with: its
+    /// template at the last left pose, given as the `outline` hint (a
+    /// lasso, moved onto the edges near it; its part on the image border
+    /// drawn past it), the fits kept to where that outline lies. The fresh
+    /// region must overlap that outline by [`AFRESH_MIN_IOU`], and the
+    /// first pair's checks and [`Self::refuse_unlike_lost`] judge it as any
+    /// fresh start; its reason is [`FOUND_AFRESH`]. `None`, with the
+    /// search's state and template kept, when it is not taken.
+    pub(super) fn found_afresh_where_lost(
+        &mut self,
+        frame: u64,
+        left: &GrayFrame,
+        right: &GrayFrame,
+    ) -> Option<PairResult> {
+        let state = self
+            .state
+            .as_ref()
+            .filter(|s| matches!(s.phase, Phase::Searching { .. }))?;
+        let first = state.grey_quantiles?[0];
+        let now = grey_quantiles(left);
+        let retoned = GreyMap::between(&first, &now)
+            .is_some_and(|map| map.unexplained(&first, &now) > MAX_UNEXPLAINED_GREY);
+        if !retoned {
+            return None;
+        }
+        let last = Polygon::new(place(&state.template, state.left));
+        let [x0, y0, x1, y1] = PixelRect::full(left).extent();
+        let on = RigidTemplate::ON_BORDER_PX;
+        let past = |v: f64, lo: f64, hi: f64| {
+            if v < lo + on {
+                lo - 1.0
+            } else if v > hi - on {
+                hi + 1.0
+            } else {
+                v
+            }
+        };
+        let lasso = last
+            .points
+            .iter()
+            .map(|&[x, y]| [past(x, x0, x1), past(y, y0, y1)]);
+        let mut hints = self.params.init.clone();
+        (hints.roi, hints.point, hints.exclude) = (None, None, Vec::new());
+        hints.outline = Some(lasso.collect());
+        let found = initialise(left, &hints).ok()?;
+        if polygon_iou(&found.contour, &last) < AFRESH_MIN_IOU {
+            return None;
+        }
+        let kept = (
+            self.state.clone(),
+            self.template.clone(),
+            self.last_profile.clone(),
+        );
+        let named = std::mem::replace(&mut self.params.init, hints);
+        let mut result = self.initialise_found(frame, left, right, found);
+        self.params.init = named;
+        if result.status == Status::Lost {
+            (self.state, self.template, self.last_profile) = kept;
+            return None;
+        }
+        result.reason.get_or_insert_with(|| FOUND_AFRESH.into());
+        Some(result)
     }
 }

@@ -21,6 +21,11 @@ pub const DISPARITY_STD_FLOOR_PX: f64 = 0.02;
 /// after a loss.
 pub const REACQUIRED: &str = "reacquired";
 
+/// Reason of an initialised pair whose object, lost and not found by its
+/// template after a change of the frame's tone curve, was initialised
+/// afresh where it was last seen.
+pub const FOUND_AFRESH: &str = "found afresh where it was last seen, after a change of tone";
+
 /// Reason of a pair whose disparity is too uncertain to report (see
 /// [`TrackerParams::max_disparity_std_px`]); the reason goes on after a colon.
 pub const UNCERTAIN: &str = "uncertain";
@@ -82,7 +87,9 @@ pub struct PairResult {
     /// What happened.
     pub status: Status,
     /// Why the pair is lost, or `reacquired` on a tracked pair whose object
-    /// was found again by its template after a loss; null otherwise.
+    /// was found again by its template after a loss, or [`FOUND_AFRESH`] on
+    /// an initialised pair whose object was initialised afresh where it was
+    /// last seen after a change of tone; null otherwise.
     pub reason: Option<String>,
     /// The left contour (null when nothing was found).
     pub left: Option<ImageResult>,

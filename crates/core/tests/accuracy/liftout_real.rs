@@ -847,8 +847,8 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     // sectors, and the difference of their masked runs' shifts counts once
     // (each view's had withheld all three pairs).
     ("contact_1 needle from 3", Naming::Point, [[0, 0, 0], [0, 0, 0]]),
-    ("contact_1 needle", Naming::Box, [[0, 0, 2], [0, 0, 2]]),
-    ("contact_1 needle", Naming::Point, [[0, 0, 1], [0, 3, 5]]),
+    ("contact_1 needle", Naming::Box, [[0, 0, 1], [0, 0, 1]]),
+    ("contact_1 needle", Naming::Point, [[0, 0, 1], [0, 4, 4]]),
     ("landing ib needle", Naming::Box, [[0, 0, 0], [0, 0, 0]]),
     ("landing ib needle", Naming::Point, [[0, 0, 0], [0, 0, 0]]),
     ("static scans needle", Naming::Box, [[0, 0, 2], [0, 0, 2]]),
@@ -935,12 +935,12 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     (
         "contact_1 needle, noisy views",
         Naming::Box,
-        [[0, 1, 5], [0, 2, 5]],
+        [[0, 1, 3], [0, 3, 4]],
     ),
     (
         "contact_1 needle, noisy views",
         Naming::Point,
-        [[0, 1, 4], [0, 0, 4]],
+        [[0, 1, 1], [0, 0, 1]],
     ),
     (
         "contact_1 needle, noisy views",
@@ -973,7 +973,7 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     (
         "contact_1 needle, noisy views, draw 2",
         Naming::Box,
-        [[0, 0, 2], [0, 0, 2]],
+        [[0, 0, 1], [0, 0, 1]],
     ),
     (
         "contact_1 needle, noisy views, draw 2",
@@ -983,7 +983,7 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     (
         "contact_1 needle, noisy views, draw 2",
         Naming::Outline,
-        [[0, 1, 5], [0, 1, 5]],
+        [[0, 2, 5], [0, 2, 5]],
     ),
     (
         "approach eb lamella, noisy views, draw 2",
@@ -1013,7 +1013,7 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     (
         "contact_1 needle, noisy views, draw 3",
         Naming::Outline,
-        [[0, 1, 3], [0, 1, 3]],
+        [[0, 1, 1], [0, 1, 1]],
     ),
     (
         "approach eb lamella, noisy views, draw 3",
@@ -1033,12 +1033,12 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     (
         "contact_1 needle, noisy views, draw 4",
         Naming::Box,
-        [[0, 0, 2], [0, 0, 2]],
+        [[0, 0, 1], [0, 0, 1]],
     ),
     (
         "contact_1 needle, noisy views, draw 4",
         Naming::Point,
-        [[0, 1, 4], [0, 2, 5]],
+        [[0, 1, 3], [0, 2, 4]],
     ),
     (
         "contact_1 needle, noisy views, draw 4",
@@ -1298,6 +1298,47 @@ fn a_lost_needle_is_found_again_on_the_next_pair_through_a_change_of_brightness(
             e.abs() < 0.1,
             "grey {grade:?}: disparity {e:+.3} px off (limit 0.1 px)"
         );
+    }
+}
+
+/// Item 3 of issue #64 through a change of tone that no gain and offset
+/// explain: from frame 4 of contact_1 the needle is darker than the
+/// substrate below it, its template (shaped by the first frame's light and
+/// shade) matches elsewhere and its looks cannot be mapped back. Named by
+/// a box, a point and a lasso, from both first disparities, over the whole
+/// sequence and from frame 3: no pair's search misses the needle, and a
+/// needle initialised afresh after a loss has its contour on it (IoU at
+/// least 0.85 of the first pair's) and its disparity within 0.2 px. Before
+/// the needle was initialised afresh where it was last seen, named by a
+/// box it was lost from pair 5 on.
+#[test]
+#[ignore = "full accuracy suite"]
+fn a_needle_lost_after_a_tone_change_is_found_afresh_on_the_next_pair() {
+    for name in ["contact_1 needle", "contact_1 needle from 3"] {
+        let seq = sequence(name);
+        for naming in [Naming::Box, Naming::Point, Naming::Outline] {
+            for first in FIRST_DISPARITIES {
+                let (judged, _) = run_from(&seq, naming, &TrackerParams::default(), first);
+                let first_iou = judged[0].iou;
+                for (k, j) in judged.iter().enumerate() {
+                    let at = format!("{name} {naming:?} from {first} px, pair {k}");
+                    let missed = j
+                        .reason
+                        .as_deref()
+                        .is_some_and(|r| r.contains("template was not found"));
+                    assert!(!missed, "{at}: {:?}", j.reason);
+                    if k > 0 && j.status == Status::Initialised {
+                        assert!(
+                            j.iou >= 0.85 * first_iou,
+                            "{at}: IoU {:.3} against {first_iou:.3}",
+                            j.iou
+                        );
+                        let e = j.error.expect("a number");
+                        assert!(e.abs() <= 0.2, "{at}: disparity {e:+.3} px off (limit 0.2 px)");
+                    }
+                }
+            }
+        }
     }
 }
 
