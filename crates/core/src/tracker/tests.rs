@@ -2,7 +2,7 @@
 use super::*;
 use crate::calib::MetaWatch;
 use crate::fit::place;
-use crate::geometry::Point;
+use crate::geometry::{polygon_iou, Point, Polygon};
 use crate::region::PrefixSums;
 use crate::region::RegionSum;
 use crate::synth::{frames, Preset, Scene, Shape, SynthConfig};
@@ -686,4 +686,51 @@ fn texture_that_moves_with_the_object_and_noise_of_each_view_give_a_calibrated_s
         "RMS error/std {rms:.2} over {} pairs (expected within a factor 1.5 of 1): {z:.2?}",
         z.len()
     );
+}
+
+/// A lost object that its template does not find after a change of tone
+/// that no gain and offset explain is initialised afresh where it was
+/// last seen ([`FOUND_AFRESH`]), on the object; through a change of
+/// brightness and contrast the search finds it ([`REACQUIRED`]) and
+/// nothing starts afresh. The tone curve (as contact_1's from frame 4)
+/// stretches the upper half of the substrate's grey three times and flattens
+/// the sphere's brightness above it, so the sphere's looks no longer match.
+#[test]
+fn a_lost_object_is_found_afresh_after_a_change_of_tone_only() {
+    let pairs = sequence(Preset::Clean, Shape::Sphere, 4, 3);
+    let grade = |f: &GrayFrame, curve: &dyn Fn(f64) -> f64| GrayFrame {
+        data: f
+            .data
+            .iter()
+            .map(|&v| curve(f64::from(v)).round().clamp(0.0, 255.0) as u16)
+            .collect(),
+        ..f.clone()
+    };
+    let deciles = crate::occlusion::grey_quantiles(&pairs[0].left);
+    let (mid, top) = (deciles[4], deciles[8] + 5.0);
+    let tone = move |v: f64| mid + 3.0 * (v.min(top) - mid).max(0.0) + (v - mid).min(0.0);
+    let affine = |v: f64| 1.2 * v - 10.0;
+    for (curve, status, reason) in [
+        (&tone as &dyn Fn(f64) -> f64, Status::Initialised, FOUND_AFRESH),
+        (&affine, Status::Tracked, REACQUIRED),
+    ] {
+        let mut tracker = StereoTracker::new(TrackerParams::default());
+        let first = tracker.process(&pairs[0].left, &pairs[0].right).unwrap();
+        assert_eq!(first.status, Status::Initialised, "{first:?}");
+        let blank = GrayFrame::filled(pairs[1].right.width, pairs[1].right.height, 8, 70);
+        let lost = tracker.process(&pairs[1].left, &blank).unwrap();
+        assert_eq!(lost.status, Status::Lost, "{lost:?}");
+        let (left, right) = (grade(&pairs[2].left, curve), grade(&pairs[2].right, curve));
+        let again = tracker.process(&left, &right).unwrap();
+        assert_eq!(
+            (again.status, again.reason.as_deref()),
+            (status, Some(reason)),
+            "{again:?}"
+        );
+        let error = again.disparity_px.unwrap()[0] - pairs[2].truth.disparity_px[0];
+        assert!(error.abs() < 0.1, "{reason}: disparity {error:+.3} px off");
+        let contour = Polygon::new(again.left.as_ref().unwrap().contour.clone());
+        let iou = polygon_iou(&contour, &pairs[2].truth.left.polygon);
+        assert!(iou > 0.9, "{reason}: IoU {iou:.3}");
+    }
 }
