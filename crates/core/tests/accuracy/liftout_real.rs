@@ -847,6 +847,11 @@ const CEILINGS: &[(&str, Naming, [[usize; 3]; 2])] = &[
     // sectors, and the difference of their masked runs' shifts counts once
     // (each view's had withheld all three pairs).
     ("contact_1 needle from 3", Naming::Point, [[0, 0, 0], [0, 0, 0]]),
+    // After frame 4's tone change a needle lost is initialised afresh
+    // where it was last seen (`found_afresh_where_lost`): by a box on pair
+    // 6; by a point from 3.5 px on pair 5, its pair 6 then withheld at
+    // 0.58 px while right (one false alarm more than before, when pairs 5
+    // and 6 were lost).
     ("contact_1 needle", Naming::Box, [[0, 0, 1], [0, 0, 1]]),
     ("contact_1 needle", Naming::Point, [[0, 0, 1], [0, 4, 4]]),
     ("landing ib needle", Naming::Box, [[0, 0, 0], [0, 0, 0]]),
