@@ -282,14 +282,15 @@ impl StereoTracker {
                 let sigma = state.prefilter_sigma_px;
                 let whole = [PixelRect::full(left); 2];
                 let smoothed = prefiltered.pair(left, right, sigma, whole);
-                let result = self.reacquire(frame, (left, right), smoothed, state, &templates);
+                let (result, retoned) = self.reacquire(frame, (left, right), smoothed, state, &templates);
                 self.prefiltered = prefiltered;
                 self.template = Some(templates);
-                // Not found by its template: after a change of tone, afresh
+                // Not found by its template after a change of tone: afresh
                 // where it was last seen.
-                match result.status {
-                    Status::Lost => self.found_afresh_where_lost(frame, left, right).unwrap_or(result),
-                    _ => result,
+                if retoned {
+                    self.found_afresh_where_lost(frame, left, right).unwrap_or(result)
+                } else {
+                    result
                 }
             }
             (_, templates) => {

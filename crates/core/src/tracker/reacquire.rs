@@ -10,6 +10,7 @@ use crate::imageio::GrayFrame;
 use crate::init::initialise;
 use crate::occlusion::{
     edgeless, grey_change, grey_quantiles, judge_look, GreyMap, SectorReference, SectorTemplate,
+    GREY_QUANTILES,
 };
 use crate::region::{PixelRect, PrefixSums};
 
@@ -250,6 +251,11 @@ impl StereoTracker {
     /// reason [`REACQUIRED`] (its judgement of the sectors leaves out what
     /// changed, which the search's full fits do not). Otherwise lost; after
     /// [`REACQUIRE_PAIRS`] such pairs the next one initialises afresh.
+    /// With it, whether the search missed after a change of the left
+    /// frame's grey levels since the first pair that no gain and offset
+    /// explain ([`GreyMap::unexplained`] over [`MAX_UNEXPLAINED_GREY`], on
+    /// the frames the looks are compared on): then the caller tries
+    /// [`Self::found_afresh_where_lost`].
     pub(super) fn reacquire(
         &mut self,
         frame: u64,
@@ -257,38 +263,40 @@ impl StereoTracker {
         (left, right): (&GrayFrame, &GrayFrame),
         mut state: TrackerState,
         templates: &(RigidTemplate, SectorTemplate),
-    ) -> PairResult {
+    ) -> (PairResult, bool) {
         let (template, sectors) = templates;
         // The first pair's look in each view, seen through the change of
         // grey levels since (the looks' contrasts and grey ratios are
         // invariant to a gain, not to an offset); the right view's only
         // once the left view has shown the object.
-        let map = |view: usize, frame: &GrayFrame| {
-            state
-                .grey_quantiles
-                .and_then(|q| GreyMap::between(&q[view], &grey_quantiles(frame)))
+        let map = |view: usize, now: &[f64; GREY_QUANTILES]| {
+            state.grey_quantiles.and_then(|q| GreyMap::between(&q[view], now))
         };
+        let left_now = grey_quantiles(left);
+        let left_map = map(0, &left_now);
         let found = self
-            .search_template(
-                left,
-                templates,
-                (state.left_look(), map(0, left)),
-                state.left.theta,
-            )
+            .search_template(left, templates, (state.left_look(), left_map), state.left.theta)
             .and_then(|left_pose| {
                 let last = state.disparity();
                 let pose = self.search_right(right, template, left_pose, Some(last))?;
                 let sums = self.sums_around(right, template, pose, Self::NEAR_REACH_PX);
-                self.shows_object(&sums, sectors, (state.right_look(), map(1, right)), pose)
+                let right_map = map(1, &grey_quantiles(right));
+                self.shows_object(&sums, sectors, (state.right_look(), right_map), pose)
                     .then_some((left_pose, pose))
             });
         let Some((left_pose, right_pose)) = found else {
+            // A change of grey levels that no gain and offset explain: the
+            // looks cannot be mapped back (see `found_afresh_where_lost`).
+            let retoned = state
+                .grey_quantiles
+                .zip(left_map)
+                .is_some_and(|(q, m)| m.unexplained(&q[0], &left_now) > MAX_UNEXPLAINED_GREY);
             let missed = state.miss();
             let reason = format!(
                 "lost; its template was not found in this pair ({missed} of {REACQUIRE_PAIRS} pairs searched; then the object is initialised afresh)"
             );
             self.state = Some(state);
-            return PairResult::lost(frame, reason);
+            return (PairResult::lost(frame, reason), retoned);
         };
         let candidate = TrackerState {
             left: left_pose,
@@ -322,13 +330,12 @@ impl StereoTracker {
         } else if result.status == Status::Tracked && result.reason.is_none() {
             result.reason = Some(REACQUIRED.into());
         }
-        result
+        (result, false)
     }
 
     /// A pair on which the search found no template, after a change of the
     /// frame's grey levels since the template's first pair that no gain
-    /// and offset explain ([`GreyMap::unexplained`] over
-    /// [`MAX_UNEXPLAINED_GREY`]): the looks the search judges by cannot be
+    /// and offset explain (see [`Self::reacquire`]): the looks the search judges by cannot be
     /// mapped back, and the template may no longer be the object's shape
     /// in grey (the real needle after the microscope's tone change, darker
     /// now than the substrate below it: its template, shaped by the first
@@ -352,32 +359,16 @@ impl StereoTracker {
             .state
             .as_ref()
             .filter(|s| matches!(s.phase, Phase::Searching { .. }))?;
-        let first = state.grey_quantiles?[0];
-        let now = grey_quantiles(left);
-        let retoned = GreyMap::between(&first, &now)
-            .is_some_and(|map| map.unexplained(&first, &now) > MAX_UNEXPLAINED_GREY);
-        if !retoned {
-            return None;
-        }
         let last = Polygon::new(place(&state.template, state.left));
+        // Its vertices on the image border drawn a pixel past it.
         let [x0, y0, x1, y1] = PixelRect::full(left).extent();
-        let on = RigidTemplate::ON_BORDER_PX;
-        let past = |v: f64, lo: f64, hi: f64| {
-            if v < lo + on {
-                lo - 1.0
-            } else if v > hi - on {
-                hi + 1.0
-            } else {
-                v
-            }
-        };
-        let lasso = last
-            .points
-            .iter()
-            .map(|&[x, y]| [past(x, x0, x1), past(y, y0, y1)]);
+        let lasso = last.snapped_to_box(
+            [x0 - 1.0, y0 - 1.0, x1 + 1.0, y1 + 1.0],
+            RigidTemplate::ON_BORDER_PX + 1.0,
+        );
         let mut hints = self.params.init.clone();
         (hints.roi, hints.point, hints.exclude) = (None, None, Vec::new());
-        hints.outline = Some(lasso.collect());
+        hints.outline = Some(lasso.points);
         let found = initialise(left, &hints).ok()?;
         if polygon_iou(&found.contour, &last) < AFRESH_MIN_IOU {
             return None;
