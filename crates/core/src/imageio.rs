@@ -185,11 +185,18 @@ impl GrayFrame {
     /// rounded and clipped to the range: what a microscope's automatic
     /// brightness and contrast do between frames (useful for tests).
     pub fn regraded(&self, gain: f64, offset: f64) -> Self {
+        self.toned(|v| gain * v + offset)
+    }
+
+    /// This frame with each grey level `v` changed to `curve(v)`, rounded
+    /// and clipped to the range: a change of the tone curve (useful for
+    /// tests).
+    pub fn toned(&self, curve: impl Fn(f64) -> f64) -> Self {
         let max = f64::from(self.max_value());
         let data = self
             .data
             .iter()
-            .map(|&v| (gain * f64::from(v) + offset).round().clamp(0.0, max) as u16)
+            .map(|&v| curve(f64::from(v)).round().clamp(0.0, max) as u16)
             .collect();
         Self { data, ..*self }
     }

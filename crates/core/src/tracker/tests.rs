@@ -698,14 +698,6 @@ fn texture_that_moves_with_the_object_and_noise_of_each_view_give_a_calibrated_s
 #[test]
 fn a_lost_object_is_found_afresh_after_a_change_of_tone_only() {
     let pairs = sequence(Preset::Clean, Shape::Sphere, 4, 3);
-    let grade = |f: &GrayFrame, curve: &dyn Fn(f64) -> f64| GrayFrame {
-        data: f
-            .data
-            .iter()
-            .map(|&v| curve(f64::from(v)).round().clamp(0.0, 255.0) as u16)
-            .collect(),
-        ..f.clone()
-    };
     let deciles = crate::occlusion::grey_quantiles(&pairs[0].left);
     let (mid, top) = (deciles[4], deciles[8] + 5.0);
     let tone = move |v: f64| mid + 3.0 * (v.min(top) - mid).max(0.0) + (v - mid).min(0.0);
@@ -720,7 +712,7 @@ fn a_lost_object_is_found_afresh_after_a_change_of_tone_only() {
         let blank = GrayFrame::filled(pairs[1].right.width, pairs[1].right.height, 8, 70);
         let lost = tracker.process(&pairs[1].left, &blank).unwrap();
         assert_eq!(lost.status, Status::Lost, "{lost:?}");
-        let (left, right) = (grade(&pairs[2].left, curve), grade(&pairs[2].right, curve));
+        let (left, right) = (pairs[2].left.toned(curve), pairs[2].right.toned(curve));
         let again = tracker.process(&left, &right).unwrap();
         assert_eq!(
             (again.status, again.reason.as_deref()),
