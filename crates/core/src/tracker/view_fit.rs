@@ -3,7 +3,7 @@
 
 use crate::energy::{michelson, EnergyTerms};
 use crate::fit::{fit_rigid, CompassSearch, Pose, RigidSearch, RigidTemplate};
-use crate::geometry::{dist, Point};
+use crate::geometry::{dist, solve3, Point};
 use crate::imageio::GrayFrame;
 use crate::occlusion::{
     grown, judge_look, overhanging, risen_on_their_own, SectorReference, SectorTemplate,
@@ -51,9 +51,11 @@ pub(super) struct ImageFit {
     /// runs grown by a sector, pixels, signed (0 without a mask): a bias
     /// the noise-based standard error does not include, added to it.
     pub(super) mask_shift_px: f64,
-    /// The same with the pose moved along the disparity axis only, the
-    /// rest of it held, as the right view's fit moves along its epipolar
-    /// line: two alike views give alike shifts so (see
+    /// The same along the disparity axis only, the rest of the pose held,
+    /// as the right view's fit moves along its epipolar line: where the
+    /// energy with the grown runs is lowest along that line
+    /// ([`line_minimum`]), so that two alike views give alike shifts
+    /// whatever their phase on the pixel grid (see
     /// `StereoTracker::use_pair_noise`).
     pub(super) mask_shift_line_px: f64,
     /// For a fit with a run of sectors whose contrast rose
@@ -179,6 +181,48 @@ pub(super) fn fraction(marks: &[bool]) -> f64 {
     } else {
         marks.iter().filter(|&&m| m).count() as f64 / marks.len() as f64
     }
+}
+
+/// Half-width of the stretch of a line over which [`line_minimum`] samples
+/// an energy, pixels: four pixels, so that no one pixel boundary decides
+/// the vertex.
+const LINE_REACH_PX: f64 = 2.0;
+
+/// Where along a line the energy `energy(t)` (`t` in pixels from the pose)
+/// is lowest: the vertex of the least-squares parabola through its samples
+/// every half pixel within [`LINE_REACH_PX`]; `None` when the parabola has
+/// no minimum there or a sample is not finite. The region sums take pixels
+/// as boxes, so the energy is piecewise linear between pixel boundaries,
+/// and a compass search's minimum sticks to one of them wherever the slope
+/// is low: two views of one scene half a pixel apart, their masked runs
+/// grown alike, moved by 0.25 and 0.66 px so. The parabola's vertex moves
+/// with the image.
+fn line_minimum(energy: impl Fn(f64) -> f64) -> Option<f64> {
+    let steps = (2.0 * LINE_REACH_PX) as i32;
+    // Sums of t^k (k = 0..4) and of t^k E (k = 0..2).
+    let (mut st, mut se) = ([0.0f64; 5], [0.0f64; 3]);
+    for i in -steps..=steps {
+        let t = 0.5 * f64::from(i);
+        let e = energy(t);
+        if !e.is_finite() {
+            return None;
+        }
+        for (k, s) in st.iter_mut().enumerate() {
+            *s += t.powi(k as i32);
+        }
+        for (k, s) in se.iter_mut().enumerate() {
+            *s += t.powi(k as i32) * e;
+        }
+    }
+    // Normal equations of E = a + b t + c t^2.
+    let m = [
+        [st[0], st[1], st[2]],
+        [st[1], st[2], st[3]],
+        [st[2], st[3], st[4]],
+    ];
+    let [_, b, c] = solve3(&m, &se, 1e-12)?;
+    let vertex = -b / (2.0 * c);
+    (c > 0.0 && vertex.abs() <= LINE_REACH_PX).then_some(vertex)
 }
 
 impl StereoTracker {
@@ -559,16 +603,22 @@ impl StereoTracker {
             };
             let shift = self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near));
             // The same along the disparity axis alone, as the right view's
-            // fit moves (for the pair, see `use_pair_noise`).
-            let on_line = if near.only.is_some() {
-                shift
-            } else {
-                let along = CompassSearch {
-                    only: Some(self.disparity_axis()),
-                    ..near
-                };
-                self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &along))
+            // fit moves (for the pair, see `use_pair_noise`): the move of
+            // the masked energy's minimum along it, each located by the
+            // parabola through its samples (see `line_minimum`).
+            let axis = self.disparity_axis();
+            let m_ref = sums.reference_mean();
+            let minimum = |marks: &[bool]| {
+                line_minimum(|t| {
+                    let at = Pose {
+                        x: pose.x + t * axis[0],
+                        y: pose.y + t * axis[1],
+                        ..pose
+                    };
+                    sectors.masked_energy(&sums, at, marks, m_ref)
+                })
             };
+            let on_line = minimum(&wider).unwrap_or(shift);
             [shift, on_line]
         } else {
             [0.0; 2]
@@ -629,5 +679,36 @@ impl StereoTracker {
             })
         };
         template.lowest_on_grid(sums, &self.params.energy, [k, k], pose_at, 3)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::line_minimum;
+
+    /// Boxes of pixels make an energy piecewise linear between pixel
+    /// boundaries: here a parabola with its vertex at `s`, known only at
+    /// whole pixels and joined by straight lines. Its lowest point on an
+    /// eighth-pixel lattice (where a search stops) sticks to a whole pixel;
+    /// the fitted parabola's vertex follows `s`.
+    #[test]
+    fn a_line_minimum_follows_an_energy_known_at_whole_pixels() {
+        for s in [0.0, 0.1, 0.25, 0.3, 0.5, 0.7, 0.9] {
+            let energy = |t: f64| {
+                let k = t.floor();
+                let at = |x: f64| (x - s).powi(2);
+                at(k) + (t - k) * (at(k + 1.0) - at(k))
+            };
+            let lattice = (-16..=16).map(|i| f64::from(i) / 8.0);
+            let stuck = lattice.min_by(|a, b| energy(*a).total_cmp(&energy(*b))).unwrap();
+            assert_eq!(stuck, stuck.round(), "s {s}: the lattice's minimum {stuck}");
+            let vertex = line_minimum(energy).expect("a minimum");
+            assert!((vertex - s).abs() < 0.03, "s {s}: vertex {vertex:.3}");
+        }
+        // An exact parabola gives its vertex; a slope gives none.
+        let vertex = line_minimum(|t| 3.0 * (t - 0.37).powi(2) + 5.0).unwrap();
+        assert!((vertex - 0.37).abs() < 1e-9, "{vertex}");
+        assert!(line_minimum(|t| 2.0 * t).is_none());
+        assert!(line_minimum(|t| if t > 1.0 { f64::INFINITY } else { t * t }).is_none());
     }
 }
