@@ -603,22 +603,31 @@ impl StereoTracker {
             };
             let shift = self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &near));
             // The same along the disparity axis alone, as the right view's
-            // fit moves (for the pair, see `use_pair_noise`): the move of
-            // the masked energy's minimum along it, each located by the
-            // parabola through its samples (see `line_minimum`).
+            // fit moves (for the pair, see `use_pair_noise`): where the
+            // energy with the grown runs is lowest along that line
+            // (`line_minimum`); where it has no minimum within reach, where
+            // a search along the line stops.
             let axis = self.disparity_axis();
             let m_ref = sums.reference_mean();
-            let minimum = |marks: &[bool]| {
-                line_minimum(|t| {
-                    let at = Pose {
-                        x: pose.x + t * axis[0],
-                        y: pose.y + t * axis[1],
-                        ..pose
+            let vertex = line_minimum(|t| {
+                let at = Pose {
+                    x: pose.x + t * axis[0],
+                    y: pose.y + t * axis[1],
+                    ..pose
+                };
+                sectors.masked_energy(&sums, at, &wider, m_ref)
+            });
+            let on_line = match vertex {
+                Some(vertex) => vertex,
+                None if near.only.is_some() => shift,
+                None => {
+                    let along = CompassSearch {
+                        only: Some(axis),
+                        ..near
                     };
-                    sectors.masked_energy(&sums, at, marks, m_ref)
-                })
+                    self.signed_axis_shift(pose, masked_fit(&sums, sectors, pose, &wider, &along))
+                }
             };
-            let on_line = minimum(&wider).unwrap_or(shift);
             [shift, on_line]
         } else {
             [0.0; 2]
