@@ -609,14 +609,8 @@ impl StereoTracker {
             // a search along the line stops.
             let axis = self.disparity_axis();
             let m_ref = sums.reference_mean();
-            let vertex = line_minimum(|t| {
-                let at = Pose {
-                    x: pose.x + t * axis[0],
-                    y: pose.y + t * axis[1],
-                    ..pose
-                };
-                sectors.masked_energy(&sums, at, &wider, m_ref)
-            });
+            let vertex =
+                line_minimum(|t| sectors.masked_energy(&sums, pose.moved_along(axis, t), &wider, m_ref));
             let on_line = match vertex {
                 Some(vertex) => vertex,
                 None if near.only.is_some() => shift,
